@@ -1,0 +1,67 @@
+"""
+Environments of the ICRL benchmark, registered with gymnasium in the ``sb3_icrl`` namespace::
+
+    import gymnasium
+    import sb3_icrl.envs  # noqa: F401  (registers the ids)
+
+    env = gymnasium.make("sb3_icrl/BlockedHalfCheetah-v0")
+
+Every step's ``info["cost"]`` is the true cost (1.0 when the constraint is broken, else 0.0).
+"""
+
+import gymnasium
+
+from sb3_icrl.envs.blocked_mujoco import (
+    CONSTRAINED_FEATURE,
+    BiasedPendulumEnv,
+    BlockedAntEnv,
+    BlockedHalfCheetahEnv,
+    BlockedSwimmerEnv,
+    BlockedWalkerEnv,
+    ConstrainedFeature,
+)
+from sb3_icrl.envs.grid_world import MAPS, GridWorldEnv
+from sb3_icrl.envs.wrappers import TransitionNoiseWrapper
+
+NAMESPACE = "sb3_icrl"
+
+#: ``name -> (entry point, max_episode_steps, kwargs)`` of every registered environment
+ENV_SPECS: dict[str, tuple[str, int, dict]] = {
+    "BlockedHalfCheetah-v0": ("sb3_icrl.envs.blocked_mujoco:BlockedHalfCheetahEnv", 1000, {}),
+    "BlockedAnt-v0": ("sb3_icrl.envs.blocked_mujoco:BlockedAntEnv", 500, {}),
+    "BiasedPendulum-v0": ("sb3_icrl.envs.blocked_mujoco:BiasedPendulumEnv", 100, {}),
+    "BlockedWalker-v0": ("sb3_icrl.envs.blocked_mujoco:BlockedWalkerEnv", 500, {}),
+    "BlockedSwimmer-v0": ("sb3_icrl.envs.blocked_mujoco:BlockedSwimmerEnv", 500, {}),
+    "GridWorld-v0": ("sb3_icrl.envs.grid_world:GridWorldEnv", 50, {}),
+    "GridWorldWall-v0": ("sb3_icrl.envs.grid_world:GridWorldEnv", 50, {"map_name": "wall"}),
+    "GridWorldSquare-v0": ("sb3_icrl.envs.grid_world:GridWorldEnv", 50, {"map_name": "square"}),
+    "GridWorldBigSquare-v0": ("sb3_icrl.envs.grid_world:GridWorldEnv", 50, {"map_name": "big-square"}),
+    "GridWorldZigzag-v0": ("sb3_icrl.envs.grid_world:GridWorldEnv", 50, {"map_name": "zigzag"}),
+}
+
+
+def register_envs() -> None:
+    """Register every environment of :data:`ENV_SPECS` with gymnasium; ids already registered are left alone."""
+    for name, (entry_point, max_episode_steps, kwargs) in ENV_SPECS.items():
+        env_id = f"{NAMESPACE}/{name}"
+        if env_id not in gymnasium.registry:
+            gymnasium.register(id=env_id, entry_point=entry_point, max_episode_steps=max_episode_steps, kwargs=kwargs)
+
+
+register_envs()
+
+__all__ = [
+    "CONSTRAINED_FEATURE",
+    "ENV_SPECS",
+    "MAPS",
+    "NAMESPACE",
+    "BiasedPendulumEnv",
+    "BlockedAntEnv",
+    "BlockedHalfCheetahEnv",
+    "BlockedSwimmerEnv",
+    "BlockedWalkerEnv",
+    "ConstrainedFeature",
+    "GridWorldEnv",
+    "TransitionNoiseWrapper",
+    "register_envs",
+]

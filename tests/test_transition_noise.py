@@ -1,0 +1,145 @@
+"""TransitionNoiseWrapper: noise statistics, seeding, a really perturbed simulator, and a consistent true cost."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env as gymnasium_check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+import sb3_icrl.envs  # noqa: F401
+from sb3_icrl.envs import TransitionNoiseWrapper
+
+
+def noisy(name: str, sigma: float, **kwargs) -> TransitionNoiseWrapper:
+    return TransitionNoiseWrapper(gym.make(f"sb3_icrl/{name}", **kwargs), sigma)
+
+
+@pytest.mark.filterwarnings("ignore::UserWarning")
+@pytest.mark.parametrize("name", ["BlockedHalfCheetah-v0", "BlockedAnt-v0"])
+def test_env_checkers(name):
+    gymnasium_check_env(noisy(name, 0.1), skip_render_check=True)
+    sb3_check_env(noisy(name, 0.1))
+
+
+@pytest.mark.parametrize("sigma", [1e-2, 1e-1])
+def test_noise_statistics(sigma):
+    # HalfCheetah's observation is (qpos, qvel): a noiseless twin shows the noise exactly
+    env, twin = noisy("BlockedHalfCheetah-v0", sigma), gym.make("sb3_icrl/BlockedHalfCheetah-v0")
+    differences = []
+    for seed in range(150):
+        env.reset(seed=seed)
+        twin.reset(seed=seed)
+        action = np.full(6, 0.3)
+        obs, *_ = env.step(action)
+        clean, *_ = twin.step(action)
+        np.testing.assert_allclose(obs - clean, env.last_noise, atol=1e-12)
+        differences.append(obs - clean)
+    samples = np.concatenate(differences)  # 150 x 18 = 2700 samples
+    assert abs(samples.mean()) < 4 * sigma / np.sqrt(samples.size)
+    assert samples.std() == pytest.approx(sigma, rel=0.06)
+    # Independent components: no correlation between the x noise and the others
+    per_component = np.array(differences)
+    assert np.all(np.abs(np.corrcoef(per_component.T)[0, 1:]) < 0.3)
+
+
+def test_same_seed_same_noise():
+    def rollout(seed: int) -> np.ndarray:
+        env = noisy("BlockedSwimmer-v0", 0.05)
+        env.reset(seed=seed)
+        return np.array([env.step(np.array([0.5, -0.5]))[0] for _ in range(10)])
+
+    np.testing.assert_array_equal(rollout(5), rollout(5))
+    assert not np.allclose(rollout(5), rollout(6))
+    # reset(seed) restarts the noise stream
+    env = noisy("BlockedSwimmer-v0", 0.05)
+    env.reset(seed=5)
+    first = [env.step(np.zeros(2))[0] for _ in range(3)]
+    env.reset(seed=5)
+    np.testing.assert_array_equal(first, [env.step(np.zeros(2))[0] for _ in range(3)])
+
+
+def test_noise_is_not_the_env_random_stream():
+    # Seeding the noise with the reset seed itself would replay the environment's own random stream
+    env = noisy("BlockedHalfCheetah-v0", 1.0)
+    env.reset(seed=0)
+    env.step(np.zeros(6))
+    naive = np.random.default_rng(0).normal(0.0, 1.0, size=18)
+    assert not np.allclose(env.last_noise, naive)
+
+
+def test_simulator_state_is_perturbed():
+    env, twin = noisy("BlockedWalker-v0", 0.01), gym.make("sb3_icrl/BlockedWalker-v0")
+    env.reset(seed=0)
+    twin.reset(seed=0)
+    obs, *_ = env.step(np.zeros(6))
+    np.testing.assert_array_equal(obs[:9], env.unwrapped.data.qpos)
+    # The dynamics continue from the perturbed state: a noiseless step of the simulator from there
+    qpos, qvel = env.unwrapped.data.qpos.copy(), env.unwrapped.data.qvel.copy()
+    twin.step(np.zeros(6))
+    twin.unwrapped.set_state(qpos, qvel)
+    expected, *_ = twin.step(np.zeros(6))
+    env.sigma = 0.0
+    obs, *_ = env.step(np.zeros(6))
+    np.testing.assert_allclose(obs, expected, atol=1e-12)
+
+
+def test_cost_follows_the_perturbed_state():
+    env = noisy("BlockedHalfCheetah-v0", 0.1)
+    env.reset(seed=0)
+    costs = []
+    for _ in range(100):
+        base = env.unwrapped
+        qpos = base.init_qpos.copy()
+        qpos[0] = -3.0  # on the line: the noise decides on which side the cheetah lands
+        base.set_state(qpos, np.zeros(base.model.nv))
+        obs, _, _, _, info = env.step(np.zeros(6))
+        assert info["x_position"] == obs[0] == base.data.qpos[0]
+        assert info["cost"] == float(info["x_position"] <= -3.0)
+        costs.append(info["cost"])
+    assert 20 < sum(costs) < 80
+
+
+def test_ant_positions_and_quaternion():
+    env = noisy("BlockedAnt-v0", 0.1)
+    env.reset(seed=0)
+    obs, _, _, _, info = env.step(np.zeros(8))
+    qpos = env.unwrapped.data.qpos
+    assert np.linalg.norm(qpos[3:7]) == pytest.approx(1.0)
+    assert (info["x_position"], info["y_position"]) == (qpos[0], qpos[1]) == (obs[0], obs[1])
+    assert info["distance_from_origin"] == pytest.approx(np.hypot(qpos[0], qpos[1]))
+
+
+def test_observation_noise_on_other_box_envs():
+    env, twin = TransitionNoiseWrapper(gym.make("Pendulum-v1"), 0.05), gym.make("Pendulum-v1")
+    env.reset(seed=0)
+    twin.reset(seed=0)
+    obs, *_ = env.step(np.zeros(1))
+    clean, *_ = twin.step(np.zeros(1))
+    expected = np.clip(clean + env.last_noise, env.observation_space.low, env.observation_space.high)
+    np.testing.assert_allclose(obs, expected, rtol=1e-6)
+    assert obs.dtype == env.observation_space.dtype and not np.allclose(obs, clean)
+
+
+def test_zero_sigma_changes_nothing():
+    env, twin = noisy("BlockedHalfCheetah-v0", 0.0), gym.make("sb3_icrl/BlockedHalfCheetah-v0")
+    env.reset(seed=2)
+    twin.reset(seed=2)
+    for _ in range(5):
+        np.testing.assert_array_equal(env.step(np.ones(6))[0], twin.step(np.ones(6))[0])
+
+
+@pytest.mark.parametrize("sigma", [-0.1, float("nan"), float("inf")])
+def test_bad_sigma(sigma):
+    with pytest.raises(ValueError, match="sigma"):
+        noisy("BlockedHalfCheetah-v0", sigma)
+
+
+def test_discrete_env_is_refused():
+    with pytest.raises(TypeError, match="Box observation space"):
+        TransitionNoiseWrapper(gym.make("sb3_icrl/GridWorld-v0"), 0.1)
+
+
+def test_observation_wrapper_below_is_refused():
+    env = gym.wrappers.NormalizeObservation(gym.make("sb3_icrl/BlockedHalfCheetah-v0"))
+    with pytest.raises(ValueError, match="apply TransitionNoiseWrapper first"):
+        TransitionNoiseWrapper(env, 0.1)
