@@ -1,0 +1,60 @@
+"""A tiny constrained env for tests and examples: reward pulls right, the cost forbids the far end."""
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+
+class ConstrainedCorridorEnv(gym.Env):
+    """
+    A corridor of cells ``0 .. length - 1``; the agent starts in cell 0 and moves left, stays or moves right.
+
+    Each step pays ``x / (length - 1)`` (further right is better) and costs 1.0 in ``info["cost"]`` when the agent
+    stands on a cell ``x > safe_limit``. Unconstrained, the best policy runs to the end and collects a cost almost
+    every step; with a small episode budget it must stop at ``safe_limit``. PPO learns it in a few thousand steps.
+
+    Observation: ``[x / (length - 1), t / max_steps]``. Actions: ``0`` left, ``1`` stay, ``2`` right.
+    Episodes are truncated after ``max_steps`` steps.
+
+    :param length: Number of cells
+    :param safe_limit: Last safe cell; cells to its right cost 1 per step
+    :param max_steps: Episode length
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, length: int = 11, safe_limit: int = 6, max_steps: int = 20):
+        if length < 2 or not 0 <= safe_limit < length - 1:
+            raise ValueError(
+                f"Need length >= 2 and 0 <= safe_limit < length - 1, got length={length}, safe_limit={safe_limit}."
+            )
+        if max_steps < 1:
+            raise ValueError(f"`max_steps` must be >= 1, got {max_steps}.")
+        self.length = length
+        self.safe_limit = safe_limit
+        self.max_steps = max_steps
+        self.observation_space = spaces.Box(0.0, 1.0, shape=(2,), dtype=np.float32)
+        self.action_space = spaces.Discrete(3)
+        self.position = 0
+        self.steps = 0
+
+    def _obs(self) -> np.ndarray:
+        return np.array([self.position / (self.length - 1), self.steps / self.max_steps], dtype=np.float32)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        self.position = 0
+        self.steps = 0
+        return self._obs(), {"x_position": self.position}
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        if not self.action_space.contains(action):
+            raise ValueError(f"Invalid action {action!r}: expected 0 (left), 1 (stay) or 2 (right).")
+        self.position = int(np.clip(self.position + int(action) - 1, 0, self.length - 1))
+        self.steps += 1
+        reward = self.position / (self.length - 1)
+        cost = float(self.position > self.safe_limit)
+        info = {"cost": cost, "x_position": self.position}
+        return self._obs(), reward, False, self.steps >= self.max_steps, info

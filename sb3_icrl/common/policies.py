@@ -1,0 +1,138 @@
+"""Actor-critic policies with an extra cost critic (one output per constraint)."""
+
+from functools import partial
+from typing import Any
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, NatureCNN, create_mlp
+from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
+from torch import nn
+
+FUSED_OPTIMIZERS = (th.optim.Adam, th.optim.AdamW, th.optim.SGD)
+
+
+class CostActorCriticPolicy(ActorCriticPolicy):
+    """
+    SB3's ``ActorCriticPolicy`` plus a cost critic ``V_c(s)`` with one output per constraint.
+
+    The cost critic is a network of its own (own features extractor and MLP): its loss never changes the actor or
+    the reward critic, so with a zero Lagrange multiplier the actor-critic update is exactly PPO's. It is built after
+    the actor and critic, under a forked random state, so that those get the same initial weights as in SB3 at the
+    same seed. It has its own optimizer (``cost_optimizer``, same class and settings as ``optimizer``; fused where
+    torch offers it, which makes the extra critic cheap).
+
+    :param observation_space: Observation space
+    :param action_space: Action space
+    :param lr_schedule: Learning rate schedule
+    :param n_costs: Number of constraints (outputs of the cost critic)
+    :param cost_net_arch: Hidden layers of the cost critic (default: those of the reward critic)
+    :param kwargs: Every other argument of ``ActorCriticPolicy`` (``net_arch``, ``activation_fn``, ``ortho_init``, ...)
+    """
+
+    def __init__(
+        self,
+        observation_space: spaces.Space,
+        action_space: spaces.Space,
+        lr_schedule: Schedule,
+        n_costs: int = 1,
+        cost_net_arch: list[int] | None = None,
+        **kwargs: Any,
+    ):
+        if n_costs < 1:
+            raise ValueError(f"`n_costs` must be >= 1, got {n_costs}.")
+        self.n_costs = n_costs
+        self.cost_net_arch = cost_net_arch
+        super().__init__(observation_space, action_space, lr_schedule, **kwargs)
+
+    def _reward_critic_arch(self) -> list[int]:
+        if isinstance(self.net_arch, dict):
+            return list(self.net_arch.get("vf", []))
+        return list(self.net_arch)
+
+    def _build(self, lr_schedule: Schedule) -> None:
+        super()._build(lr_schedule)
+        # Fork the RNG: the actor/critic weights and the actions sampled later stay those of PPO at the same seed
+        with th.random.fork_rng(devices=[]):
+            self.cost_features_extractor = self.make_features_extractor()
+            hidden = self.cost_net_arch if self.cost_net_arch is not None else self._reward_critic_arch()
+            self.cost_mlp = nn.Sequential(
+                *create_mlp(self.cost_features_extractor.features_dim, -1, hidden, self.activation_fn)
+            )
+            latent_dim = hidden[-1] if hidden else self.cost_features_extractor.features_dim
+            self.cost_value_net = nn.Linear(latent_dim, self.n_costs)
+            if self.ortho_init:
+                for module, gain in (
+                    (self.cost_features_extractor, np.sqrt(2)),
+                    (self.cost_mlp, np.sqrt(2)),
+                    (self.cost_value_net, 1.0),
+                ):
+                    module.apply(partial(self.init_weights, gain=gain))
+        self.cost_optimizer = self.optimizer_class(  # type: ignore[call-arg]
+            self.cost_critic_parameters(), lr=lr_schedule(1), **self._cost_optimizer_kwargs()
+        )
+
+    def _cost_optimizer_kwargs(self) -> dict[str, Any]:
+        kwargs = dict(self.optimizer_kwargs)
+        # A fused step is several times cheaper for small nets; only torch's own optimizers know the flag
+        if self.optimizer_class in FUSED_OPTIMIZERS and not {"fused", "foreach"} & set(kwargs):
+            kwargs["fused"] = True
+        return kwargs
+
+    def cost_critic_parameters(self) -> list[nn.Parameter]:
+        """The parameters of the cost critic."""
+        return [*self.cost_features_extractor.parameters(), *self.cost_mlp.parameters(), *self.cost_value_net.parameters()]
+
+    def act(self, obs: PyTorchObs, deterministic: bool = False) -> tuple[th.Tensor, th.Tensor]:
+        """
+        The actor half of ``forward``: sample actions and their log-probabilities without running the critics
+        (rollouts compute the values of all their observations in one batch afterwards). Consumes the random
+        generator exactly as ``forward`` does.
+
+        :param obs: Observation batch
+        :param deterministic: Whether to use deterministic actions
+        :return: Actions and their log-probabilities
+        """
+        features = super(ActorCriticPolicy, self).extract_features(obs, self.pi_features_extractor)
+        distribution = self._get_action_dist_from_latent(self.mlp_extractor.forward_actor(features))
+        actions = distribution.get_actions(deterministic=deterministic)
+        log_prob = distribution.log_prob(actions)
+        return actions.reshape((-1, *self.action_space.shape)), log_prob  # type: ignore[misc]
+
+    def predict_all_values(self, obs: PyTorchObs) -> tuple[th.Tensor, th.Tensor]:
+        """
+        :param obs: Observation batch
+        :return: Reward values ``(batch, 1)`` and cost values ``(batch, n_costs)``
+        """
+        return self.predict_values(obs), self.predict_cost_values(obs)
+
+    def predict_cost_values(self, obs: PyTorchObs) -> th.Tensor:
+        """
+        :param obs: Observation batch
+        :return: Estimated discounted cost-to-go per constraint, shape ``(batch, n_costs)``
+        """
+        features = super(ActorCriticPolicy, self).extract_features(obs, self.cost_features_extractor)
+        return self.cost_value_net(self.cost_mlp(features))
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        data.update(n_costs=self.n_costs, cost_net_arch=self.cost_net_arch)
+        return data
+
+
+class CostActorCriticCnnPolicy(CostActorCriticPolicy):
+    """:class:`CostActorCriticPolicy` with SB3's ``NatureCNN`` features extractor, for image observations."""
+
+    def __init__(
+        self,
+        observation_space: spaces.Space,
+        action_space: spaces.Space,
+        lr_schedule: Schedule,
+        features_extractor_class: type[BaseFeaturesExtractor] = NatureCNN,
+        **kwargs: Any,
+    ):
+        super().__init__(
+            observation_space, action_space, lr_schedule, features_extractor_class=features_extractor_class, **kwargs
+        )

@@ -1,0 +1,4 @@
+from sb3_icrl.common.policies import CostActorCriticCnnPolicy, CostActorCriticPolicy
+
+MlpPolicy = CostActorCriticPolicy
+CnnPolicy = CostActorCriticCnnPolicy

@@ -1,0 +1,567 @@
+"""PPO-Lagrangian: PPO with a cost critic and one Lagrange multiplier per constraint."""
+
+from collections import deque
+from collections.abc import Sequence
+from typing import Any, ClassVar, TypeVar
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3 import PPO
+from stable_baselines3.common.buffers import RolloutBuffer
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
+from stable_baselines3.common.utils import explained_variance, obs_as_tensor
+from stable_baselines3.common.vec_env import VecEnv
+from torch.nn import functional as F
+
+from sb3_icrl.common.buffers import CostRolloutBuffer
+from sb3_icrl.common.costs import CostFn, as_cost_array, costs_from_infos
+from sb3_icrl.common.lagrange import LagrangeMultiplier, make_lagrange_multiplier
+from sb3_icrl.common.policies import CostActorCriticPolicy
+from sb3_icrl.ppo_lagrangian.policies import CnnPolicy, MlpPolicy
+
+SelfPPOLagrangian = TypeVar("SelfPPOLagrangian", bound="PPOLagrangian")
+
+BUDGET_STATISTICS = ("episode", "step")
+# Observations per batched critic pass at the end of a rollout
+VALUE_CHUNK = 4096
+
+
+class PPOLagrangian(PPO):
+    """
+    PPO-Lagrangian (Ray et al. 2019; the forward solver of the ICRL papers): PPO whose policy maximises
+    ``(A_r - sum_i lambda_i A_c,i) / (1 + sum_i lambda_i)``, with a cost critic, cost GAE, and multipliers
+    ``lambda_i >= 0`` updated on ``J_c,i - budget_i`` before each policy update.
+
+    The per-step cost is read from ``info[cost_info_key]`` (a float, or one float per constraint), or computed by
+    ``cost_fn(observations, actions)`` batched over the envs (e.g. a learned constraint model; swap it with
+    :meth:`set_cost_fn` between ``learn()`` calls). With the multiplier held at 0 the update is exactly PPO's.
+
+    :param policy: The policy model to use (MlpPolicy, CnnPolicy, or a ``CostActorCriticPolicy`` subclass)
+    :param env: The environment to learn from (if registered in Gym, can be str)
+    :param learning_rate: Learning rate (of the actor, reward critic and cost critic), can be a schedule
+    :param n_steps: Steps per env per update
+    :param batch_size: Minibatch size
+    :param n_epochs: Epochs per update
+    :param gamma: Discount factor of the reward
+    :param gae_lambda: GAE lambda of the reward
+    :param clip_range: PPO clipping parameter, can be a schedule
+    :param clip_range_vf: Clipping of the reward and cost value functions (``None``: no clipping)
+    :param normalize_advantage: Whether to normalise the combined advantage per minibatch (as PPO does)
+    :param ent_coef: Entropy coefficient
+    :param vf_coef: Reward value loss coefficient
+    :param max_grad_norm: Max gradient norm, applied to the actor-critic and to the cost critic separately
+    :param use_sde: Whether to use generalized State Dependent Exploration
+    :param sde_sample_freq: Sample a new gSDE noise matrix every n steps (-1: only at the start of a rollout)
+    :param rollout_buffer_class: Rollout buffer class (default: ``CostRolloutBuffer``)
+    :param rollout_buffer_kwargs: Keyword arguments for the rollout buffer
+    :param target_kl: Limit the KL divergence between updates (``None``: no limit)
+    :param cost_budget: Budget per constraint (a float for one constraint, a sequence for several); its units
+        follow ``budget_statistic``
+    :param budget_statistic: ``"episode"``: ``J_c`` is the mean undiscounted cost of the episodes that ended since
+        the last multiplier update (no update while none ended); ``"step"``: the mean per-step cost of the latest
+        rollout (the ICRL reference code uses this with budget 0)
+    :param cost_gamma: Discount factor of the costs (default: ``gamma``)
+    :param cost_gae_lambda: GAE lambda of the costs (default: ``gae_lambda``)
+    :param cost_vf_coef: Cost value loss coefficient
+    :param lagrange_update: ``"gradient"`` (gradient ascent, SGD or Adam) or ``"pid"`` (Stooke et al. 2020)
+    :param lagrange_kwargs: Arguments of the multiplier: ``init``, ``lr``, ``optimizer`` (``"adam"``/``"sgd"``),
+        ``upper_bound`` for gradient; ``init``, ``kp``, ``ki``, ``kd``, ``d_delay``, ``delta_p_ema_alpha``,
+        ``delta_d_ema_alpha``, ``upper_bound`` for PID (see ``sb3_icrl.common.lagrange``)
+    :param cost_fn: Optional ``cost_fn(observations, actions) -> costs`` replacing ``info[cost_info_key]``;
+        it sees the observations the env returned (before ``VecNormalize``) and the actions sent to the env.
+        Not saved with the model: set it again after ``load``.
+    :param cost_info_key: The info key holding the per-step cost
+    :param stats_window_size: Window size for the rollout logging (episodes)
+    :param tensorboard_log: The log location for tensorboard (if None, no logging)
+    :param policy_kwargs: Additional arguments passed to the policy on creation (e.g. ``cost_net_arch``)
+    :param verbose: Verbosity level: 0 no output, 1 info messages (such as device or wrappers used), 2 debug messages
+    :param seed: Seed for the pseudo random generators
+    :param device: Device (cpu, cuda, ...) on which the code should be run.
+    :param _init_setup_model: Whether or not to build the network at the creation of the instance
+    """
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
+        "MlpPolicy": MlpPolicy,
+        "CnnPolicy": CnnPolicy,
+    }
+    policy: CostActorCriticPolicy  # type: ignore[assignment]
+    rollout_buffer: CostRolloutBuffer  # type: ignore[assignment]
+
+    def __init__(
+        self,
+        policy: str | type[CostActorCriticPolicy],
+        env: GymEnv | str,
+        learning_rate: float | Schedule = 3e-4,
+        n_steps: int = 2048,
+        batch_size: int = 64,
+        n_epochs: int = 10,
+        gamma: float = 0.99,
+        gae_lambda: float = 0.95,
+        clip_range: float | Schedule = 0.2,
+        clip_range_vf: None | float | Schedule = None,
+        normalize_advantage: bool = True,
+        ent_coef: float = 0.0,
+        vf_coef: float = 0.5,
+        max_grad_norm: float = 0.5,
+        use_sde: bool = False,
+        sde_sample_freq: int = -1,
+        rollout_buffer_class: type[RolloutBuffer] | None = None,
+        rollout_buffer_kwargs: dict[str, Any] | None = None,
+        target_kl: float | None = None,
+        cost_budget: float | Sequence[float] = 0.0,
+        budget_statistic: str = "episode",
+        cost_gamma: float | None = None,
+        cost_gae_lambda: float | None = None,
+        cost_vf_coef: float = 0.5,
+        lagrange_update: str = "gradient",
+        lagrange_kwargs: dict[str, Any] | None = None,
+        cost_fn: CostFn | None = None,
+        cost_info_key: str = "cost",
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        _init_setup_model: bool = True,
+    ):
+        super().__init__(
+            policy,
+            env,
+            learning_rate=learning_rate,
+            n_steps=n_steps,
+            batch_size=batch_size,
+            n_epochs=n_epochs,
+            gamma=gamma,
+            gae_lambda=gae_lambda,
+            clip_range=clip_range,
+            clip_range_vf=clip_range_vf,
+            normalize_advantage=normalize_advantage,
+            ent_coef=ent_coef,
+            vf_coef=vf_coef,
+            max_grad_norm=max_grad_norm,
+            use_sde=use_sde,
+            sde_sample_freq=sde_sample_freq,
+            rollout_buffer_class=rollout_buffer_class,
+            rollout_buffer_kwargs=rollout_buffer_kwargs,
+            target_kl=target_kl,
+            stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log,
+            policy_kwargs=policy_kwargs,
+            verbose=verbose,
+            seed=seed,
+            device=device,
+            _init_setup_model=False,
+        )
+        budget = np.atleast_1d(np.asarray(cost_budget, dtype=np.float64))
+        if budget.ndim != 1 or budget.size == 0 or not np.all(np.isfinite(budget)):
+            raise ValueError(f"`cost_budget` must be a finite float or a non-empty sequence of floats, got {cost_budget!r}.")
+        if budget_statistic not in BUDGET_STATISTICS:
+            raise ValueError(f"Unknown `budget_statistic` {budget_statistic!r}: use one of {BUDGET_STATISTICS}.")
+        self.cost_budget = budget
+        self.n_costs = budget.size
+        self.budget_statistic = budget_statistic
+        self.cost_gamma = gamma if cost_gamma is None else cost_gamma
+        self.cost_gae_lambda = gae_lambda if cost_gae_lambda is None else cost_gae_lambda
+        self.cost_vf_coef = cost_vf_coef
+        self.lagrange_update = lagrange_update
+        self.lagrange_kwargs = lagrange_kwargs or {}
+        self.cost_info_key = cost_info_key
+        self.cost_fn: CostFn | None = None
+        self.set_cost_fn(cost_fn)
+        self.lagrange_multiplier: LagrangeMultiplier | None = None
+        self.ep_cost_buffer: deque[np.ndarray] | None = None
+        self._current_episode_costs: np.ndarray | None = None
+        self._episode_costs_since_update: list[np.ndarray] = []
+        self._rollout_mean_step_cost: np.ndarray | None = None
+        self._env_names: list[str] = []
+
+        if _init_setup_model:
+            self._setup_model()
+
+    def _setup_model(self) -> None:
+        if isinstance(self.observation_space, spaces.Dict):
+            raise NotImplementedError("PPOLagrangian does not support Dict observation spaces yet: flatten them first.")
+        if self.policy_kwargs.get("n_costs", self.n_costs) != self.n_costs:
+            raise ValueError(
+                f"policy_kwargs['n_costs']={self.policy_kwargs['n_costs']} disagrees with the {self.n_costs} budget(s) "
+                "in `cost_budget`: leave n_costs out of policy_kwargs, it follows cost_budget."
+            )
+        # Copies: SB3 keeps the caller's dicts, which may be shared with other models
+        self.policy_kwargs = {**self.policy_kwargs, "n_costs": self.n_costs}
+        if self.rollout_buffer_class is None:
+            self.rollout_buffer_class = CostRolloutBuffer
+        if not issubclass(self.rollout_buffer_class, CostRolloutBuffer):
+            raise TypeError(f"PPOLagrangian needs a CostRolloutBuffer subclass, got {self.rollout_buffer_class.__name__}.")
+        self.rollout_buffer_kwargs = {
+            **self.rollout_buffer_kwargs,
+            "n_costs": self.n_costs,
+            "cost_gamma": self.cost_gamma,
+            "cost_gae_lambda": self.cost_gae_lambda,
+        }
+        super()._setup_model()
+        if not isinstance(self.policy, CostActorCriticPolicy):
+            raise TypeError(f"PPOLagrangian needs a CostActorCriticPolicy, got {type(self.policy).__name__}.")
+        # ``load`` restores the multiplier before calling _setup_model: keep it
+        if self.lagrange_multiplier is None:
+            self.lagrange_multiplier = make_lagrange_multiplier(
+                self.lagrange_update, self.cost_budget, self.n_costs, **self.lagrange_kwargs
+            )
+
+    def set_cost_fn(self, cost_fn: CostFn | None) -> None:
+        """
+        Use ``cost_fn(observations, actions) -> costs`` for the per-step costs from now on (``None``: read
+        ``info[cost_info_key]``). Takes effect at the next step; the model is not rebuilt.
+
+        :param cost_fn: The cost function
+        """
+        if cost_fn is not None and not callable(cost_fn):
+            raise TypeError(f"`cost_fn` must be callable as cost_fn(observations, actions) -> costs, got {cost_fn!r}.")
+        self.cost_fn = cost_fn
+
+    def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
+        return ["policy", "policy.optimizer", "policy.cost_optimizer"], []
+
+    def _excluded_save_params(self) -> list[str]:
+        # The cost function may be an arbitrary closure (e.g. over a learned constraint net saved elsewhere)
+        return [*super()._excluded_save_params(), "cost_fn", "_env_names"]
+
+    def _setup_learn(
+        self,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        reset_num_timesteps: bool = True,
+        tb_log_name: str = "run",
+        progress_bar: bool = False,
+    ) -> tuple[int, BaseCallback]:
+        env_reset = reset_num_timesteps or self._last_obs is None
+        result = super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
+        if self.ep_cost_buffer is None or reset_num_timesteps:
+            self.ep_cost_buffer = deque(maxlen=self._stats_window_size)
+        if env_reset or self._current_episode_costs is None:
+            self._current_episode_costs = np.zeros((self.n_envs, self.n_costs), dtype=np.float64)
+            self._episode_costs_since_update = []
+        assert self.env is not None
+        self._env_names = [_env_name(self.env, idx) for idx in range(self.n_envs)]
+        return result
+
+    def _step_costs(self, original_obs: np.ndarray | None, actions: np.ndarray, infos: list[dict[str, Any]]) -> np.ndarray:
+        if self.cost_fn is None:
+            return costs_from_infos(infos, self.cost_info_key, self.n_costs, self._env_names)
+        assert original_obs is not None
+        return as_cost_array(self.cost_fn(original_obs, actions), self.n_envs, self.n_costs, "cost_fn")
+
+    def _update_cost_stats(self, costs: np.ndarray, dones: np.ndarray) -> None:
+        assert self._current_episode_costs is not None and self.ep_cost_buffer is not None
+        self._current_episode_costs += costs
+        if not dones.any():
+            return
+        for env_idx in np.flatnonzero(dones):
+            episode_cost = self._current_episode_costs[env_idx].copy()
+            self.ep_cost_buffer.append(episode_cost)
+            self._episode_costs_since_update.append(episode_cost)
+            self._current_episode_costs[env_idx] = 0.0
+
+    def collect_rollouts(
+        self,
+        env: VecEnv,
+        callback: BaseCallback,
+        rollout_buffer: RolloutBuffer,
+        n_rollout_steps: int,
+    ) -> bool:
+        """
+        Collect experiences and costs with the current policy and fill a ``CostRolloutBuffer``.
+
+        SB3's on-policy loop plus per-step costs, with one change that makes it faster: the loop only runs the
+        actor; the reward and cost values of every observation (and of the final observations of time-limit
+        truncations, for bootstrapping) are computed in one batch when the rollout is complete. The critics do not
+        change during a rollout, so the values are the same (up to float rounding of batched products).
+
+        :param env: The training environment
+        :param callback: Callback that will be called at each step (and at the beginning and end of the rollout)
+        :param rollout_buffer: Buffer to fill with rollouts
+        :param n_rollout_steps: Number of experiences to collect per environment
+        :return: True if function returned with at least `n_rollout_steps` collected, False if callback
+            terminated rollout prematurely.
+        """
+        assert isinstance(rollout_buffer, CostRolloutBuffer), "PPOLagrangian needs a CostRolloutBuffer"
+        assert self._last_obs is not None, "No previous observation was provided"
+        self.policy.set_training_mode(False)
+
+        n_steps = 0
+        rollout_buffer.reset()
+        if self.use_sde:
+            self.policy.reset_noise(env.num_envs)
+
+        callback.on_rollout_start()
+        # (step, env index, final observation) of time-limit truncations, bootstrapped after the loop
+        truncations: list[tuple[int, int, np.ndarray]] = []
+        no_values = th.zeros(env.num_envs)
+
+        while n_steps < n_rollout_steps:
+            if self.use_sde and self.sde_sample_freq > 0 and n_steps % self.sde_sample_freq == 0:
+                self.policy.reset_noise(env.num_envs)
+
+            with th.no_grad():
+                obs_tensor = obs_as_tensor(self._last_obs, self.device)  # type: ignore[arg-type]
+                actions, log_probs = self.policy.act(obs_tensor)
+            actions = actions.cpu().numpy()
+
+            clipped_actions = actions
+            if isinstance(self.action_space, spaces.Box):
+                if self.policy.squash_output:
+                    clipped_actions = self.policy.unscale_action(clipped_actions)
+                else:
+                    clipped_actions = np.clip(actions, self.action_space.low, self.action_space.high)
+
+            # The cost function judges (s, a) on the env's own observation, not the normalised one
+            original_obs = None
+            if self.cost_fn is not None:
+                original_obs = self._vec_normalize_env.get_original_obs() if self._vec_normalize_env else self._last_obs
+
+            new_obs, rewards, dones, infos = env.step(clipped_actions)
+            costs = self._step_costs(original_obs, clipped_actions, infos)  # type: ignore[arg-type]
+
+            self.num_timesteps += env.num_envs
+
+            callback.update_locals(locals())
+            if not callback.on_step():
+                return False
+
+            self._update_info_buffer(infos, dones)
+            self._update_cost_stats(costs, dones)
+            n_steps += 1
+
+            if isinstance(self.action_space, spaces.Discrete):
+                actions = actions.reshape(-1, 1)
+
+            # Time-limit truncation: bootstrap reward and costs with the values of the final observation (SB3 GH#633)
+            for idx, done in enumerate(dones):
+                if (
+                    done
+                    and infos[idx].get("terminal_observation") is not None
+                    and infos[idx].get("TimeLimit.truncated", False)
+                ):
+                    truncations.append((n_steps - 1, idx, infos[idx]["terminal_observation"]))
+
+            rollout_buffer.add(
+                self._last_obs,  # type: ignore[arg-type]
+                actions,
+                rewards,
+                self._last_episode_starts,  # type: ignore[arg-type]
+                no_values,
+                log_probs,
+            )
+            rollout_buffer.add_costs(costs)
+            self._last_obs = new_obs  # type: ignore[assignment]
+            self._last_episode_starts = dones
+
+        self._rollout_mean_step_cost = rollout_buffer.costs.mean(axis=(0, 1)).astype(np.float64)
+        last_values, last_cost_values = self._finish_values(rollout_buffer, new_obs, truncations)  # type: ignore[arg-type]
+        rollout_buffer.compute_returns_and_advantage(last_values=last_values, dones=dones, last_cost_values=last_cost_values)
+
+        callback.update_locals(locals())
+        callback.on_rollout_end()
+
+        return True
+
+    def _finish_values(
+        self, rollout_buffer: CostRolloutBuffer, last_obs: np.ndarray, truncations: list[tuple[int, int, np.ndarray]]
+    ) -> tuple[th.Tensor, np.ndarray]:
+        """
+        One batched pass of both critics over the rollout's observations, the observations after its last step and
+        the final observations of truncated episodes: stores the values, bootstraps the truncated rewards and
+        costs, and returns the values of the observations after the last step.
+        """
+        obs_shape = rollout_buffer.obs_shape
+        stored = rollout_buffer.observations.reshape(-1, *obs_shape)
+        batch = [stored, np.asarray(last_obs).reshape(-1, *obs_shape)]
+        batch += [np.asarray(final_obs).reshape(-1, *obs_shape) for _, _, final_obs in truncations]
+        observations = np.concatenate(batch).astype(stored.dtype, copy=False)
+        with th.no_grad():
+            chunks = [
+                self.policy.predict_all_values(obs_as_tensor(observations[start : start + VALUE_CHUNK], self.device))
+                for start in range(0, len(observations), VALUE_CHUNK)
+            ]
+        values = th.cat([chunk[0] for chunk in chunks]).flatten().cpu().numpy()
+        cost_values = th.cat([chunk[1] for chunk in chunks]).cpu().numpy()
+
+        n_stored, n_envs = len(stored), self.n_envs
+        rollout_buffer.values[:] = values[:n_stored].reshape(rollout_buffer.values.shape)
+        rollout_buffer.set_cost_values(cost_values[:n_stored])
+        for offset, (step, env_idx, _) in enumerate(truncations):
+            final = n_stored + n_envs + offset
+            rollout_buffer.rewards[step, env_idx] += self.gamma * values[final]
+            rollout_buffer.costs[step, env_idx] += self.cost_gamma * cost_values[final]
+        last = slice(n_stored, n_stored + n_envs)
+        return th.as_tensor(values[last]), cost_values[last]
+
+    def _constraint_values(self) -> np.ndarray | None:
+        """``J_c`` per constraint in the units of the budget, or None when there is nothing to judge yet."""
+        if self.budget_statistic == "step":
+            return self._rollout_mean_step_cost
+        if not self._episode_costs_since_update:
+            return None
+        values = np.mean(self._episode_costs_since_update, axis=0)
+        self._episode_costs_since_update = []
+        return values
+
+    def _record_per_constraint(self, key: str, values: np.ndarray) -> None:
+        if self.n_costs == 1:
+            self.logger.record(key, float(values[0]))
+        else:
+            for idx, value in enumerate(values):
+                self.logger.record(f"{key}_{idx}", float(value))
+
+    def train(self) -> None:
+        """
+        Update the multipliers on the latest constraint estimate, then the policy, reward critic and cost critic
+        on the rollout buffer.
+        """
+        assert self.lagrange_multiplier is not None
+        self.policy.set_training_mode(True)
+        self._update_learning_rate([self.policy.optimizer, self.policy.cost_optimizer])
+        clip_range = self.clip_range(self._current_progress_remaining)  # type: ignore[operator]
+        if self.clip_range_vf is not None:
+            clip_range_vf = self.clip_range_vf(self._current_progress_remaining)  # type: ignore[operator]
+
+        constraint_values = self._constraint_values()
+        if constraint_values is not None:
+            self.lagrange_multiplier.update(constraint_values)
+            self._record_per_constraint("train/constraint_value", constraint_values)
+        multipliers = th.as_tensor(self.lagrange_multiplier.value, dtype=th.float32, device=self.device)
+        actor_critic_params = [param for group in self.policy.optimizer.param_groups for param in group["params"]]
+        cost_critic_params = self.policy.cost_critic_parameters()
+
+        entropy_losses, pg_losses, value_losses, cost_value_losses, clip_fractions = [], [], [], [], []
+        continue_training = True
+        for epoch in range(self.n_epochs):
+            approx_kl_divs = []
+            for rollout_data in self.rollout_buffer.get(self.batch_size):
+                actions = rollout_data.actions
+                if isinstance(self.action_space, spaces.Discrete):
+                    actions = rollout_data.actions.long().flatten()
+
+                values, log_prob, entropy = self.policy.evaluate_actions(rollout_data.observations, actions)
+                values = values.flatten()
+                # Lagrangian advantage; equal to PPO's when every multiplier is 0
+                advantages = (rollout_data.advantages - (rollout_data.cost_advantages * multipliers).sum(dim=1)) / (
+                    1.0 + multipliers.sum()
+                )
+                if self.normalize_advantage and len(advantages) > 1:
+                    advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+
+                ratio = th.exp(log_prob - rollout_data.old_log_prob)
+                policy_loss_1 = advantages * ratio
+                policy_loss_2 = advantages * th.clamp(ratio, 1 - clip_range, 1 + clip_range)
+                policy_loss = -th.min(policy_loss_1, policy_loss_2).mean()
+                pg_losses.append(policy_loss.item())
+                clip_fractions.append(th.mean((th.abs(ratio - 1) > clip_range).float()).item())
+
+                cost_values = self.policy.predict_cost_values(rollout_data.observations)
+                if self.clip_range_vf is None:
+                    values_pred, cost_values_pred = values, cost_values
+                else:
+                    values_pred = rollout_data.old_values + th.clamp(
+                        values - rollout_data.old_values, -clip_range_vf, clip_range_vf
+                    )
+                    cost_values_pred = rollout_data.old_cost_values + th.clamp(
+                        cost_values - rollout_data.old_cost_values, -clip_range_vf, clip_range_vf
+                    )
+                value_loss = F.mse_loss(rollout_data.returns, values_pred)
+                value_losses.append(value_loss.item())
+                cost_value_loss = F.mse_loss(rollout_data.cost_returns, cost_values_pred)
+                cost_value_losses.append(cost_value_loss.item())
+
+                entropy_loss = -th.mean(-log_prob) if entropy is None else -th.mean(entropy)
+                entropy_losses.append(entropy_loss.item())
+
+                loss = (
+                    policy_loss
+                    + self.ent_coef * entropy_loss
+                    + self.vf_coef * value_loss
+                    + self.cost_vf_coef * cost_value_loss
+                )
+
+                with th.no_grad():
+                    log_ratio = log_prob - rollout_data.old_log_prob
+                    approx_kl_div = th.mean((th.exp(log_ratio) - 1) - log_ratio).cpu().numpy()
+                    approx_kl_divs.append(approx_kl_div)
+
+                if self.target_kl is not None and approx_kl_div > 1.5 * self.target_kl:
+                    continue_training = False
+                    if self.verbose >= 1:
+                        print(f"Early stopping at step {epoch} due to reaching max kl: {approx_kl_div:.2f}")
+                    break
+
+                self.policy.optimizer.zero_grad()
+                self.policy.cost_optimizer.zero_grad()
+                loss.backward()
+                # Clip separately: the cost critic's gradients must not rescale the actor-critic's
+                th.nn.utils.clip_grad_norm_(actor_critic_params, self.max_grad_norm)
+                th.nn.utils.clip_grad_norm_(cost_critic_params, self.max_grad_norm)
+                self.policy.optimizer.step()
+                self.policy.cost_optimizer.step()
+
+            self._n_updates += 1
+            if not continue_training:
+                break
+
+        explained_var = explained_variance(self.rollout_buffer.values.flatten(), self.rollout_buffer.returns.flatten())
+        cost_explained_var = explained_variance(
+            self.rollout_buffer.cost_values.flatten(), self.rollout_buffer.cost_returns.flatten()
+        )
+
+        self.logger.record("train/entropy_loss", np.mean(entropy_losses))
+        self.logger.record("train/policy_gradient_loss", np.mean(pg_losses))
+        self.logger.record("train/value_loss", np.mean(value_losses))
+        self.logger.record("train/cost_value_loss", np.mean(cost_value_losses))
+        self.logger.record("train/approx_kl", np.mean(approx_kl_divs))
+        self.logger.record("train/clip_fraction", np.mean(clip_fractions))
+        self.logger.record("train/loss", loss.item())
+        self.logger.record("train/explained_variance", explained_var)
+        self.logger.record("train/cost_explained_variance", cost_explained_var)
+        self._record_per_constraint("train/lagrange_multiplier", self.lagrange_multiplier.value)
+        if hasattr(self.policy, "log_std"):
+            self.logger.record("train/std", th.exp(self.policy.log_std).mean().item())
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        self.logger.record("train/clip_range", clip_range)
+        if self.clip_range_vf is not None:
+            self.logger.record("train/clip_range_vf", clip_range_vf)
+
+    def dump_logs(self, iteration: int = 0) -> None:
+        if self.ep_cost_buffer:
+            self._record_per_constraint("rollout/ep_cost_mean", np.mean(self.ep_cost_buffer, axis=0))
+        super().dump_logs(iteration)
+
+    def learn(
+        self: SelfPPOLagrangian,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        log_interval: int = 1,
+        tb_log_name: str = "PPOLagrangian",
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+    ) -> SelfPPOLagrangian:
+        return super().learn(
+            total_timesteps=total_timesteps,
+            callback=callback,
+            log_interval=log_interval,
+            tb_log_name=tb_log_name,
+            reset_num_timesteps=reset_num_timesteps,
+            progress_bar=progress_bar,
+        )
+
+
+def _env_name(env: VecEnv, idx: int) -> str:
+    """The env id of sub-env ``idx`` for error messages (falls back to the class name)."""
+    try:
+        spec = env.get_attr("spec", indices=[idx])[0]
+    except (AttributeError, IndexError):
+        spec = None
+    if spec is not None and getattr(spec, "id", None):
+        return str(spec.id)
+    return type(env.unwrapped if hasattr(env, "unwrapped") else env).__name__
