@@ -51,7 +51,7 @@ def main() -> None:
             fps[algo].append(measure_fps(algo, args.steps, seed=repeat))
             print(f"repeat {repeat} {algo:7s} {fps[algo][-1]:8.1f} steps/s", flush=True)
 
-    ratios = [lag / ppo for ppo, lag in zip(fps["ppo"], fps["ppolag"])]
+    ratios = [lag / ppo for ppo, lag in zip(fps["ppo"], fps["ppolag"], strict=True)]
     print(f"\nmachine: {platform.processor() or platform.machine()}, torch threads {args.threads}, {args.steps} steps per run")
     print(f"PPO          mean {statistics.mean(fps['ppo']):8.1f} steps/s")
     print(f"PPOLagrangian mean {statistics.mean(fps['ppolag']):8.1f} steps/s")

@@ -94,7 +94,7 @@ def run(mode: str, seed: int, steps: int, out: str) -> str:
 
         def _on_step(self) -> bool:
             self.episode_costs += self.locals["costs"][:, 0]
-            for env_idx, (info, done) in enumerate(zip(self.locals["infos"], self.locals["dones"])):
+            for env_idx, (info, done) in enumerate(zip(self.locals["infos"], self.locals["dones"], strict=True)):
                 if done:
                     episodes.append((self.num_timesteps, float(info["episode"]["r"]), float(self.episode_costs[env_idx])))
                     self.episode_costs[env_idx] = 0.0

@@ -33,9 +33,10 @@ class VelocityCostWrapper(gym.Wrapper):
     def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:
         obs, reward, terminated, truncated, info = self.env.step(action)
         if self.velocity_key not in info:
+            env_name = self.env.spec.id if self.env.spec else self.env
             raise KeyError(
-                f"VelocityCostWrapper needs info[{self.velocity_key!r}] from {self.env.spec.id if self.env.spec else self.env}, "
-                f"which reports {sorted(info)}: pass `velocity_key=` with the key your env uses."
+                f"VelocityCostWrapper needs info[{self.velocity_key!r}] from {env_name}, which reports {sorted(info)}: "
+                "pass `velocity_key=` with the key your env uses."
             )
         info["cost"] = float(info[self.velocity_key] > self.velocity_threshold)
         return obs, reward, terminated, truncated, info
