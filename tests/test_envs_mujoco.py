@@ -44,6 +44,7 @@ def test_registration_is_idempotent():
     assert set(CONSTRAINED_FEATURE) == set(ENV_IDS)
 
 
+@pytest.mark.filterwarnings("ignore:.*(infinity|symmetric and normalized).*:UserWarning")
 @pytest.mark.parametrize("name", ENV_IDS)
 def test_env_checkers(name):
     env = make(name)

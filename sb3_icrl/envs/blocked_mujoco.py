@@ -34,6 +34,10 @@ from gymnasium.envs.mujoco.half_cheetah_v5 import HalfCheetahEnv
 from gymnasium.envs.mujoco.inverted_pendulum_v5 import InvertedPendulumEnv
 from gymnasium.envs.mujoco.swimmer_v5 import SwimmerEnv
 from gymnasium.envs.mujoco.walker2d_v5 import Walker2dEnv
+from numpy.typing import NDArray
+
+# Same as gymnasium's MujocoEnv.step
+StepReturn = tuple[NDArray[np.float64], np.float64, bool, bool, dict[str, np.float64]]
 
 
 class ConstrainedFeature(NamedTuple):
@@ -84,7 +88,7 @@ class _PositionConstraintMixin:
         self.cost_threshold = float(cost_threshold)
         self.cost_op = cost_op
 
-    def constraint_cost(self, value: float) -> float:
+    def constraint_cost(self, value: float) -> np.float64:
         """
         True cost of a value of the constrained quantity.
 
@@ -92,19 +96,19 @@ class _PositionConstraintMixin:
         :return: ``1.0`` when the constraint is broken, else ``0.0``
         """
         if self.cost_op == "<=":
-            return float(value <= self.cost_threshold)
-        return float(value >= self.cost_threshold)
+            return np.float64(value <= self.cost_threshold)
+        return np.float64(value >= self.cost_threshold)
 
-    def cost_info(self) -> dict[str, float]:
+    def cost_info(self) -> dict[str, np.float64]:
         """
         The constrained quantity and the true cost of the current simulator state.
 
         :return: ``{"x_position": x, "cost": 0.0 or 1.0}``
         """
-        x_position = float(self.data.qpos[0])
+        x_position = np.float64(self.data.qpos[0])
         return {"x_position": x_position, "cost": self.constraint_cost(x_position)}
 
-    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+    def step(self, action: NDArray[np.float32]) -> StepReturn:
         observation, reward, terminated, truncated, info = super().step(action)  # type: ignore[misc]
         info["cost"] = self.constraint_cost(info["x_position"])
         return observation, reward, terminated, truncated, info
@@ -259,12 +263,12 @@ class BiasedPendulumEnv(_PositionConstraintMixin, InvertedPendulumEnv):
             return self.low_reward
         return self.low_reward + (self.high_reward - self.low_reward) * x_position / self.high_reward_x
 
-    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+    def step(self, action: NDArray[np.float32]) -> StepReturn:
         # The parent's step gives no position and a survival reward: replace both
         observation, _, terminated, truncated, info = InvertedPendulumEnv.step(self, action)
         del info["reward_survive"]
         info.update(self.cost_info())
-        return observation, self.biased_reward(info["x_position"]), terminated, truncated, info
+        return observation, np.float64(self.biased_reward(info["x_position"])), terminated, truncated, info
 
     def _get_reset_info(self) -> dict[str, float]:
         return {"x_position": float(self.data.qpos[0])}

@@ -101,11 +101,11 @@ class TransitionNoiseWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         # Positions reported by the step describe the state before the noise: refresh them
         qpos = data.qpos
         if "x_position" in info:
-            info["x_position"] = float(qpos[0])
+            info["x_position"] = np.float64(qpos[0])
         if "y_position" in info:
-            info["y_position"] = float(qpos[1])
-            info["distance_from_origin"] = float(np.hypot(qpos[0], qpos[1]))
+            info["y_position"] = np.float64(qpos[1])
+            info["distance_from_origin"] = np.float64(np.hypot(qpos[0], qpos[1]))
         cost_info = getattr(env, "cost_info", None)
         if cost_info is not None:
             info.update(cost_info())
-        return env._get_obs(), noise
+        return env._get_obs(), noise  # type: ignore[attr-defined]
