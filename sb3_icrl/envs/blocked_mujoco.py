@@ -265,10 +265,10 @@ class BiasedPendulumEnv(_PositionConstraintMixin, InvertedPendulumEnv):
 
     def step(self, action: NDArray[np.float32]) -> StepReturn:
         # The parent's step gives no position and a survival reward: replace both
-        observation, _, terminated, truncated, info = InvertedPendulumEnv.step(self, action)
-        del info["reward_survive"]
-        info.update(self.cost_info())
-        return observation, np.float64(self.biased_reward(info["x_position"])), terminated, truncated, info
+        observation, _, terminated, truncated, _ = InvertedPendulumEnv.step(self, action)
+        x_position = self.data.qpos[0]
+        info = {"x_position": x_position, "cost": self.constraint_cost(x_position)}
+        return observation, np.float64(self.biased_reward(x_position)), terminated, truncated, info
 
     def _get_reset_info(self) -> dict[str, float]:
         return {"x_position": float(self.data.qpos[0])}
