@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env as gymnasium_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
+from stable_baselines3.common.env_util import make_vec_env
 
 import sb3_icrl.envs  # noqa: F401
 from sb3_icrl.envs import TransitionNoiseWrapper
@@ -143,3 +144,20 @@ def test_observation_wrapper_below_is_refused():
     env = gym.wrappers.NormalizeObservation(gym.make("sb3_icrl/BlockedHalfCheetah-v0"))
     with pytest.raises(ValueError, match="apply TransitionNoiseWrapper first"):
         TransitionNoiseWrapper(env, 0.1)
+
+
+def test_works_with_make_vec_env():
+    def rollout() -> np.ndarray:
+        vec_env = make_vec_env(
+            "sb3_icrl/BlockedHalfCheetah-v0",
+            n_envs=2,
+            seed=4,
+            wrapper_class=TransitionNoiseWrapper,
+            wrapper_kwargs={"sigma": 0.05},
+        )
+        vec_env.reset()
+        return np.array([vec_env.step(np.zeros((2, 6)))[0] for _ in range(5)])
+
+    first = rollout()
+    np.testing.assert_array_equal(first, rollout())
+    assert not np.allclose(first[:, 0], first[:, 1])
