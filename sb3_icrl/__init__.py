@@ -2,6 +2,9 @@
 
 import os
 
+import sb3_icrl.common.envs  # noqa: F401  (registers the tiny test env with gymnasium)
+import sb3_icrl.envs  # noqa: F401  (registers the benchmark envs with gymnasium)
+from sb3_icrl.pi_lagrangian import PILagrangian
 from sb3_icrl.ppo_lagrangian import PPOLagrangian
 
 # Read version from file
@@ -9,4 +12,4 @@ version_file = os.path.join(os.path.dirname(__file__), "version.txt")
 with open(version_file) as file_handler:
     __version__ = file_handler.read().strip()
 
-__all__ = ["PPOLagrangian", "__version__"]
+__all__ = ["PILagrangian", "PPOLagrangian", "__version__"]

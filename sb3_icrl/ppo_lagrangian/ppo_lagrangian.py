@@ -183,6 +183,11 @@ class PPOLagrangian(PPO):
             self._setup_model()
 
     def _setup_model(self) -> None:
+        if not (isinstance(self.policy_class, type) and issubclass(self.policy_class, CostActorCriticPolicy)):
+            raise TypeError(
+                f"PPOLagrangian needs a CostActorCriticPolicy (it adds the cost critic), got {self.policy_class!r}: "
+                "use 'MlpPolicy', 'CnnPolicy' or a subclass of sb3_icrl.common.policies.CostActorCriticPolicy."
+            )
         if isinstance(self.observation_space, spaces.Dict):
             raise NotImplementedError("PPOLagrangian does not support Dict observation spaces yet: flatten them first.")
         if self.policy_kwargs.get("n_costs", self.n_costs) != self.n_costs:
@@ -203,8 +208,6 @@ class PPOLagrangian(PPO):
             "cost_gae_lambda": self.cost_gae_lambda,
         }
         super()._setup_model()
-        if not isinstance(self.policy, CostActorCriticPolicy):
-            raise TypeError(f"PPOLagrangian needs a CostActorCriticPolicy, got {type(self.policy).__name__}.")
         # ``load`` restores the multiplier before calling _setup_model: keep it
         if self.lagrange_multiplier is None:
             self.lagrange_multiplier = make_lagrange_multiplier(

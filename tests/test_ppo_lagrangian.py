@@ -1,0 +1,228 @@
+import copy
+import csv
+import os
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch as th
+from stable_baselines3 import PPO
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.logger import configure
+from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.vec_env import DummyVecEnv
+
+from sb3_icrl import PPOLagrangian
+from sb3_icrl.common.envs import ConstrainedCorridorEnv
+from sb3_icrl.common.policies import CostActorCriticPolicy
+
+TINY = dict(n_steps=32, batch_size=16, n_epochs=2, policy_kwargs=dict(net_arch=[16]))
+
+
+class PendulumWithCost(gym.Wrapper):
+    """Continuous actions and time-limit truncations (200 steps); cost 1 when the pendulum is left of vertical."""
+
+    def __init__(self) -> None:
+        super().__init__(gym.make("Pendulum-v1"))
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        info["cost"] = float(obs[1] < 0.0)
+        return obs, reward, terminated, truncated, info
+
+
+def zero_multiplier_model(env_fn, **kwargs) -> PPOLagrangian:
+    return PPOLagrangian("MlpPolicy", env_fn(), lagrange_kwargs=dict(init=0.0, lr=0.0), **kwargs)
+
+
+@pytest.mark.parametrize("env_fn", [PendulumWithCost, ConstrainedCorridorEnv])
+def test_zero_multiplier_update_equals_ppo_update(env_fn):
+    """Same seed, same rollout buffer content: one PPOLagrangian update with lambda = 0 is PPO's update, bit for bit."""
+    kwargs = dict(n_steps=64, batch_size=16, n_epochs=3, seed=7)
+    ppo = PPO("MlpPolicy", env_fn(), **kwargs)
+    lag = zero_multiplier_model(env_fn, **kwargs)
+    ppo_params, lag_params = ppo.policy.state_dict(), lag.policy.state_dict()
+    for key in ppo_params:
+        assert th.equal(ppo_params[key], lag_params[key]), f"initial {key} differs from PPO's at the same seed"
+
+    lag.learn(64)  # fills the buffer (and updates once)
+    ppo.policy.load_state_dict({key: value for key, value in lag.policy.state_dict().items() if key in ppo_params})
+    # deepcopy: load_state_dict would share the Adam moment tensors between the two optimizers
+    ppo.policy.optimizer.load_state_dict(copy.deepcopy(lag.policy.optimizer.state_dict()))
+    ppo._logger, ppo._current_progress_remaining = lag.logger, lag._current_progress_remaining
+    ppo.rollout_buffer = copy.deepcopy(lag.rollout_buffer)  # a CostRolloutBuffer is a RolloutBuffer
+    state = np.random.get_state()
+    ppo.train()
+    np.random.set_state(state)
+    lag.train()
+    for key, value in ppo.policy.state_dict().items():
+        assert th.equal(value, lag.policy.state_dict()[key]), f"{key} differs after one update"
+
+
+def test_zero_multiplier_training_matches_ppo_end_to_end():
+    """Whole runs agree up to float rounding (PPOLagrangian computes the rollout's values in one batch)."""
+    kwargs = dict(n_steps=64, batch_size=16, n_epochs=2, seed=3)
+    ppo = PPO("MlpPolicy", PendulumWithCost(), **kwargs).learn(256)
+    lag = zero_multiplier_model(PendulumWithCost, **kwargs).learn(256)
+    for key, value in ppo.policy.state_dict().items():
+        np.testing.assert_allclose(value.numpy(), lag.policy.state_dict()[key].numpy(), atol=1e-5)
+    np.testing.assert_allclose(ppo.rollout_buffer.returns, lag.rollout_buffer.returns, rtol=1e-4, atol=1e-4)
+
+
+def test_truncation_bootstraps_reward_and_cost():
+    """At a time-limit truncation the stored reward and cost get gamma * V(final obs) and cost_gamma * V_c(final obs)."""
+
+    class CheckTruncation(BaseCallback):
+        def _on_step(self) -> bool:
+            if self.locals["dones"][0]:
+                info = self.locals["infos"][0]
+                assert info["TimeLimit.truncated"]
+                self.final_obs = th.as_tensor(info["terminal_observation"][None])
+                self.raw_reward, self.raw_cost = float(self.locals["rewards"][0]), float(self.locals["costs"][0, 0])
+            return True
+
+        def _on_rollout_end(self) -> None:
+            buffer = self.model.rollout_buffer
+            with th.no_grad():
+                value = self.model.policy.predict_values(self.final_obs).item()
+                cost_value = self.model.policy.predict_cost_values(self.final_obs).item()
+            assert abs(cost_value) > 1e-4
+            np.testing.assert_allclose(buffer.rewards[-1, 0], self.raw_reward + 0.99 * value, rtol=1e-5)
+            np.testing.assert_allclose(buffer.costs[-1, 0, 0], self.raw_cost + 0.9 * cost_value, rtol=1e-5)
+            assert set(np.unique(buffer.costs[:-1])) <= {0.0, 1.0}, "other steps keep their raw costs"
+            self.checked = True
+
+    callback = CheckTruncation()
+    model = PPOLagrangian("MlpPolicy", PendulumWithCost(), n_steps=200, batch_size=50, n_epochs=1, seed=0, cost_gamma=0.9)
+    model.learn(200, callback=callback)
+    assert callback.checked
+
+
+def test_multiplier_grows_while_over_budget_and_logs(tmp_path):
+    model = PPOLagrangian(
+        "MlpPolicy",
+        ConstrainedCorridorEnv(safe_limit=0),
+        cost_budget=0.0,
+        budget_statistic="step",
+        lagrange_kwargs=dict(init=0.0, lr=0.1, optimizer="sgd"),
+        seed=0,
+        **TINY,
+    )
+    model.set_logger(configure(str(tmp_path), ["csv"]))
+    model.learn(32 * 4)
+    # SGD on the mean per-step cost of each rollout: lambda is the sum of 0.1 * those means
+    assert model.lagrange_multiplier.value[0] > 0.0
+    with open(os.path.join(tmp_path, "progress.csv")) as handle:
+        rows = list(csv.DictReader(handle))
+    keys = set(rows[-1])
+    for key in (
+        "rollout/ep_cost_mean",
+        "train/lagrange_multiplier",
+        "train/cost_value_loss",
+        "train/cost_explained_variance",
+        "train/constraint_value",
+        "rollout/ep_rew_mean",
+        "train/value_loss",
+    ):
+        assert key in keys, f"{key} not logged"
+    step_costs = [float(row["train/constraint_value"]) for row in rows if row["train/constraint_value"]]
+    multipliers = [float(row["train/lagrange_multiplier"]) for row in rows if row["train/lagrange_multiplier"]]
+    np.testing.assert_allclose(multipliers, 0.1 * np.cumsum(step_costs), rtol=1e-5)
+
+
+def test_several_constraints_have_one_multiplier_each(tmp_path):
+    class TwoCosts(ConstrainedCorridorEnv):
+        def step(self, action):
+            obs, reward, terminated, truncated, info = super().step(action)
+            info["cost"] = [info["cost"], 1.0]  # the second constraint is always broken
+            return obs, reward, terminated, truncated, info
+
+    model = PPOLagrangian(
+        "MlpPolicy", TwoCosts(), cost_budget=[100.0, 0.0], lagrange_kwargs=dict(init=0.5, lr=0.3), seed=0, **TINY
+    )
+    model.set_logger(configure(str(tmp_path), ["csv"]))
+    model.learn(32 * 3)
+    first, second = model.lagrange_multiplier.value
+    assert first == 0.0 and second > 0.5
+    assert model.policy.predict_cost_values(th.zeros(3, 2)).shape == (3, 2)
+    header = open(os.path.join(tmp_path, "progress.csv")).readline()
+    assert "train/lagrange_multiplier_0" in header and "train/lagrange_multiplier_1" in header
+
+
+@pytest.mark.parametrize("lagrange_update", ["gradient", "pid"])
+def test_save_load_round_trip_restores_everything(tmp_path, lagrange_update):
+    env = DummyVecEnv([PendulumWithCost])
+    model = PPOLagrangian("MlpPolicy", env, cost_budget=1.0, lagrange_update=lagrange_update, seed=0, **TINY)
+    model.learn(32 * 3)
+    path = str(tmp_path / "model.zip")
+    model.save(path)
+    loaded = PPOLagrangian.load(path, env=DummyVecEnv([PendulumWithCost]))
+
+    np.testing.assert_array_equal(loaded.lagrange_multiplier.value, model.lagrange_multiplier.value)
+    if lagrange_update == "pid":
+        for attribute in ("integral", "delta_p", "cost_d"):
+            np.testing.assert_array_equal(
+                getattr(loaded.lagrange_multiplier, attribute), getattr(model.lagrange_multiplier, attribute)
+            )
+        assert list(map(list, loaded.lagrange_multiplier.cost_d_history)) == list(
+            map(list, model.lagrange_multiplier.cost_d_history)
+        )
+    observations = np.random.default_rng(0).normal(size=(5, 3)).astype(np.float32)
+    np.testing.assert_array_equal(
+        loaded.predict(observations, deterministic=True)[0], model.predict(observations, deterministic=True)[0]
+    )
+    obs_tensor = th.as_tensor(observations)
+    assert th.equal(loaded.policy.predict_cost_values(obs_tensor), model.policy.predict_cost_values(obs_tensor))
+    for key, value in model.policy.cost_optimizer.state_dict()["state"].items():
+        assert th.equal(loaded.policy.cost_optimizer.state_dict()["state"][key]["exp_avg"], value["exp_avg"])
+
+    # Both multipliers continue identically on the same data, and training resumes
+    np.testing.assert_array_equal(
+        loaded.lagrange_multiplier.update(np.array([3.0])), model.lagrange_multiplier.update(np.array([3.0]))
+    )
+    loaded.learn(32 * 2, reset_num_timesteps=False)
+    assert loaded.num_timesteps == 32 * 5
+
+
+def test_plain_ppo_breaks_the_constraint_ppolag_respects_the_budget():
+    """On the corridor (20 steps, cost 1 per step right of cell 6), budget 2 per episode."""
+    budget = 2.0
+    kwargs = dict(n_steps=256, batch_size=64, policy_kwargs=dict(net_arch=[32, 32]), learning_rate=3e-3, seed=0)
+    ppo = PPO("MlpPolicy", ConstrainedCorridorEnv(), **kwargs).learn(10_000)
+    lag = PPOLagrangian(
+        "MlpPolicy", ConstrainedCorridorEnv(), cost_budget=budget, lagrange_kwargs=dict(init=0.0, lr=0.1), **kwargs
+    ).learn(10_000)
+
+    def episode_cost(model) -> float:
+        env, total = ConstrainedCorridorEnv(), 0.0
+        obs, _ = env.reset()
+        for _ in range(env.max_steps):
+            obs, _, _, _, info = env.step(int(model.predict(obs, deterministic=True)[0]))
+            total += info["cost"]
+        return total
+
+    assert episode_cost(ppo) > 3 * budget
+    assert episode_cost(lag) <= 1.1 * budget
+    assert np.mean(list(lag.ep_cost_buffer)[-20:]) <= 1.1 * budget, "training episodes must end within budget too"
+
+
+def test_bad_arguments():
+    env = ConstrainedCorridorEnv()
+    with pytest.raises(ValueError, match="Unknown `budget_statistic`"):
+        PPOLagrangian("MlpPolicy", env, budget_statistic="trajectory")
+    with pytest.raises(ValueError, match="Unknown Lagrange multiplier update"):
+        PPOLagrangian("MlpPolicy", env, lagrange_update="newton")
+    with pytest.raises(ValueError, match="finite float or a non-empty sequence"):
+        PPOLagrangian("MlpPolicy", env, cost_budget=[])
+    with pytest.raises(ValueError, match=r"policy_kwargs\['n_costs'\]=2 disagrees"):
+        PPOLagrangian("MlpPolicy", env, policy_kwargs=dict(n_costs=2))
+    with pytest.raises(TypeError, match="needs a CostActorCriticPolicy"):
+        PPOLagrangian(ActorCriticPolicy, env)
+    with pytest.raises(NotImplementedError, match="Dict observation"):
+        PPOLagrangian(CostActorCriticPolicy, DictObsCorridor())
+
+
+class DictObsCorridor(ConstrainedCorridorEnv):
+    def __init__(self):
+        super().__init__()
+        self.observation_space = gym.spaces.Dict({"x": gym.spaces.Box(0, 1, shape=(2,))})
