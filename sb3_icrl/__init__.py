@@ -2,7 +2,7 @@
 
 import os
 
-import sb3_icrl.common.envs  # noqa: F401  (registers the tiny test env with gymnasium)
+import sb3_icrl.common.envs  # (registers the tiny test env with gymnasium)
 import sb3_icrl.envs  # noqa: F401  (registers the benchmark envs with gymnasium)
 from sb3_icrl.pi_lagrangian import PILagrangian
 from sb3_icrl.ppo_lagrangian import PPOLagrangian

@@ -145,7 +145,8 @@ def test_several_constraints_have_one_multiplier_each(tmp_path):
     first, second = model.lagrange_multiplier.value
     assert first == 0.0 and second > 0.5
     assert model.policy.predict_cost_values(th.zeros(3, 2)).shape == (3, 2)
-    header = open(os.path.join(tmp_path, "progress.csv")).readline()
+    with open(os.path.join(tmp_path, "progress.csv")) as handle:
+        header = handle.readline()
     assert "train/lagrange_multiplier_0" in header and "train/lagrange_multiplier_1" in header
 
 
