@@ -1,0 +1,134 @@
+"""Evaluation against the true constraint (for reporting only: never for training or model selection)."""
+
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
+
+
+@dataclass
+class ConstraintEvaluation:
+    """
+    Per-episode results and their means.
+
+    :param episode_rewards: Undiscounted return of each episode
+    :param episode_costs: Sum of the true per-step costs of each episode
+    :param feasible_rewards: Reward summed until (excluding) the first step that breaks the constraint
+    :param violations: Whether each episode broke the constraint at least once
+    :param episode_lengths: Steps per episode
+    """
+
+    episode_rewards: np.ndarray
+    episode_costs: np.ndarray
+    feasible_rewards: np.ndarray
+    violations: np.ndarray
+    episode_lengths: np.ndarray
+
+    @property
+    def mean_reward(self) -> float:
+        return float(np.mean(self.episode_rewards))
+
+    @property
+    def mean_feasible_reward(self) -> float:
+        return float(np.mean(self.feasible_rewards))
+
+    @property
+    def violation_rate(self) -> float:
+        return float(np.mean(self.violations))
+
+    @property
+    def mean_cost(self) -> float:
+        return float(np.mean(self.episode_costs))
+
+    def summary(self) -> dict[str, float]:
+        """The means, as plain floats (for JSON and loggers)."""
+        return {
+            "mean_reward": self.mean_reward,
+            "mean_feasible_reward": self.mean_feasible_reward,
+            "violation_rate": self.violation_rate,
+            "mean_cost": self.mean_cost,
+            "n_episodes": float(len(self.violations)),
+        }
+
+    def to_dict(self) -> dict[str, Any]:
+        return {key: np.asarray(value).tolist() for key, value in asdict(self).items()}
+
+
+def evaluate_constraint(
+    model: BaseAlgorithm,
+    env: gym.Env | VecEnv,
+    n_episodes: int = 10,
+    deterministic: bool = True,
+    cost_info_key: str = "cost",
+    seed: int | None = None,
+) -> ConstraintEvaluation:
+    """
+    Run a policy and measure the paper's metrics against the true cost in ``info[cost_info_key]``: the
+    constraint violation rate (share of episodes with any cost > 0) and the feasible cumulative reward
+    (reward summed until the first violation), plus mean reward and mean episode cost.
+
+    With a ``VecNormalize`` env, normalisation statistics are frozen for the evaluation and the raw rewards are used.
+
+    :param model: Anything with SB3's ``predict``
+    :param env: The evaluation env (a gymnasium env is wrapped in a ``DummyVecEnv``)
+    :param n_episodes: Episodes to run (spread over the sub-envs)
+    :param deterministic: Whether to use deterministic actions
+    :param cost_info_key: The info key of the true per-step cost
+    :param seed: Optional seed for the env resets
+    :return: Per-episode results
+    """
+    if n_episodes < 1:
+        raise ValueError(f"`n_episodes` must be >= 1, got {n_episodes}.")
+    vec_env = env if isinstance(env, VecEnv) else DummyVecEnv([lambda: env])  # type: ignore[list-item, return-value]
+    normalize = vec_env if isinstance(vec_env, VecNormalize) else None
+    if normalize is not None:
+        was_training, normalize.training = normalize.training, False
+    if seed is not None:
+        vec_env.seed(seed)
+    n_envs = vec_env.num_envs
+    # Episodes per sub-env fixed upfront, as SB3's evaluate_policy does, so short episodes do not bias the sample
+    targets = np.array([(n_episodes + i) // n_envs for i in range(n_envs)])
+    counts = np.zeros(n_envs, dtype=int)
+    rewards, costs, feasible, lengths = (np.zeros(n_envs) for _ in range(4))
+    violated = np.zeros(n_envs, dtype=bool)
+    results: dict[str, list] = {
+        "episode_rewards": [],
+        "episode_costs": [],
+        "feasible_rewards": [],
+        "violations": [],
+        "episode_lengths": [],
+    }
+
+    observations = vec_env.reset()
+    states, episode_starts = None, np.ones(n_envs, dtype=bool)
+    while (counts < targets).any():
+        actions, states = model.predict(observations, state=states, episode_start=episode_starts, deterministic=deterministic)
+        observations, step_rewards, dones, infos = vec_env.step(actions)
+        raw_rewards = normalize.get_original_reward() if normalize is not None else step_rewards
+        for idx in range(n_envs):
+            if counts[idx] >= targets[idx]:
+                continue
+            if cost_info_key not in infos[idx]:
+                raise KeyError(
+                    f"Evaluation needs the true cost in info[{cost_info_key!r}]; the env reports {sorted(infos[idx])}."
+                )
+            step_cost = float(np.sum(infos[idx][cost_info_key]))
+            violated[idx] |= step_cost > 0
+            rewards[idx] += raw_rewards[idx]
+            costs[idx] += step_cost
+            lengths[idx] += 1
+            if not violated[idx]:
+                feasible[idx] += raw_rewards[idx]
+            if dones[idx]:
+                for key, value in zip(results, (rewards, costs, feasible, violated, lengths), strict=True):
+                    results[key].append(value[idx])
+                counts[idx] += 1
+                rewards[idx] = costs[idx] = feasible[idx] = lengths[idx] = 0.0
+                violated[idx] = False
+        episode_starts = dones
+    if normalize is not None:
+        normalize.training = was_training
+    return ConstraintEvaluation(**{key: np.array(value) for key, value in results.items()})
