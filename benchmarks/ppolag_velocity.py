@@ -19,7 +19,6 @@ import argparse
 import json
 import os
 import platform
-import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
 from datetime import datetime, timezone
@@ -27,12 +26,13 @@ from datetime import datetime, timezone
 import gymnasium as gym
 import numpy as np
 import torch as th
-from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sb3_icrl import PPOLagrangian
+from sb3_icrl.common.callbacks import EpisodeCostRecorder
 from sb3_icrl.common.envs import VelocityCostWrapper
+from sb3_icrl.common.utils import atomic_write_json
 
 BUDGET = 25.0
 VELOCITY_THRESHOLD = 3.2096
@@ -63,13 +63,6 @@ def make_env() -> gym.Env:
     return VelocityCostWrapper(gym.make("HalfCheetah-v5"), velocity_threshold=VELOCITY_THRESHOLD)
 
 
-def write_json_atomic(path: str, data: dict) -> None:
-    directory = os.path.dirname(path) or "."
-    with tempfile.NamedTemporaryFile("w", dir=directory, delete=False, suffix=".tmp") as handle:
-        json.dump(data, handle)
-    os.replace(handle.name, path)
-
-
 def run(mode: str, seed: int, steps: int, out: str) -> str:
     th.set_num_threads(1)
     env = VecNormalize(make_vec_env(make_env, n_envs=1, seed=seed), gamma=ZOO_HALFCHEETAH["gamma"])
@@ -83,36 +76,30 @@ def run(mode: str, seed: int, steps: int, out: str) -> str:
         seed=seed,
         **ZOO_HALFCHEETAH,
     )
-    episodes: list[tuple[int, float, float]] = []
     multipliers: list[tuple[int, float]] = []
 
-    class RecordCallback(BaseCallback):
-        """Per episode (end step, raw reward, cost) and the multiplier after each rollout."""
-
-        def _on_training_start(self) -> None:
-            self.episode_costs = np.zeros(model.n_envs)
+    class Recorder(EpisodeCostRecorder):
+        """Training episodes, the multiplier after each rollout, and a progress line every 25 episodes."""
 
         def _on_step(self) -> bool:
-            self.episode_costs += self.locals["costs"][:, 0]
-            for env_idx, (info, done) in enumerate(zip(self.locals["infos"], self.locals["dones"], strict=True)):
-                if done:
-                    episodes.append((self.num_timesteps, float(info["episode"]["r"]), float(self.episode_costs[env_idx])))
-                    self.episode_costs[env_idx] = 0.0
-                    if len(episodes) % 25 == 0:  # progress, one line per 25 episodes
-                        recent = np.array(episodes[-25:])
-                        print(
-                            f"[{mode} seed {seed}] {self.num_timesteps} steps: reward {recent[:, 1].mean():.0f} "
-                            f"cost {recent[:, 2].mean():.1f} lambda {model.lagrange_multiplier.value[0]:.3f}",
-                            flush=True,
-                        )
+            n_episodes = len(self.episodes)
+            super()._on_step()
+            if len(self.episodes) // 25 > n_episodes // 25:
+                recent = self.recent(25)
+                print(
+                    f"[{mode} seed {seed}] {self.num_timesteps} steps: reward {recent[:, 1].mean():.0f} "
+                    f"cost {recent[:, 2].mean():.1f} lambda {model.lagrange_multiplier.value[0]:.3f}",
+                    flush=True,
+                )
             return True
 
         def _on_rollout_end(self) -> None:
-            assert model.lagrange_multiplier is not None
             multipliers.append((self.num_timesteps, float(model.lagrange_multiplier.value[0])))
 
+    recorder = Recorder()
     start = time.time()
-    model.learn(steps, callback=RecordCallback())
+    model.learn(steps, callback=recorder)
+    episodes = [(step, reward, cost) for step, reward, cost, _ in recorder.episodes]
     result = dict(
         mode=mode,
         seed=seed,
@@ -125,7 +112,7 @@ def run(mode: str, seed: int, steps: int, out: str) -> str:
         date=datetime.now(timezone.utc).isoformat(timespec="seconds"),
     )
     path = os.path.join(out, f"{mode}_seed{seed}.json")
-    write_json_atomic(path, result)
+    atomic_write_json(path, result)
     return path
 
 
@@ -143,12 +130,21 @@ def standing_still_return(n_episodes: int = 3) -> float:
     return float(np.mean(returns))
 
 
+def _up_crossings(series: np.ndarray, level: float) -> int:
+    """Times the series goes from <= level to > level (starting above counts as one)."""
+    above = series > level
+    return int(np.sum(above[1:] & ~above[:-1]) + (above[0] if len(above) else 0))
+
+
 def summarize(out: str) -> None:
     files = sorted(name for name in os.listdir(out) if name.endswith(".json"))
     if not files:
         raise SystemExit(f"No results in {out}: run the benchmark first.")
     print(f"standing-still (zero action) return: {standing_still_return():.1f}")
-    header = "mode      seed  steps    last10% cost  last10% reward  final lambda  overshoot  crossings  wall(min)  <=27.5"
+    header = (
+        "mode      seed  steps    last10% cost  last10% reward  final lambda  overshoot  crossings (>25, >27.5)"
+        "  wall(min)  <=27.5"
+    )
     print(header)
     per_mode: dict[str, list[tuple[float, float]]] = {}
     for name in files:
@@ -159,14 +155,14 @@ def summarize(out: str) -> None:
         costs = episodes[:, 2]
         window = 10
         moving = np.convolve(costs, np.ones(window) / window, mode="valid") if len(costs) >= window else costs
-        above = moving > BUDGET
-        crossings = int(np.sum(above[1:] & ~above[:-1]) + (above[0] if len(above) else 0))
+        crossings, band_crossings = (_up_crossings(moving, level) for level in (BUDGET, 1.1 * BUDGET))
         overshoot = float(max(0.0, moving.max() - BUDGET)) if len(moving) else 0.0
         last_cost, last_reward = float(last[:, 2].mean()), float(last[:, 1].mean())
         per_mode.setdefault(result["mode"], []).append((last_cost, last_reward))
         print(
             f"{result['mode']:9s} {result['seed']:4d}  {result['steps']:7d}  {last_cost:12.1f}  {last_reward:14.1f}"
-            f"  {result['multipliers'][-1][1]:12.3f}  {overshoot:9.1f}  {crossings:9d}  {result['wall_time_s'] / 60:9.1f}"
+            f"  {result['multipliers'][-1][1]:12.3f}  {overshoot:9.1f}  {crossings:9d} {band_crossings:12d}"
+            f"  {result['wall_time_s'] / 60:9.1f}"
             f"  {'yes' if last_cost <= 1.1 * BUDGET else 'NO'}"
         )
     for mode, values in per_mode.items():
