@@ -61,6 +61,12 @@ class LagrangeMultiplier(ABC):
         :return: The new multipliers
         """
 
+    def _initial_multipliers(self, init: float | Sequence[float]) -> np.ndarray:
+        init_vector = _as_vector(init, self.n_constraints, "init")
+        if np.any(init_vector < 0):
+            raise ValueError(f"Initial multipliers must be >= 0, got {init_vector.tolist()}.")
+        return init_vector
+
     def _check(self, constraint_values: np.ndarray | Sequence[float]) -> np.ndarray:
         values = np.asarray(constraint_values, dtype=np.float64).reshape(-1)
         if values.shape != (self.n_constraints,) or not np.all(np.isfinite(values)):
@@ -101,9 +107,7 @@ class GradientLagrangeMultiplier(LagrangeMultiplier):
             raise ValueError(f"Unknown multiplier optimizer {optimizer!r}: use one of {sorted(self.optimizer_classes)}.")
         if lr < 0:
             raise ValueError(f"The multiplier learning rate must be >= 0, got {lr}.")
-        init_vector = _as_vector(init, n_constraints, "init")
-        if np.any(init_vector < 0):
-            raise ValueError(f"Initial multipliers must be >= 0, got {init_vector.tolist()}.")
+        init_vector = self._initial_multipliers(init)
         self.lr = lr
         self.optimizer_name = optimizer
         self._multiplier = th.nn.Parameter(th.as_tensor(self._clip(init_vector), dtype=th.float32))
@@ -180,9 +184,7 @@ class PIDLagrangeMultiplier(LagrangeMultiplier):
             raise ValueError(f"`d_delay` must be >= 1, got {d_delay}.")
         if not (0.0 <= delta_p_ema_alpha < 1.0 and 0.0 <= delta_d_ema_alpha < 1.0):
             raise ValueError("EMA alphas must be in [0, 1).")
-        init_vector = _as_vector(init, n_constraints, "init")
-        if np.any(init_vector < 0):
-            raise ValueError(f"Initial multipliers must be >= 0, got {init_vector.tolist()}.")
+        init_vector = self._initial_multipliers(init)
         self.kp, self.ki, self.kd = kp, ki, kd
         self.d_delay = d_delay
         self.delta_p_ema_alpha = delta_p_ema_alpha
