@@ -105,7 +105,12 @@ def evaluate_constraint(
     observations = vec_env.reset()
     states, episode_starts = None, np.ones(n_envs, dtype=bool)
     while (counts < targets).any():
-        actions, states = model.predict(observations, state=states, episode_start=episode_starts, deterministic=deterministic)
+        actions, states = model.predict(
+            observations,  # type: ignore[arg-type]
+            state=states,
+            episode_start=episode_starts,
+            deterministic=deterministic,
+        )
         observations, step_rewards, dones, infos = vec_env.step(actions)
         raw_rewards = normalize.get_original_reward() if normalize is not None else step_rewards
         for idx in range(n_envs):

@@ -111,7 +111,7 @@ class GradientLagrangeMultiplier(LagrangeMultiplier):
         self.lr = lr
         self.optimizer_name = optimizer
         self._multiplier = th.nn.Parameter(th.as_tensor(self._clip(init_vector), dtype=th.float32))
-        self._optimizer = self.optimizer_classes[optimizer]([self._multiplier], lr=lr)
+        self._optimizer = self._make_optimizer()
 
     @property
     def value(self) -> np.ndarray:
@@ -138,8 +138,11 @@ class GradientLagrangeMultiplier(LagrangeMultiplier):
         optimizer_state = state.pop("_optimizer")
         self.__dict__.update(state)
         self._multiplier = th.nn.Parameter(th.as_tensor(state["_multiplier"], dtype=th.float32))
-        self._optimizer = self.optimizer_classes[self.optimizer_name]([self._multiplier], lr=self.lr)
+        self._optimizer = self._make_optimizer()
         self._optimizer.load_state_dict(optimizer_state)
+
+    def _make_optimizer(self) -> th.optim.Optimizer:
+        return self.optimizer_classes[self.optimizer_name]([self._multiplier], lr=self.lr)  # type: ignore[call-arg]
 
 
 class PIDLagrangeMultiplier(LagrangeMultiplier):

@@ -211,7 +211,7 @@ class PPOLagrangian(PPO):
         # ``load`` restores the multiplier before calling _setup_model: keep it
         if self.lagrange_multiplier is None:
             self.lagrange_multiplier = make_lagrange_multiplier(
-                self.lagrange_update, self.cost_budget, self.n_costs, **self.lagrange_kwargs
+                self.lagrange_update, self.cost_budget.tolist(), self.n_costs, **self.lagrange_kwargs
             )
 
     def set_cost_fn(self, cost_fn: CostFn | None) -> None:
@@ -310,8 +310,8 @@ class PPOLagrangian(PPO):
 
             with th.no_grad():
                 obs_tensor = obs_as_tensor(self._last_obs, self.device)  # type: ignore[arg-type]
-                actions, log_probs = self.policy.act(obs_tensor)
-            actions = actions.cpu().numpy()
+                action_tensor, log_probs = self.policy.act(obs_tensor)
+            actions = action_tensor.cpu().numpy()
 
             clipped_actions = actions
             if isinstance(self.action_space, spaces.Box):
