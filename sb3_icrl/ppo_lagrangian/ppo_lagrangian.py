@@ -560,11 +560,11 @@ class PPOLagrangian(PPO):
 
 
 def _env_name(env: VecEnv, idx: int) -> str:
-    """The env id of sub-env ``idx`` for error messages (falls back to the class name)."""
+    """The env id of sub-env ``idx`` for error messages (falls back to the env's class name)."""
     try:
         spec = env.get_attr("spec", indices=[idx])[0]
+        if spec is not None and getattr(spec, "id", None):
+            return str(spec.id)
+        return type(env.get_attr("unwrapped", indices=[idx])[0]).__name__
     except (AttributeError, IndexError):
-        spec = None
-    if spec is not None and getattr(spec, "id", None):
-        return str(spec.id)
-    return type(env.unwrapped if hasattr(env, "unwrapped") else env).__name__
+        return f"env {idx}"
