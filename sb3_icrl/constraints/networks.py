@@ -1,0 +1,506 @@
+"""
+Constraint models: a feasibility net ``phi(s, a) in (0, 1)`` and a Beta feasibility net for VICRL.
+
+Both take numpy (or torch) batches of observations and actions as the env returns them, turn them into the net's
+input (selected observation features, then the action, discrete spaces one-hot encoded), normalise that input
+with statistics fitted on the expert data, and give the learned cost ``1 - phi`` as a batched numpy function that
+``PPOLagrangian.set_cost_fn`` and ``LearnedCostVecEnvWrapper`` accept.
+"""
+
+from collections.abc import Sequence
+from typing import Any, TypeVar
+
+import numpy as np
+import scipy.special
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.torch_layers import create_mlp
+from torch import nn
+
+ArrayLike = np.ndarray | th.Tensor
+SelfConstraintNet = TypeVar("SelfConstraintNet", bound="_ConstraintNet")
+
+#: Cost modes of :class:`BetaFeasibilityNet`
+BETA_COST_MODES = ("sample", "mean", "var", "cvar")
+
+
+class InputNormalizer(nn.Module):
+    """
+    Standardises the constraint net's input with the mean and standard deviation of the expert data, then clips:
+    ``clip((x - mean) / sqrt(var + epsilon), -clip_range, clip_range)``.
+
+    The statistics are buffers, so they travel with ``state_dict``. Until :meth:`fit` is called the normaliser
+    refuses to run, so that a model cannot silently train on raw inputs.
+
+    :param input_dim: Number of input features
+    :param clip_range: Normalised inputs are clipped to ``[-clip_range, clip_range]`` (``None``: no clipping);
+        nominal samples far outside the expert data then stay in a range the net has seen
+    :param epsilon: Added to the variance, so constant expert features do not divide by zero
+    """
+
+    def __init__(self, input_dim: int, clip_range: float | None = 10.0, epsilon: float = 1e-8):
+        super().__init__()
+        if clip_range is not None and clip_range <= 0:
+            raise ValueError(f"`clip_range` must be > 0 or None, got {clip_range}.")
+        self.input_dim = input_dim
+        self.clip_range = clip_range
+        self.epsilon = epsilon
+        self.mean: th.Tensor
+        self.std: th.Tensor
+        self.fitted: th.Tensor
+        self.register_buffer("mean", th.zeros(input_dim))
+        self.register_buffer("std", th.ones(input_dim))
+        self.register_buffer("fitted", th.zeros((), dtype=th.bool))
+
+    def fit(self, inputs: th.Tensor) -> None:
+        """
+        Set the statistics from a batch of (unnormalised) inputs, usually all expert pairs.
+
+        :param inputs: Shape ``(n_samples, input_dim)``, ``n_samples >= 1``
+        """
+        if inputs.ndim != 2 or inputs.shape[1] != self.input_dim or inputs.shape[0] == 0:
+            raise ValueError(
+                f"The normaliser expects a non-empty batch of shape (n_samples, {self.input_dim}), got {tuple(inputs.shape)}."
+            )
+        with th.no_grad():
+            inputs = inputs.to(dtype=self.mean.dtype, device=self.mean.device)
+            self.mean.copy_(inputs.mean(dim=0))
+            self.std.copy_(th.sqrt(inputs.var(dim=0, unbiased=False) + self.epsilon))
+            self.fitted.fill_(True)
+
+    def forward(self, inputs: th.Tensor) -> th.Tensor:
+        if not bool(self.fitted):
+            raise RuntimeError(
+                "The input normaliser has not been fitted: call `fit_normalizer(expert_obs, expert_acts)` on the "
+                "constraint net before using it, or build the net with `normalize_input=False`."
+            )
+        normalised = (inputs - self.mean) / self.std
+        if self.clip_range is not None:
+            normalised = th.clamp(normalised, -self.clip_range, self.clip_range)
+        return normalised
+
+
+class _ConstraintNet(nn.Module):
+    """
+    Shared input handling, normaliser and saving of the constraint nets. Subclasses set ``n_outputs`` and
+    implement ``forward`` and ``predict_feasibility``.
+
+    :param obs_dim: Observation features: the length of a flat Box observation, or ``n`` for ``Discrete(n)``
+        (one-hot encoded)
+    :param action_dim: Action features: the length of a flat Box action, or ``n`` for ``Discrete(n)``
+    :param discrete_obs: Whether observations are integer indices of a ``Discrete`` space
+    :param discrete_actions: Whether actions are integer indices of a ``Discrete`` space
+    :param hidden_sizes: Units of each hidden layer
+    :param activation_fn: Hidden activation, a class from ``torch.nn`` (saved by name)
+    :param obs_select_dim: Indices of the observation features the net sees (``None``: all; ``()``: none); for a
+        discrete observation they index the one-hot vector
+    :param use_action: Whether the action is an input
+    :param normalize_input: Whether to standardise the input with statistics fitted on expert data
+    :param clip_input: Clip range of the normalised input (``None``: no clipping)
+    """
+
+    n_outputs: int = 1
+
+    def __init__(
+        self,
+        obs_dim: int,
+        action_dim: int,
+        discrete_obs: bool = False,
+        discrete_actions: bool = False,
+        hidden_sizes: Sequence[int] = (64, 64),
+        activation_fn: type[nn.Module] = nn.ReLU,
+        obs_select_dim: Sequence[int] | None = None,
+        use_action: bool = True,
+        normalize_input: bool = True,
+        clip_input: float | None = 10.0,
+    ):
+        super().__init__()
+        if obs_dim < 1 or action_dim < 1:
+            raise ValueError(f"`obs_dim` and `action_dim` must be >= 1, got {obs_dim} and {action_dim}.")
+        if getattr(nn, getattr(activation_fn, "__name__", ""), None) is not activation_fn:
+            raise ValueError(f"`activation_fn` must be a class from torch.nn (e.g. nn.ReLU), got {activation_fn!r}.")
+        self.obs_dim = int(obs_dim)
+        self.action_dim = int(action_dim)
+        self.discrete_obs = bool(discrete_obs)
+        self.discrete_actions = bool(discrete_actions)
+        self.hidden_sizes = [int(size) for size in hidden_sizes]
+        self.activation_fn = activation_fn
+        self.use_action = bool(use_action)
+        self.normalize_input = bool(normalize_input)
+        self.clip_input = clip_input
+        self.obs_select_dim = self._check_obs_select_dim(obs_select_dim)
+        self.input_dim = len(self.obs_select_dim) + (self.action_dim if self.use_action else 0)
+        if self.input_dim == 0:
+            raise ValueError("The constraint net has no input: `obs_select_dim` is empty and `use_action` is False.")
+        self.normalizer = InputNormalizer(self.input_dim, clip_range=clip_input) if self.normalize_input else None
+        self.network = nn.Sequential(*create_mlp(self.input_dim, self.n_outputs, self.hidden_sizes, activation_fn))
+
+    @classmethod
+    def from_spaces(
+        cls: type[SelfConstraintNet], observation_space: spaces.Space, action_space: spaces.Space, **kwargs: Any
+    ) -> SelfConstraintNet:
+        """
+        Build the net for an env's spaces (flat ``Box`` or ``Discrete``).
+
+        :param observation_space: The env's observation space
+        :param action_space: The env's action space
+        :param kwargs: The other constructor arguments
+        :return: The net
+        """
+        obs_dim, discrete_obs = _space_features(observation_space, "observation")
+        action_dim, discrete_actions = _space_features(action_space, "action")
+        return cls(obs_dim, action_dim, discrete_obs=discrete_obs, discrete_actions=discrete_actions, **kwargs)
+
+    def _check_obs_select_dim(self, obs_select_dim: Sequence[int] | None) -> list[int]:
+        if obs_select_dim is None:
+            return list(range(self.obs_dim))
+        selected = [int(index) for index in obs_select_dim]
+        bad = [index for index in selected if not 0 <= index < self.obs_dim]
+        if bad:
+            raise ValueError(
+                f"`obs_select_dim` has indices {bad} outside the {self.obs_dim} observation features (valid: 0 to "
+                f"{self.obs_dim - 1})."
+            )
+        if len(set(selected)) != len(selected):
+            raise ValueError(f"`obs_select_dim` repeats indices: {selected}.")
+        return selected
+
+    @property
+    def device(self) -> th.device:
+        return next(self.parameters()).device
+
+    @property
+    def constructor_kwargs(self) -> dict[str, Any]:
+        """The arguments that rebuild this net (plain values only; the activation is given by its name)."""
+        return dict(
+            obs_dim=self.obs_dim,
+            action_dim=self.action_dim,
+            discrete_obs=self.discrete_obs,
+            discrete_actions=self.discrete_actions,
+            hidden_sizes=list(self.hidden_sizes),
+            activation_fn=self.activation_fn.__name__,
+            obs_select_dim=list(self.obs_select_dim),
+            use_action=self.use_action,
+            normalize_input=self.normalize_input,
+            clip_input=self.clip_input,
+        )
+
+    @classmethod
+    def from_constructor_kwargs(cls: type[SelfConstraintNet], kwargs: dict[str, Any]) -> SelfConstraintNet:
+        """
+        Rebuild a net from :attr:`constructor_kwargs` (then load its ``state_dict``).
+
+        :param kwargs: The saved constructor arguments
+        :return: A freshly initialised net with that architecture
+        """
+        kwargs = dict(kwargs)
+        activation = kwargs.get("activation_fn", "ReLU")
+        if isinstance(activation, str):
+            if not isinstance(getattr(nn, activation, None), type):
+                raise ValueError(f"Unknown activation {activation!r}: expected the name of a class in torch.nn.")
+            kwargs["activation_fn"] = getattr(nn, activation)
+        return cls(**kwargs)
+
+    def save(self, path: str) -> None:
+        """
+        Save the constructor arguments and the ``state_dict`` (weights and normaliser statistics) with ``torch.save``.
+
+        :param path: Destination file
+        """
+        state_dict = {key: value.detach().cpu() for key, value in self.state_dict().items()}
+        th.save({"class": type(self).__name__, "kwargs": self.constructor_kwargs, "state_dict": state_dict}, path)
+
+    @classmethod
+    def load(cls: type[SelfConstraintNet], path: str, device: th.device | str = "cpu") -> SelfConstraintNet:
+        """
+        Load a net written by :meth:`save` (``weights_only``: nothing but tensors and plain values is unpickled).
+
+        :param path: The saved file
+        :param device: Where to put the net
+        :return: The net, in eval mode
+        """
+        saved = th.load(path, map_location="cpu", weights_only=True)
+        if saved.get("class") != cls.__name__:
+            raise ValueError(f"{path!r} holds a {saved.get('class')!r}, not a {cls.__name__}: load it with that class.")
+        net = cls.from_constructor_kwargs(saved["kwargs"])
+        net.load_state_dict(saved["state_dict"])
+        return net.to(device).eval()
+
+    def _obs_features(self, obs: ArrayLike) -> th.Tensor:
+        if self.discrete_obs:
+            return self._one_hot(obs, self.obs_dim, "observation")
+        tensor = th.as_tensor(np.asarray(obs) if not isinstance(obs, th.Tensor) else obs, dtype=th.float32)
+        if tensor.ndim != 2 or tensor.shape[1] != self.obs_dim:
+            raise ValueError(
+                f"Observations must be a batch of shape (batch, {self.obs_dim}), got {tuple(tensor.shape)}. "
+                + (
+                    "Pass a single observation as obs[None]. "
+                    if tensor.shape == (self.obs_dim,)
+                    else f"The net was built for {self.obs_dim} observation features; build it for this env "
+                    "(`from_spaces(env.observation_space, env.action_space)`). "
+                )
+            )
+        return tensor.to(self.device)
+
+    def _action_features(self, actions: ArrayLike) -> th.Tensor:
+        if self.discrete_actions:
+            return self._one_hot(actions, self.action_dim, "action")
+        tensor = th.as_tensor(np.asarray(actions) if not isinstance(actions, th.Tensor) else actions, dtype=th.float32)
+        if tensor.ndim == 1 and self.action_dim == 1:
+            tensor = tensor.reshape(-1, 1)
+        if tensor.ndim != 2 or tensor.shape[1] != self.action_dim:
+            raise ValueError(
+                f"Actions must be a batch of shape (batch, {self.action_dim}), got {tuple(tensor.shape)}. The net was "
+                f"built for {self.action_dim} action features; build it for this env's action space."
+            )
+        return tensor.to(self.device)
+
+    def _one_hot(self, indices: ArrayLike, n: int, what: str) -> th.Tensor:
+        array = indices.detach().cpu().numpy() if isinstance(indices, th.Tensor) else np.asarray(indices)
+        if array.ndim == 2 and array.shape[1] == 1:
+            array = array[:, 0]
+        if array.ndim != 1:
+            raise ValueError(
+                f"Discrete {what}s must be a batch of indices of shape (batch,) or (batch, 1), got {array.shape}."
+            )
+        if array.size and (not np.all(np.equal(np.mod(array, 1), 0)) or array.min() < 0 or array.max() >= n):
+            raise ValueError(f"Discrete {what}s must be integers in [0, {n - 1}], got {array.tolist()}.")
+        return nn.functional.one_hot(th.as_tensor(array.astype(np.int64), device=self.device), n).float()
+
+    def _raw_inputs(self, obs: ArrayLike, actions: ArrayLike | None) -> th.Tensor:
+        obs_features = self._obs_features(obs)
+        parts = [obs_features[:, self.obs_select_dim]]
+        if self.use_action:
+            if actions is None:
+                raise ValueError("This constraint net takes the action as input (`use_action=True`): pass the actions.")
+            action_features = self._action_features(actions)
+            if action_features.shape[0] != obs_features.shape[0]:
+                raise ValueError(
+                    f"Got {obs_features.shape[0]} observations but {action_features.shape[0]} actions: pass one action "
+                    "per observation."
+                )
+            parts.append(action_features)
+        return th.cat(parts, dim=1)
+
+    def fit_normalizer(self, expert_obs: ArrayLike, expert_actions: ArrayLike | None) -> None:
+        """
+        Fit the input normaliser on the expert data (observations as the env returns them).
+
+        :param expert_obs: Expert observations, ``(n_samples, obs_dim)`` (or indices for a discrete space)
+        :param expert_actions: Expert actions, ``(n_samples, action_dim)`` (or indices); may be ``None`` when
+            ``use_action`` is False
+        """
+        if self.normalizer is None:
+            raise RuntimeError("This net was built with `normalize_input=False`: there is no normaliser to fit.")
+        self.normalizer.fit(self._raw_inputs(expert_obs, expert_actions))
+
+    def preprocess(self, obs: ArrayLike, actions: ArrayLike | None) -> th.Tensor:
+        """
+        The net's input for a batch: selected observation features, then the action (one-hot where discrete),
+        normalised.
+
+        :param obs: Observations, ``(batch, obs_dim)`` (or ``(batch,)`` indices for a discrete space)
+        :param actions: Actions, ``(batch, action_dim)`` (or indices); ignored when ``use_action`` is False
+        :return: Float tensor of shape ``(batch, input_dim)`` on the net's device
+        """
+        inputs = self._raw_inputs(obs, actions)
+        return self.normalizer(inputs) if self.normalizer is not None else inputs
+
+    def predict_feasibility(self, obs: ArrayLike, actions: ArrayLike | None) -> np.ndarray:
+        raise NotImplementedError
+
+    def cost(self, obs: np.ndarray, actions: np.ndarray | None) -> np.ndarray:
+        """
+        The learned cost ``1 - phi`` for a batch (no gradient), usable as ``PPOLagrangian``'s ``cost_fn``.
+
+        :param obs: Observations as the env returned them, ``(batch, obs_dim)``
+        :param actions: Actions as sent to the env, ``(batch, action_dim)``
+        :return: Costs in ``[0, 1]``, float32 of shape ``(batch,)``
+        """
+        return (1.0 - self.predict_feasibility(obs, actions)).astype(np.float32)
+
+
+class FeasibilityNet(_ConstraintNet):
+    """
+    Feasibility ``phi(s, a) = sigmoid(MLP(x)) in (0, 1)``: 1 means allowed, 0 forbidden; the cost is ``1 - phi``.
+    Used by BC2L and MECL as the constraint model and by GACL as the discriminator ``D(s, a)``.
+    See :class:`_ConstraintNet` for the arguments.
+    """
+
+    def forward(self, inputs: th.Tensor) -> th.Tensor:
+        """
+        :param inputs: Preprocessed inputs, ``(batch, input_dim)``
+        :return: ``phi``, shape ``(batch,)``
+        """
+        return th.sigmoid(self.network(inputs)).reshape(-1)
+
+    def feasibility(self, obs: ArrayLike, actions: ArrayLike | None) -> th.Tensor:
+        """
+        ``phi`` for a batch, with gradient (for the losses).
+
+        :param obs: Observations
+        :param actions: Actions
+        :return: ``phi``, shape ``(batch,)``
+        """
+        return self(self.preprocess(obs, actions))
+
+    def predict_feasibility(self, obs: ArrayLike, actions: ArrayLike | None) -> np.ndarray:
+        """
+        ``phi`` for a batch as numpy, without gradient.
+
+        :param obs: Observations
+        :param actions: Actions
+        :return: ``phi``, float32 of shape ``(batch,)``
+        """
+        with th.no_grad():
+            return self.feasibility(obs, actions).cpu().numpy().astype(np.float32)
+
+
+class BetaFeasibilityNet(_ConstraintNet):
+    """
+    VICRL's feasibility distribution ``phi(s, a) ~ Beta(alpha, beta)`` with
+    ``[alpha, beta] = softplus(MLP(x)) + min_concentration`` (the paper's ``log(1 + exp(f))``; the floor keeps both
+    parameters strictly positive when softplus underflows).
+
+    The cost ``1 - phi`` takes ``phi`` from ``cost_mode``:
+
+    - ``"sample"``: a draw from the Beta (the reference's default)
+    - ``"mean"``: ``alpha / (alpha + beta)``
+    - ``"var"``: the value at risk, the ``(1 - confidence)``-quantile of the feasibility, i.e. the low-feasibility
+      (high-cost) tail: ``P(phi <= phi_VaR) = 1 - confidence``. Higher confidence, larger (more risk-averse) cost.
+    - ``"cvar"``: the conditional value at risk, ``E[phi | phi <= phi_VaR]``, the mean of that same tail (in closed
+      form: ``mean * I(phi_VaR; alpha + 1, beta) / (1 - confidence)``, ``I`` the regularised incomplete beta function)
+
+    The reference code used the same tail (``scipy.stats.beta.ppf(1 - confidence)``) and estimated the CVaR by
+    sampling. Other arguments: see :class:`_ConstraintNet`.
+
+    :param cost_mode: One of ``"sample"``, ``"mean"``, ``"var"``, ``"cvar"``
+    :param confidence: Confidence level in ``(0, 1)`` for ``"var"`` and ``"cvar"``
+    :param min_concentration: Added to the softplus outputs
+    :param kwargs: The arguments of :class:`_ConstraintNet` (``discrete_obs``, ``hidden_sizes``, ``obs_select_dim``, ...)
+    """
+
+    n_outputs = 2
+
+    def __init__(
+        self,
+        obs_dim: int,
+        action_dim: int,
+        cost_mode: str = "sample",
+        confidence: float = 0.5,
+        min_concentration: float = 1e-4,
+        **kwargs: Any,
+    ):
+        super().__init__(obs_dim, action_dim, **kwargs)
+        if min_concentration <= 0:
+            raise ValueError(f"`min_concentration` must be > 0, got {min_concentration}.")
+        self.min_concentration = float(min_concentration)
+        self.cost_mode = _check_cost_mode(cost_mode)
+        self.confidence = _check_confidence(confidence)
+
+    @property
+    def constructor_kwargs(self) -> dict[str, Any]:
+        return {
+            **super().constructor_kwargs,
+            "cost_mode": self.cost_mode,
+            "confidence": self.confidence,
+            "min_concentration": self.min_concentration,
+        }
+
+    def forward(self, inputs: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+        """
+        :param inputs: Preprocessed inputs, ``(batch, input_dim)``
+        :return: ``alpha`` and ``beta``, each of shape ``(batch,)``, both ``>= min_concentration``
+        """
+        concentrations = nn.functional.softplus(self.network(inputs)) + self.min_concentration
+        return concentrations[:, 0], concentrations[:, 1]
+
+    def alpha_beta(self, obs: ArrayLike, actions: ArrayLike | None) -> tuple[th.Tensor, th.Tensor]:
+        """
+        ``alpha`` and ``beta`` for a batch, with gradient.
+
+        :param obs: Observations
+        :param actions: Actions
+        :return: ``(alpha, beta)``, each ``(batch,)``
+        """
+        return self(self.preprocess(obs, actions))
+
+    def distribution(self, obs: ArrayLike, actions: ArrayLike | None) -> th.distributions.Beta:
+        """
+        :param obs: Observations
+        :param actions: Actions
+        :return: ``Beta(alpha, beta)`` for each pair of the batch
+        """
+        return th.distributions.Beta(*self.alpha_beta(obs, actions))
+
+    def predict_feasibility(
+        self, obs: ArrayLike, actions: ArrayLike | None, cost_mode: str | None = None, confidence: float | None = None
+    ) -> np.ndarray:
+        """
+        The feasibility used for the cost, without gradient.
+
+        :param obs: Observations
+        :param actions: Actions
+        :param cost_mode: Overrides ``self.cost_mode`` for this call
+        :param confidence: Overrides ``self.confidence`` for this call
+        :return: Feasibility in ``[0, 1]``, float32 of shape ``(batch,)``
+        """
+        mode = self.cost_mode if cost_mode is None else _check_cost_mode(cost_mode)
+        level = self.confidence if confidence is None else _check_confidence(confidence)
+        with th.no_grad():
+            alpha, beta = self.alpha_beta(obs, actions)
+            if mode == "sample":
+                return th.distributions.Beta(alpha, beta).sample().cpu().numpy().astype(np.float32)
+            if mode == "mean":
+                return (alpha / (alpha + beta)).cpu().numpy().astype(np.float32)
+        return beta_tail_feasibility(
+            alpha.cpu().numpy().astype(np.float64), beta.cpu().numpy().astype(np.float64), level, mode
+        ).astype(np.float32)
+
+
+def beta_tail_feasibility(alpha: np.ndarray, beta: np.ndarray, confidence: float, mode: str) -> np.ndarray:
+    """
+    The value at risk (``mode="var"``) or conditional value at risk (``mode="cvar"``) of ``phi ~ Beta(alpha, beta)``
+    on its low-feasibility tail at level ``confidence``: ``VaR = F^-1(1 - confidence)`` and
+    ``CVaR = E[phi | phi <= VaR] = alpha / (alpha + beta) * I(VaR; alpha + 1, beta) / (1 - confidence)``.
+
+    :param alpha: ``alpha > 0``
+    :param beta: ``beta > 0``, same shape
+    :param confidence: Level in ``(0, 1)``
+    :param mode: ``"var"`` or ``"cvar"``
+    :return: The feasibility, same shape
+    """
+    tail_probability = 1.0 - _check_confidence(confidence)
+    value_at_risk = scipy.special.betaincinv(alpha, beta, tail_probability)
+    if mode == "var":
+        return value_at_risk
+    if mode == "cvar":
+        mean = alpha / (alpha + beta)
+        return np.clip(mean * scipy.special.betainc(alpha + 1.0, beta, value_at_risk) / tail_probability, 0.0, value_at_risk)
+    raise ValueError(f"`mode` must be 'var' or 'cvar', got {mode!r}.")
+
+
+def _check_cost_mode(cost_mode: str) -> str:
+    mode = str(cost_mode).lower()
+    if mode not in BETA_COST_MODES:
+        raise ValueError(f"Unknown cost mode {cost_mode!r}: expected one of {BETA_COST_MODES} (case-insensitive).")
+    return mode
+
+
+def _check_confidence(confidence: float) -> float:
+    if not 0.0 < confidence < 1.0:
+        raise ValueError(f"`confidence` must be in (0, 1), got {confidence}.")
+    return float(confidence)
+
+
+def _space_features(space: spaces.Space, what: str) -> tuple[int, bool]:
+    if isinstance(space, spaces.Discrete):
+        if space.start != 0:
+            raise ValueError(f"Discrete {what} spaces must start at 0, got start={space.start}.")
+        return int(space.n), True
+    if isinstance(space, spaces.Box) and len(space.shape) == 1:
+        return int(space.shape[0]), False
+    raise ValueError(
+        f"The constraint nets take a flat Box or a Discrete {what} space, got {space}. Flatten the {what}s first "
+        "(e.g. gymnasium.wrappers.FlattenObservation)."
+    )
