@@ -1,0 +1,26 @@
+"""
+Expert demonstrations for ICRL: trajectories with true costs, ``.npz`` files in ``imitation``'s layout, their
+generation from constrained experts, and the datasets shipped with the package.
+
+    from sb3_icrl.data import load_demonstrations
+
+    demos = load_demonstrations("GridWorldWall-v0")
+    transitions = demos.transitions  # obs, acts, next_obs, dones, rews, costs (costs: evaluation only)
+
+Command line: ``python -m sb3_icrl.data generate --env NAME --expert PATH_OR_pilag --n 50 --out FILE``.
+"""
+
+from sb3_icrl.data.serialize import DemonstrationError, from_imitation, load, metadata_path, save
+from sb3_icrl.data.types import Demonstrations, Trajectory, Transitions, flatten_trajectories
+
+__all__ = [
+    "DemonstrationError",
+    "Demonstrations",
+    "Trajectory",
+    "Transitions",
+    "flatten_trajectories",
+    "from_imitation",
+    "load",
+    "metadata_path",
+    "save",
+]
