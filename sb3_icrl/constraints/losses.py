@@ -10,9 +10,9 @@ Logarithms take ``log(p + eps)`` as in the reference code: a probability that re
 ``log(eps)`` instead of ``-inf``, and, unlike clamping, the gradient still flows when a sigmoid saturates.
 
 Sources: the paper "Benchmarking Constraint Inference in Inverse Reinforcement Learning" (Liu et al., ICLR 2023),
-section 3.3, and its public code (``constraint_models/constraint_net/constraint_net.py``,
-``variational_constraint_net.py``, ``gail_net.py`` and ``utils/model_utils.py`` in Guiliang/ICRL-benchmarks-public),
-which follows Malik et al. (2021) for MECL.
+sections 2.2 (maximum-entropy likelihood) and 3.2 (baselines), and its public code
+(``constraint_models/constraint_net/constraint_net.py``, ``variational_constraint_net.py``, ``gail_net.py`` and
+``utils/model_utils.py`` in Guiliang/ICRL-benchmarks-public), which follows Malik et al. (2021) for MECL.
 """
 
 from collections.abc import Sequence
@@ -149,8 +149,8 @@ def mecl_loss(
 
         L = -mean_E[log phi] + mean_N[w * log phi] + delta * (mean_E[1 - phi] + mean_N[1 - phi])
 
-    This is the paper's gradient (Eq. 4: ``sum_E log phi - N * E_nominal[log phi]``) with both sums turned into
-    means, the nominal expectation estimated on samples of the old policy with normalised importance weights
+    This is the paper's likelihood gradient (section 2.2: ``sum_E log phi - N * E_nominal[log phi]``) with both
+    sums turned into means, the nominal expectation estimated on samples of the old policy with normalised importance weights
     ``w`` (:func:`mecl_importance_weights`), and the regulariser over both batches as in the reference code
     (``constraint_net.py``, ``regularizer_coeff``).
 
@@ -256,7 +256,7 @@ def mecl_should_stop(
 
 def beta_kl_divergence(alpha: th.Tensor, beta: th.Tensor, prior_alpha: float, prior_beta: float) -> th.Tensor:
     """
-    Closed-form ``KL(Beta(alpha, beta) || Beta(alpha0, beta0))``, elementwise (paper, section 3.3, the Dirichlet-VAE
+    Closed-form ``KL(Beta(alpha, beta) || Beta(alpha0, beta0))``, elementwise (paper, section 3.2, the Dirichlet-VAE
     formula of Joo et al. 2020 for two categories)::
 
         KL = ln B(alpha0, beta0) - ln B(alpha, beta)
@@ -299,7 +299,7 @@ def vicrl_loss(
     eps: float = DEFAULT_LOG_EPS,
 ) -> ConstraintLoss:
     """
-    VICRL: the negative ELBO of the paper (section 3.3), ``-(E_q[log p(D_e | phi)] - KL(q(phi | D) || p(phi)))``, with
+    VICRL: the negative ELBO of the paper (section 3.2), ``-(E_q[log p(D_e | phi)] - KL(q(phi | D) || p(phi)))``, with
     ``q(phi | s, a) = Beta(alpha, beta)`` and the KL over the data approximated by the per-pair KLs::
 
         L = -mean_E[log phi~] + mean_N[w * log phi~]
@@ -307,7 +307,7 @@ def vicrl_loss(
 
     where ``phi~ ~ Beta(alpha, beta)`` is one reparameterised sample per pair
     (``BetaFeasibilityNet.distribution(obs, acts).rsample()``), so ``E_q[log p(D_e | phi)]`` is estimated as in
-    MECL's likelihood (Eq. 3) with the feasibility sampled; the KL is :func:`beta_kl_divergence`. As in the
+    MECL's likelihood (section 2.2) with the feasibility sampled; the KL is :func:`beta_kl_divergence`. As in the
     reference code (``variational_constraint_net.py``), the KL of both the expert and the nominal pairs is
     averaged, its weight is the config's regulariser coefficient, and importance weights are off by default.
     The default prior ``Beta(0.9, 0.1)`` has mean 0.9 (most pairs feasible).
