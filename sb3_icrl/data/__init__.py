@@ -10,17 +10,34 @@ generation from constrained experts, and the datasets shipped with the package.
 Command line: ``python -m sb3_icrl.data generate --env NAME --expert PATH_OR_pilag --n 50 --out FILE``.
 """
 
+from sb3_icrl.data.generate import NormalizedExpert, build_dataset, generate_demonstrations, load_expert
+from sb3_icrl.data.registry import (
+    DEMONSTRATIONS_DIR,
+    available_demonstrations,
+    dataset_file_name,
+    load_demonstrations,
+    regenerate_shipped,
+)
 from sb3_icrl.data.serialize import DemonstrationError, from_imitation, load, metadata_path, save
 from sb3_icrl.data.types import Demonstrations, Trajectory, Transitions, flatten_trajectories
 
 __all__ = [
+    "DEMONSTRATIONS_DIR",
     "DemonstrationError",
     "Demonstrations",
+    "NormalizedExpert",
     "Trajectory",
     "Transitions",
+    "available_demonstrations",
+    "build_dataset",
+    "dataset_file_name",
     "flatten_trajectories",
     "from_imitation",
+    "generate_demonstrations",
     "load",
+    "load_demonstrations",
+    "load_expert",
     "metadata_path",
+    "regenerate_shipped",
     "save",
 ]

@@ -1,0 +1,151 @@
+"""
+Demonstrations shipped with the package, loadable by env name::
+
+    from sb3_icrl.data import load_demonstrations
+
+    demos = load_demonstrations("GridWorldWall-v0")  # clean expert data
+    imperfect = load_demonstrations("GridWorldWall-v0", violating_fraction=0.2)
+
+Files live in ``sb3_icrl/data/demonstrations/`` as ``<EnvName>.npz`` (clean) and
+``<EnvName>_violating-<fraction>.npz``, each with its JSON sidecar. ``python -m sb3_icrl.data shipped``
+regenerates them; ``python -m sb3_icrl.data list`` lists them.
+"""
+
+import os
+import pathlib
+import re
+
+import gymnasium as gym
+from stable_baselines3.common.vec_env import VecEnv
+
+from sb3_icrl.data.generate import build_dataset
+from sb3_icrl.data.serialize import DemonstrationError, load
+from sb3_icrl.data.types import Demonstrations
+from sb3_icrl.envs import NAMESPACE
+
+#: Folder of the shipped datasets
+DEMONSTRATIONS_DIR = pathlib.Path(__file__).parent / "demonstrations"
+_VIOLATING_SUFFIX = "_violating-"
+_FILE_PATTERN = re.compile(rf"^(?P<name>.+?)(?:{_VIOLATING_SUFFIX}(?P<fraction>[0-9.]+))?\.npz$")
+
+#: The shipped datasets: env name -> (expert, number of trajectories); each in every fraction of SHIPPED_FRACTIONS.
+#: The grid world experts are PI-Lagrangian (trained in seconds); MuJoCo experts take hours and are made with the CLI.
+SHIPPED_DATASETS: dict[str, tuple[str, int]] = {
+    "GridWorldWall-v0": ("pilag", 50),
+    "GridWorldSquare-v0": ("pilag", 50),
+    "GridWorldBigSquare-v0": ("pilag", 50),
+    "GridWorldZigzag-v0": ("pilag", 50),
+}
+#: Violating fractions shipped for each dataset (0: clean expert data; the others are the paper's imperfect experts)
+SHIPPED_FRACTIONS = (0.0, 0.2, 0.5, 0.8)
+#: Seed of the shipped datasets
+SHIPPED_SEED = 0
+
+
+def env_name(env_id: str) -> str:
+    """
+    :param env_id: ``"sb3_icrl/GridWorldWall-v0"`` or ``"GridWorldWall-v0"``
+    :return: The name without the package namespace
+    """
+    prefix = f"{NAMESPACE}/"
+    return env_id[len(prefix) :] if env_id.startswith(prefix) else env_id
+
+
+def dataset_file_name(name: str, violating_fraction: float | None = None) -> str:
+    """
+    :param name: Env name or id (namespace optional)
+    :param violating_fraction: Share of violating trajectories; ``None`` or 0 for clean expert data
+    :return: The file name of the dataset, e.g. ``"GridWorldWall-v0_violating-0.2.npz"``
+    """
+    base = env_name(name).replace("/", "-")
+    if not violating_fraction:
+        return f"{base}.npz"
+    return f"{base}{_VIOLATING_SUFFIX}{float(violating_fraction):g}.npz"
+
+
+def available_demonstrations(directory: str | os.PathLike = DEMONSTRATIONS_DIR) -> dict[str, list[float]]:
+    """
+    :param directory: Folder to look in (default: the shipped datasets)
+    :return: ``env name -> sorted violating fractions`` available (0.0 is the clean expert data)
+    """
+    available: dict[str, list[float]] = {}
+    for path in sorted(pathlib.Path(directory).glob("*.npz")):
+        match = _FILE_PATTERN.match(path.name)
+        if match is None:
+            continue
+        fraction = float(match["fraction"]) if match["fraction"] else 0.0
+        available.setdefault(match["name"], []).append(fraction)
+    return {name: sorted(fractions) for name, fractions in available.items()}
+
+
+def _describe(available: dict[str, list[float]]) -> str:
+    if not available:
+        return "none"
+    return "; ".join(
+        f"{name} (violating_fraction {', '.join(f'{f:g}' for f in fractions)})" for name, fractions in available.items()
+    )
+
+
+def load_demonstrations(
+    name_or_path: str | os.PathLike,
+    env: gym.Env | VecEnv | str | None = None,
+    violating_fraction: float | None = None,
+    directory: str | os.PathLike = DEMONSTRATIONS_DIR,
+) -> Demonstrations:
+    """
+    Load a shipped dataset by env name, or any file written by :func:`~sb3_icrl.data.serialize.save` by path.
+
+    :param name_or_path: Env name or id (``"GridWorldWall-v0"``, ``"sb3_icrl/GridWorldWall-v0"``) or a path to an ``.npz``
+    :param env: Optional target env whose observation and action spaces the data must fit
+    :param violating_fraction: For names: the imperfect-expert variant (e.g. 0.2); ``None`` or 0: clean expert data
+    :param directory: Where to look for names (default: the shipped datasets)
+    :return: The trajectories and their metadata
+    """
+    text = os.fspath(name_or_path)
+    if text.endswith(".npz") or os.path.isfile(text):
+        if violating_fraction:
+            raise DemonstrationError(
+                "`violating_fraction` picks a shipped variant by name; a path already names one file: drop the argument."
+            )
+        return load(text, env=env)
+    path = pathlib.Path(directory) / dataset_file_name(text, violating_fraction)
+    if not path.is_file():
+        raise DemonstrationError(
+            f"No demonstrations named {env_name(text)!r} with violating_fraction={violating_fraction or 0:g} "
+            f"in {directory}. Available: {_describe(available_demonstrations(directory))}. Generate others with "
+            "`python -m sb3_icrl.data generate --env NAME --expert PATH --n 50 --out FILE` and load them by path."
+        )
+    return load(path, env=env)
+
+
+def regenerate_shipped(directory: str | os.PathLike = DEMONSTRATIONS_DIR, verbose: bool = True) -> list[dict]:
+    """
+    Regenerate every shipped dataset (:data:`SHIPPED_DATASETS` x :data:`SHIPPED_FRACTIONS`): deterministic
+    expert, violating trajectories dropped from the clean data, seed :data:`SHIPPED_SEED`.
+
+    :param directory: Where to write them
+    :param verbose: Print a line per dataset
+    :return: The sidecars written
+    """
+    sidecars = []
+    for name, (expert, n_trajectories) in SHIPPED_DATASETS.items():
+        for fraction in SHIPPED_FRACTIONS:
+            path = pathlib.Path(directory) / dataset_file_name(name, fraction)
+            command = (
+                f"python -m sb3_icrl.data generate --env {name} --expert {expert} --n {n_trajectories} --out {path.name} "
+                f"--violating-fraction {fraction:g} --seed {SHIPPED_SEED} --deterministic"
+            )
+            sidecar = build_dataset(
+                path,
+                name,
+                expert,
+                n_trajectories,
+                command=command,
+                violating_fraction=fraction,
+                seed=SHIPPED_SEED,
+                deterministic=True,
+            )
+            sidecars.append(sidecar)
+            if verbose:
+                print(f"{path.name}: {sidecar['n_trajectories']} trajectories, mean return {sidecar['mean_return']:.3f}")
+    return sidecars
