@@ -69,6 +69,11 @@ class CostRolloutBuffer(RolloutBuffer):
     Cost values need not be known while collecting: the algorithm sets them for the whole rollout at once with
     :meth:`set_cost_values` (one batched forward pass), then calls :meth:`compute_returns_and_advantage`.
 
+    Like SB3's ``rewards``, ``costs`` keeps its ``(n_steps, n_envs, n_costs)`` layout after sampling, while the arrays
+    that are sampled (observations, values, advantages, returns and their cost twins) are flattened env by env.
+    At time-limit truncations ``costs`` holds the cost plus ``cost_gamma`` times the cost value of the final
+    observation, as ``rewards`` does.
+
     :param buffer_size: Number of steps per env
     :param observation_space: Observation space
     :param action_space: Action space
