@@ -6,7 +6,6 @@ from stable_baselines3.common.env_util import make_vec_env
 from sb3_icrl import PPOLagrangian
 from sb3_icrl.common.callbacks import EpisodeCostRecorder
 from sb3_icrl.common.envs import ConstrainedCorridorEnv
-from sb3_icrl.common.utils import atomic_write_json
 
 TINY = dict(n_steps=32, batch_size=16, n_epochs=1, policy_kwargs=dict(net_arch=[8]), seed=0)
 
@@ -25,13 +24,3 @@ def test_recorder_agrees_with_ppolagrangian_episode_costs():
 def test_recorder_needs_the_cost_key():
     with pytest.raises(KeyError, match="needs info\\['true_cost'\\]"):
         PPO("MlpPolicy", ConstrainedCorridorEnv(), **TINY).learn(32, callback=EpisodeCostRecorder("true_cost"))
-
-
-def test_atomic_write_json_leaves_old_file_on_failure(tmp_path):
-    path = str(tmp_path / "sub" / "result.json")
-    atomic_write_json(path, {"a": 1})
-    with pytest.raises(TypeError):
-        atomic_write_json(path, {"a": object()})
-    with open(path) as handle:
-        assert handle.read() == '{"a": 1}'
-    assert [name for name in (tmp_path / "sub").iterdir() if name.suffix == ".tmp"] == []

@@ -30,7 +30,6 @@ import json
 import os
 import pathlib
 import platform
-import tempfile
 import zipfile
 from collections.abc import Sequence
 from typing import Any
@@ -40,6 +39,7 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_icrl.common.utils import atomic_write_bytes
 from sb3_icrl.data.types import Demonstrations, Trajectory
 
 #: Version of the file layout, stored in the sidecar
@@ -74,20 +74,6 @@ def package_versions() -> dict[str, str | None]:
         except importlib.metadata.PackageNotFoundError:
             versions[package] = None
     return versions
-
-
-def _atomic_write_bytes(path: pathlib.Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    file_descriptor, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(file_descriptor, "wb") as file:
-            file.write(data)
-        # mkstemp creates the file private (0600); data files are meant to be shared
-        os.chmod(temporary, 0o644)
-        os.replace(temporary, path)
-    except BaseException:
-        os.unlink(temporary)
-        raise
 
 
 def _npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
@@ -182,8 +168,8 @@ def save(
         raise DemonstrationError(f"The metadata must be JSON-serialisable: {error}.") from error
     path = pathlib.Path(path)
     # Archive first: a crash before the sidecar is written shows up as a checksum mismatch, not as silent bad data
-    _atomic_write_bytes(path, content)
-    _atomic_write_bytes(metadata_path(path), (json.dumps(sidecar, indent=2, sort_keys=True) + "\n").encode())
+    atomic_write_bytes(path, content)
+    atomic_write_bytes(metadata_path(path), (json.dumps(sidecar, indent=2, sort_keys=True) + "\n").encode())
     return sidecar
 
 

@@ -2,9 +2,7 @@
 
 import io
 import json
-import os
 import pathlib
-import tempfile
 from typing import Any
 
 import gymnasium as gym
@@ -12,6 +10,8 @@ import numpy as np
 from stable_baselines3.common.env_util import is_wrapped
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
+
+from sb3_icrl.common.utils import atomic_write_bytes
 
 # Two action values closer than this are a tie: keeps the policy from flipping between equal actions
 _TIE_TOLERANCE = 1e-10
@@ -320,15 +320,7 @@ class PILagrangian:
             rewards=self.rewards,
             cost_table=self.cost_table,
         )
-        path.parent.mkdir(parents=True, exist_ok=True)
-        file_descriptor, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-        try:
-            with os.fdopen(file_descriptor, "wb") as file:
-                file.write(buffer.getvalue())
-            os.replace(temporary, path)
-        except BaseException:
-            os.unlink(temporary)
-            raise
+        atomic_write_bytes(path, buffer.getvalue())
 
     @classmethod
     def load(cls, path: str | pathlib.Path, env: gym.Env | VecEnv | str | None = None) -> "PILagrangian":
