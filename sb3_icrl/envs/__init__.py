@@ -37,6 +37,22 @@ ENV_SPECS: dict[str, tuple[str, int, dict]] = {
     "GridWorldSquare-v0": ("sb3_icrl.envs.grid_world:GridWorldEnv", 50, {"map_name": "square"}),
     "GridWorldBigSquare-v0": ("sb3_icrl.envs.grid_world:GridWorldEnv", 50, {"map_name": "big-square"}),
     "GridWorldZigzag-v0": ("sb3_icrl.envs.grid_world:GridWorldEnv", 50, {"map_name": "zigzag"}),
+    # Driving: 40 s at 5 Hz; the env ends its episodes itself (time-out included), the limit only backs it up
+    "HighwayVelocity-v0": (
+        "sb3_icrl.envs.highway.env:HighwayConstraintEnv",
+        200,
+        {"constraints": ("velocity",), "traffic": "sparse"},
+    ),
+    "HighwayDistance-v0": (
+        "sb3_icrl.envs.highway.env:HighwayConstraintEnv",
+        200,
+        {"constraints": ("distance",), "traffic": "dense"},
+    ),
+    "HighwayVelocityDistance-v0": (
+        "sb3_icrl.envs.highway.env:HighwayConstraintEnv",
+        200,
+        {"constraints": ("velocity", "distance"), "traffic": "mixed"},
+    ),
 }
 
 
