@@ -8,6 +8,7 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import sb3_icrl.envs  # noqa: F401  (registers the ids)
 from sb3_icrl.envs.highway import FEATURE_INDEX, FEATURES, HIGHWAY_CONSTRAINTS, HighwayConstraintEnv, Scenario
+from sb3_icrl.envs.highway.drivers import RuleBasedDriver
 
 F = FEATURE_INDEX
 DT = 0.2
@@ -283,3 +284,36 @@ def test_bad_action_shape():
     env = make_env(make_scenario())
     with pytest.raises(ValueError, match="shape"):
         env.step(np.zeros(3, dtype=np.float32))
+
+
+def test_mixed_traffic_draws_each_density_alike():
+    env = HighwayConstraintEnv(traffic="mixed", split="test")
+    densities = []
+    for seed in range(200):
+        env.reset(seed=seed)
+        densities.append(env.scenario.density)
+    dense_share = np.mean(np.array(densities) == max(densities))
+    assert 0.4 < dense_share < 0.6  # dense recordings hold ~2.5 times more candidate egos
+
+
+def test_breaking_the_speed_limit_pays_in_sparse_traffic():
+    # The rule-based driver of the greedy check (benchmarks/highway_greedy.py), with and without the limit
+    env = gym.make("sb3_icrl/HighwayVelocity-v0", split="test")
+    speeders = 0
+    for seed in range(6):
+        returns, broke = {}, {}
+        for target_speed in (60.0, 39.5):
+            driver = RuleBasedDriver(target_speed=target_speed)
+            obs, _ = env.reset(seed=seed)
+            done, returns[target_speed], broke[target_speed] = False, 0.0, False
+            while not done:
+                obs, reward, terminated, truncated, info = env.step(driver(obs))
+                returns[target_speed] += reward
+                broke[target_speed] |= info["cost"] > 0
+                done = terminated or truncated
+            assert info["goal_reached"]
+        assert not broke[39.5]
+        if broke[60.0]:  # unless slow traffic held it back
+            speeders += 1
+            assert returns[60.0] > returns[39.5]
+    assert speeders >= 3

@@ -251,6 +251,10 @@ class HighwayConstraintEnv(gymnasium.Env):
         ]
         if not self.candidates:
             raise ValueError(f"No car of the scenarios has {self.max_steps} recorded frames after entering the stretch")
+        # Resets draw a recording first, so that dense recordings (more cars) do not outweigh sparse ones
+        per_scenario = np.bincount([i for i, _, _ in self.candidates], minlength=len(self.scenarios))
+        self._candidate_starts = np.concatenate([[0], np.cumsum(per_scenario)])
+        self._drawable = np.flatnonzero(per_scenario)
 
         self.action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
         self.observation_space = spaces.Box(-np.inf, np.inf, shape=(len(FEATURES),), dtype=np.float32)
@@ -269,13 +273,17 @@ class HighwayConstraintEnv(gymnasium.Env):
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[NDArray[np.float32], dict]:
         """
-        :param seed: Seed of the choice of scenario and ego car
+        :param seed: Seed of the choice of recording (uniform) and of the ego car in it (uniform)
         :param options: ``{"candidate": i}`` picks ``self.candidates[i]`` instead of a random one
         :return: First observation and info
         """
         super().reset(seed=seed)
         options = options or {}
-        index = int(options["candidate"]) if "candidate" in options else int(self.np_random.integers(len(self.candidates)))
+        if "candidate" in options:
+            index = int(options["candidate"])
+        else:
+            scenario = self._drawable[self.np_random.integers(len(self._drawable))]
+            index = int(self.np_random.integers(self._candidate_starts[scenario], self._candidate_starts[scenario + 1]))
         self.scenario_index, self.ego_id, self.start_frame = self.candidates[index]
         self.scenario = self.scenarios[self.scenario_index]
         ids, states = self.scenario.frame(self.start_frame)
