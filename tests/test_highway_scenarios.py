@@ -97,3 +97,11 @@ def test_bad_split_or_density():
         scenario_files("medium", "train")
     with pytest.raises(FileNotFoundError):
         scenario_files("dense", "train", directory=os.path.join(SCENARIO_DIR, "missing"))
+
+
+def test_shipped_recording_is_what_its_seed_records():
+    path = scenario_files("sparse", "test")[0]
+    shipped = Scenario.load(path)
+    again = record_scenario(seed=shipped.seed, density=DENSITIES["sparse"])
+    np.testing.assert_array_equal(again.car_ids, shipped.car_ids)
+    np.testing.assert_allclose(again.states, shipped.states, atol=1e-4)
