@@ -1,0 +1,92 @@
+"""GACL: a GAIL-style discriminator ``D(s, a)``, and plain PPO on the reward ``r + log D`` (no Lagrangian)."""
+
+from typing import Any, ClassVar
+
+from stable_baselines3 import PPO
+from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.type_aliases import GymEnv
+from stable_baselines3.common.vec_env import VecEnv
+
+from sb3_icrl.bc2l.bc2l import BC2LTrainer
+from sb3_icrl.constraints.losses import gacl_discriminator_loss
+from sb3_icrl.constraints.networks import FeasibilityNet, _ConstraintNet
+from sb3_icrl.constraints.wrappers import GACLRewardWrapper
+from sb3_icrl.icrl.base import DemonstrationsLike, ICRLAlgorithmMixin
+from sb3_icrl.icrl.trainer import ICRLTrainer
+
+
+class GACLTrainer(BC2LTrainer):
+    """
+    GACL's discriminator update (:func:`~sb3_icrl.constraints.gacl_discriminator_loss`): binary cross-entropy with
+    ``D = 1`` on expert pairs and 0 on nominal ones, the same form as BC2L's. Arguments: see
+    :class:`~sb3_icrl.icrl.ICRLTrainer`; the discriminator is a :class:`~sb3_icrl.constraints.FeasibilityNet` (its
+    ``feasibility`` is ``D``).
+    """
+
+    binary_loss = staticmethod(gacl_discriminator_loss)
+
+
+class GACL(ICRLAlgorithmMixin, PPO):
+    """
+    Generative Adversarial Constraint Learning (the paper's section 3.2): a discriminator ``D(s, a)`` trained with
+    :class:`GACLTrainer` on expert vs the learner's pairs, and plain PPO on ``r'(s, a) = r + log D(s, a)``
+    (``GACLRewardWrapper``; the env's reward is kept in ``info["env_reward"]``, its true cost moved to
+    ``info["true_cost"]``, both for logging only).
+
+    :param policy: The policy model (``"MlpPolicy"``...)
+    :param env: The environment; flat Box or Discrete spaces
+    :param demonstrations: Expert demonstrations (see :class:`~sb3_icrl.icrl.LagrangianICRL`)
+    :param constraint_net: A built discriminator (default: a ``FeasibilityNet`` for the env's spaces)
+    :param constraint_net_kwargs: Arguments of the default discriminator
+    :param constraint_learning_rate: Adam learning rate of the discriminator
+    :param constraint_steps: Passes over the nominal data per update
+    :param constraint_batch_size: Nominal pairs per minibatch (``None``: all)
+    :param update_every: Policy timesteps between updates (default: one rollout)
+    :param n_nominal_trajectories: Most recent learner trajectories per update (default: the number of expert ones)
+    :param trainer_class: The trainer class (default :class:`GACLTrainer`)
+    :param trainer_kwargs: Further arguments of the trainer
+    :param log_d_eps: Smallest ``D`` inside the log of the reward
+    :param kwargs: The other arguments of SB3's ``PPO``
+    """
+
+    constraint_net_class: ClassVar[type[_ConstraintNet]] = FeasibilityNet
+    default_trainer_class: ClassVar[type[ICRLTrainer]] = GACLTrainer
+
+    def __init__(
+        self,
+        policy: str | type[ActorCriticPolicy],
+        env: GymEnv | str,
+        demonstrations: DemonstrationsLike | None = None,
+        constraint_net: _ConstraintNet | None = None,
+        constraint_net_kwargs: dict[str, Any] | None = None,
+        constraint_learning_rate: float = 1e-3,
+        constraint_steps: int = 5,
+        constraint_batch_size: int | None = None,
+        update_every: int | None = None,
+        n_nominal_trajectories: int | None = None,
+        trainer_class: type[ICRLTrainer] | None = None,
+        trainer_kwargs: dict[str, Any] | None = None,
+        log_d_eps: float = 1e-5,
+        _init_setup_model: bool = True,
+        **kwargs: Any,
+    ):
+        self._init_icrl(
+            demonstrations,
+            constraint_net,
+            constraint_net_kwargs,
+            constraint_learning_rate,
+            constraint_steps,
+            constraint_batch_size,
+            update_every,
+            n_nominal_trajectories,
+            trainer_class,
+            trainer_kwargs,
+        )
+        self.log_d_eps = log_d_eps
+        super().__init__(policy, env, _init_setup_model=False, **kwargs)
+        if _init_setup_model:
+            self._setup_model()
+
+    def _make_constraint_wrapper(self, venv: VecEnv) -> GACLRewardWrapper:
+        assert self.constraint_net is not None
+        return GACLRewardWrapper(venv, self.constraint_net.predict_feasibility, eps=self.log_d_eps)

@@ -1,0 +1,18 @@
+"""Shared machinery of the ICRL algorithms: the trainer callback, nominal-data recording, the algorithm base."""
+
+from sb3_icrl.icrl.base import DEFAULT_LAGRANGE_KWARGS, ICRLAlgorithmMixin, LagrangianICRL
+from sb3_icrl.icrl.callbacks import TrueConstraintLogger
+from sb3_icrl.icrl.recorder import NominalData, NominalTrajectory, TrajectoryRecorderVecEnvWrapper
+from sb3_icrl.icrl.trainer import ICRLTrainer, install_constraint
+
+__all__ = [
+    "DEFAULT_LAGRANGE_KWARGS",
+    "ICRLAlgorithmMixin",
+    "ICRLTrainer",
+    "LagrangianICRL",
+    "NominalData",
+    "NominalTrajectory",
+    "TrajectoryRecorderVecEnvWrapper",
+    "TrueConstraintLogger",
+    "install_constraint",
+]

@@ -1,0 +1,382 @@
+"""
+The shared base of the ICRL algorithms: an SB3 on-policy learner (PPO-Lagrangian or PPO) plus a constraint model,
+the wrappers that feed it to the learner and record nominal data, and the :class:`ICRLTrainer` callback.
+"""
+
+import os
+import warnings
+from collections.abc import Sequence
+from typing import Any, ClassVar, TypeVar
+
+import numpy as np
+import torch as th
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList, ConvertCallback
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
+from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
+
+from sb3_icrl.common.policies import CostActorCriticPolicy
+from sb3_icrl.constraints.networks import FeasibilityNet, _ConstraintNet
+from sb3_icrl.constraints.wrappers import GACLRewardWrapper, LearnedCostVecEnvWrapper
+from sb3_icrl.data.registry import load_demonstrations
+from sb3_icrl.data.serialize import DemonstrationError, check_spaces
+from sb3_icrl.data.types import Demonstrations, Trajectory
+from sb3_icrl.icrl.callbacks import TrueConstraintLogger
+from sb3_icrl.icrl.recorder import TrajectoryRecorderVecEnvWrapper
+from sb3_icrl.icrl.trainer import ICRLTrainer, install_constraint
+from sb3_icrl.ppo_lagrangian import PPOLagrangian
+
+SelfICRL = TypeVar("SelfICRL", bound="ICRLAlgorithmMixin")
+
+#: What can be passed as demonstrations: a dataset, trajectories, a shipped dataset's name or a file path
+DemonstrationsLike = Demonstrations | Sequence[Trajectory] | str | os.PathLike
+
+
+class ICRLAlgorithmMixin:
+    """
+    Turns an SB3 on-policy algorithm into an ICRL algorithm; listed first in the bases
+    (``class BC2L(ICRLAlgorithmMixin, PPOLagrangian)``).
+
+    The env is wrapped at its bottom, below any ``VecNormalize``, as
+    ``constraint_wrapper(TrajectoryRecorderVecEnvWrapper(raw_venv))``: the recorder keeps the learner's raw
+    observations and actions by trajectory (nominal data), the constraint wrapper writes the learned cost into
+    ``info["cost"]`` (or GACL's ``r + log D`` into the reward) and moves the env's true cost to
+    ``info["true_cost"]``, which only :class:`TrueConstraintLogger` reads, for logging.
+
+    Saving: the constraint net's ``state_dict`` and its optimizer's go into the SB3 zip beside the policy's, its
+    class and constructor arguments into the zip's data; ``load`` rebuilds it. The demonstrations are not saved: a
+    dataset given by name or path is reloaded by ``load``; otherwise pass ``demonstrations=`` to ``load`` to train on.
+    """
+
+    #: Default constraint model class
+    constraint_net_class: ClassVar[type[_ConstraintNet]] = FeasibilityNet
+    #: Default trainer class
+    default_trainer_class: ClassVar[type[ICRLTrainer]]
+
+    # Attributes of the SB3 algorithm this mixin is combined with
+    env: VecEnv | None
+    seed: int | None
+    device: th.device
+    n_steps: int
+    n_envs: int
+
+    def _init_icrl(
+        self,
+        demonstrations: DemonstrationsLike | None,
+        constraint_net: _ConstraintNet | None,
+        constraint_net_kwargs: dict[str, Any] | None,
+        constraint_learning_rate: float,
+        constraint_steps: int,
+        constraint_batch_size: int | None,
+        update_every: int | None,
+        n_nominal_trajectories: int | None,
+        trainer_class: type[ICRLTrainer] | None,
+        trainer_kwargs: dict[str, Any] | None,
+    ) -> None:
+        if constraint_net is not None and not isinstance(constraint_net, _ConstraintNet):
+            raise TypeError(
+                f"`constraint_net` must be a FeasibilityNet or BetaFeasibilityNet, got {type(constraint_net).__name__}."
+            )
+        if constraint_net is not None and constraint_net_kwargs:
+            raise ValueError("Give either `constraint_net` (a built model) or `constraint_net_kwargs`, not both.")
+        if constraint_learning_rate <= 0:
+            raise ValueError(f"`constraint_learning_rate` must be > 0, got {constraint_learning_rate}.")
+        if trainer_class is not None and not (isinstance(trainer_class, type) and issubclass(trainer_class, ICRLTrainer)):
+            raise TypeError(f"`trainer_class` must be a subclass of ICRLTrainer, got {trainer_class!r}.")
+        self.demonstrations_source = os.fspath(demonstrations) if isinstance(demonstrations, (str, os.PathLike)) else None
+        self.demonstrations: Demonstrations | None = None
+        self.expert_obs: np.ndarray | None = None
+        self.expert_acts: np.ndarray | None = None
+        self._pending_demonstrations = demonstrations
+        self.constraint_net: _ConstraintNet | None = constraint_net
+        self.constraint_net_class_ = type(constraint_net) if constraint_net is not None else self.constraint_net_class
+        self.constraint_net_kwargs = dict(constraint_net_kwargs or {})
+        self.constraint_learning_rate = float(constraint_learning_rate)
+        self.constraint_steps = int(constraint_steps)
+        self.constraint_batch_size = constraint_batch_size
+        self.update_every = update_every
+        self.n_nominal_trajectories = n_nominal_trajectories
+        self.trainer_class = trainer_class or self.default_trainer_class
+        self.trainer_kwargs = dict(trainer_kwargs or {})
+        self.constraint_optimizer: th.optim.Optimizer | None = None
+        self.recorder: TrajectoryRecorderVecEnvWrapper | None = None
+        self.constraint_wrapper: LearnedCostVecEnvWrapper | GACLRewardWrapper | None = None
+        self.icrl_trainer: ICRLTrainer | None = None
+        self.true_constraint_logger: TrueConstraintLogger | None = None
+
+    # ------------------------------------------------------------------ set-up
+
+    def _setup_model(self) -> None:
+        super()._setup_model()  # type: ignore[misc]
+        self._setup_icrl()
+
+    def _setup_icrl(self) -> None:
+        """Resolve the demonstrations, build (or rebuild, on ``load``) the constraint model and wrap the env."""
+        if self.constraint_net is None:
+            # ``load`` restores constraint_net_spec_ from the zip's data; a new model builds from the spaces
+            spec = getattr(self, "constraint_net_spec_", None)
+            if spec is not None:
+                self.constraint_net = spec["class"].from_constructor_kwargs(spec["kwargs"])
+            else:
+                self.constraint_net = self.constraint_net_class_.from_spaces(
+                    self.observation_space, self.action_space, **self.constraint_net_kwargs  # type: ignore[attr-defined]
+                )
+        self.constraint_net.to(self.device)
+        self.constraint_net_spec_ = {"class": type(self.constraint_net), "kwargs": self.constraint_net.constructor_kwargs}
+        self.constraint_optimizer = th.optim.Adam(self.constraint_net.parameters(), lr=self.constraint_learning_rate)
+        pending = getattr(self, "_pending_demonstrations", None)
+        if pending is None and self.demonstrations is not None and self.expert_obs is None:
+            # ``load(..., demonstrations=...)`` sets the attribute directly
+            pending = self.demonstrations
+        if pending is not None:
+            self.set_demonstrations(pending)
+        elif self.demonstrations is None and self.demonstrations_source is not None:
+            try:
+                self.set_demonstrations(self.demonstrations_source)
+            except DemonstrationError as error:
+                warnings.warn(
+                    f"Could not reload the demonstrations {self.demonstrations_source!r} ({error}); the model predicts, "
+                    "but to train it pass `demonstrations=` to `load` or call `set_demonstrations(...)`."
+                )
+        self._wrap_icrl_env()
+
+    def set_demonstrations(self, demonstrations: DemonstrationsLike) -> None:
+        """
+        Use these expert demonstrations (checked against the env's spaces, or the constraint net's without an env).
+        On a new model the constraint net's input normaliser is fitted on them.
+
+        :param demonstrations: A :class:`~sb3_icrl.data.Demonstrations`, a list of trajectories, the name of a
+            shipped dataset (``"GridWorldWall-v0"``) or the path of an ``.npz`` file
+        """
+        if isinstance(demonstrations, (str, os.PathLike)):
+            demos = load_demonstrations(demonstrations, env=self.env)
+            self.demonstrations_source = os.fspath(demonstrations)
+        elif isinstance(demonstrations, Demonstrations):
+            demos = demonstrations
+        elif isinstance(demonstrations, Sequence) and all(isinstance(t, Trajectory) for t in demonstrations):
+            demos = Demonstrations(list(demonstrations))
+        else:
+            raise TypeError(
+                "`demonstrations` must be a Demonstrations, a list of Trajectory, a shipped dataset name or an .npz path, "
+                f"got {type(demonstrations).__name__}."
+            )
+        if len(demos) == 0:
+            raise DemonstrationError("The demonstrations hold no trajectory.")
+        transitions = demos.transitions
+        # Without an env (a model loaded for prediction), the spaces saved with the model
+        check_spaces(transitions.obs, transitions.acts, self.env if self.env is not None else self, demos.metadata)  # type: ignore[arg-type]
+        self.demonstrations = demos
+        self._pending_demonstrations = None
+        self.expert_obs, self.expert_acts = transitions.obs, transitions.acts
+        normalizer = self.constraint_net.normalizer
+        if normalizer is not None and not bool(normalizer.fitted):
+            self.constraint_net.fit_normalizer(self.expert_obs, self.expert_acts)
+
+    def _make_constraint_wrapper(self, venv: VecEnv) -> LearnedCostVecEnvWrapper | GACLRewardWrapper:
+        """The wrapper that feeds the constraint model to the learner (learned cost by default)."""
+        assert self.constraint_net is not None
+        return LearnedCostVecEnvWrapper(venv, self.constraint_net.cost)
+
+    def _wrap_icrl_env(self) -> None:
+        """Insert ``constraint_wrapper(recorder(raw_venv))`` at the bottom of the env, below any VecNormalize."""
+        self.recorder = self.constraint_wrapper = None
+        if self.env is None:
+            return
+        parent: VecEnvWrapper | None = None
+        node: VecEnv = self.env
+        while isinstance(node, VecEnvWrapper):
+            if isinstance(node, (LearnedCostVecEnvWrapper, GACLRewardWrapper)) and isinstance(
+                node.venv, TrajectoryRecorderVecEnvWrapper
+            ):
+                # Already wrapped (e.g. the env of another ICRL model): reuse, with this model's constraint
+                self.constraint_wrapper, self.recorder = node, node.venv
+                assert self.constraint_net is not None
+                install_constraint(node, self.constraint_net)
+                return
+            parent, node = node, node.venv
+        self.recorder = TrajectoryRecorderVecEnvWrapper(node)
+        self.constraint_wrapper = self._make_constraint_wrapper(self.recorder)
+        if parent is None:
+            self.env = self.constraint_wrapper
+        else:
+            parent.venv = self.constraint_wrapper
+
+    def set_env(self, env: GymEnv, force_reset: bool = True) -> None:
+        super().set_env(env, force_reset)  # type: ignore[misc]
+        self._wrap_icrl_env()
+
+    # ------------------------------------------------------------------ training
+
+    def _make_trainer(self) -> ICRLTrainer:
+        assert self.constraint_net is not None and self.constraint_optimizer is not None
+        assert self.recorder is not None and self.constraint_wrapper is not None and self.demonstrations is not None
+        assert self.expert_obs is not None and self.expert_acts is not None
+        update_every = self.update_every if self.update_every is not None else self.n_steps * self.n_envs
+        n_nominal = self.n_nominal_trajectories if self.n_nominal_trajectories is not None else len(self.demonstrations)
+        return self.trainer_class(
+            self.constraint_net,
+            self.constraint_optimizer,
+            self.expert_obs,
+            self.expert_acts,
+            self.recorder,
+            self.constraint_wrapper,
+            update_every=update_every,
+            constraint_steps=self.constraint_steps,
+            batch_size=self.constraint_batch_size,
+            n_nominal_trajectories=n_nominal,
+            **self.trainer_kwargs,
+        )
+
+    def learn(
+        self: SelfICRL,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        log_interval: int = 1,
+        tb_log_name: str | None = None,
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+    ) -> SelfICRL:
+        """
+        Alternate policy learning and constraint updates (see :class:`~sb3_icrl.icrl.ICRLTrainer`).
+
+        :param total_timesteps: Policy timesteps
+        :param callback: Callback(s) called at every step, as in SB3
+        :param log_interval: Iterations between log dumps
+        :param tb_log_name: TensorBoard run name (default: the class name)
+        :param reset_num_timesteps: Whether to reset the timestep counter
+        :param progress_bar: Display a progress bar
+        :return: The trained model
+        """
+        if self.demonstrations is None:
+            raise ValueError(
+                f"{type(self).__name__} has no demonstrations to learn from: pass `demonstrations=` to the constructor or "
+                "to `load`, or call `set_demonstrations(...)`."
+            )
+        if self.env is None:
+            raise ValueError("This model has no env: call `set_env(env)` before `learn()`.")
+        if self.icrl_trainer is None or self.icrl_trainer.recorder is not self.recorder:
+            self.icrl_trainer = self._make_trainer()
+        if self.true_constraint_logger is None:
+            self.true_constraint_logger = TrueConstraintLogger()
+        callbacks: list[BaseCallback] = [self.icrl_trainer, self.true_constraint_logger]
+        if isinstance(callback, list):
+            callbacks += callback
+        elif isinstance(callback, BaseCallback):
+            callbacks.append(callback)
+        elif callback is not None:
+            callbacks.append(ConvertCallback(callback))
+        return super().learn(  # type: ignore[misc]
+            total_timesteps=total_timesteps,
+            callback=CallbackList(callbacks),
+            log_interval=log_interval,
+            tb_log_name=type(self).__name__ if tb_log_name is None else tb_log_name,
+            reset_num_timesteps=reset_num_timesteps,
+            progress_bar=progress_bar,
+        )
+
+    def constraint_cost(self, observations: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """
+        The learned cost ``1 - phi`` of a batch (raw observations, actions as sent to the env).
+
+        :param observations: ``(batch, obs_dim)`` (indices for a discrete space)
+        :param actions: ``(batch, action_dim)`` (indices for a discrete space)
+        :return: Costs, ``(batch,)``
+        """
+        assert self.constraint_net is not None
+        return self.constraint_net.cost(observations, actions)
+
+    # ------------------------------------------------------------------ saving
+
+    def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
+        state_dicts, variables = super()._get_torch_save_params()  # type: ignore[misc]
+        return [*state_dicts, "constraint_net", "constraint_optimizer"], variables
+
+    def _excluded_save_params(self) -> list[str]:
+        return [
+            *super()._excluded_save_params(),  # type: ignore[misc]
+            "demonstrations",
+            "_pending_demonstrations",
+            "expert_obs",
+            "expert_acts",
+            "recorder",
+            "constraint_wrapper",
+            "icrl_trainer",
+            "true_constraint_logger",
+        ]
+
+
+#: The reference code's multiplier for the ICRL runs: plain gradient ascent (SGD), budget 0 on the per-step cost
+DEFAULT_LAGRANGE_KWARGS: dict[str, Any] = {"init": 0.1, "lr": 0.05, "optimizer": "sgd"}
+
+
+class LagrangianICRL(ICRLAlgorithmMixin, PPOLagrangian):
+    """
+    An ICRL algorithm whose forward solver is :class:`~sb3_icrl.PPOLagrangian` on the learned cost ``1 - phi``
+    (BC2L, MECL, VICRL). The learner reads the learned cost from ``info["cost"]``; it never sees the true one.
+
+    :param policy: The policy model (``"MlpPolicy"`` or a ``CostActorCriticPolicy`` subclass)
+    :param env: The environment (a gymnasium env, a VecEnv or a registered id); flat Box or Discrete spaces
+    :param demonstrations: Expert demonstrations: a :class:`~sb3_icrl.data.Demonstrations`, a list of trajectories,
+        a shipped dataset's name (``"GridWorldWall-v0"``) or an ``.npz`` path; checked against the env's spaces.
+        May be ``None`` only for a model that will not ``learn`` before ``set_demonstrations``.
+    :param constraint_net: A built constraint model (default: one of ``constraint_net_class`` for the env's spaces)
+    :param constraint_net_kwargs: Arguments of the default constraint model (``hidden_sizes``, ``obs_select_dim``...)
+    :param constraint_learning_rate: Adam learning rate of the constraint model
+    :param constraint_steps: Passes over the nominal data per constraint update
+    :param constraint_batch_size: Nominal pairs per constraint minibatch (``None``: all of them)
+    :param update_every: Policy timesteps between constraint updates (default: one rollout, ``n_steps * n_envs``)
+    :param n_nominal_trajectories: Most recent learner trajectories per update (default: the number of expert ones)
+    :param trainer_class: The :class:`~sb3_icrl.icrl.ICRLTrainer` subclass (default: the algorithm's)
+    :param trainer_kwargs: Further arguments of the trainer
+    :param cost_budget: Budget on the learned cost (reference: 0)
+    :param budget_statistic: ``"step"`` (mean per-step cost of the rollout, as the reference) or ``"episode"``
+    :param lagrange_kwargs: Multiplier arguments (default :data:`DEFAULT_LAGRANGE_KWARGS`)
+    :param kwargs: The other arguments of :class:`~sb3_icrl.PPOLagrangian` (``n_steps``, ``learning_rate``,
+        ``tensorboard_log``, ``seed``, ...), except ``cost_fn``: the constraint model is the cost
+    """
+
+    def __init__(
+        self,
+        policy: str | type[CostActorCriticPolicy],
+        env: GymEnv | str,
+        demonstrations: DemonstrationsLike | None = None,
+        constraint_net: _ConstraintNet | None = None,
+        constraint_net_kwargs: dict[str, Any] | None = None,
+        constraint_learning_rate: float = 1e-3,
+        constraint_steps: int = 5,
+        constraint_batch_size: int | None = None,
+        update_every: int | None = None,
+        n_nominal_trajectories: int | None = None,
+        trainer_class: type[ICRLTrainer] | None = None,
+        trainer_kwargs: dict[str, Any] | None = None,
+        cost_budget: float = 0.0,
+        budget_statistic: str = "step",
+        lagrange_kwargs: dict[str, Any] | None = None,
+        _init_setup_model: bool = True,
+        **kwargs: Any,
+    ):
+        if kwargs.get("cost_fn") is not None:
+            raise ValueError(f"{type(self).__name__} learns its cost: do not pass `cost_fn`.")
+        kwargs.pop("cost_fn", None)
+        self._init_icrl(
+            demonstrations,
+            constraint_net,
+            constraint_net_kwargs,
+            constraint_learning_rate,
+            constraint_steps,
+            constraint_batch_size,
+            update_every,
+            n_nominal_trajectories,
+            trainer_class,
+            trainer_kwargs,
+        )
+        super().__init__(
+            policy,
+            env,
+            cost_budget=cost_budget,
+            budget_statistic=budget_statistic,
+            lagrange_kwargs=dict(DEFAULT_LAGRANGE_KWARGS) if lagrange_kwargs is None else lagrange_kwargs,
+            _init_setup_model=False,
+            **kwargs,
+        )
+        if _init_setup_model:
+            self._setup_model()

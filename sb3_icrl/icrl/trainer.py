@@ -1,0 +1,225 @@
+"""
+The ICRL alternation as an SB3 callback: every ``update_every`` policy steps, take the learner's recent trajectories
+as nominal data, update the constraint model on expert vs nominal pairs, install it in the env wrapper, log.
+"""
+
+from abc import abstractmethod
+from typing import Any, ClassVar, NamedTuple
+
+import numpy as np
+import torch as th
+from stable_baselines3.common.callbacks import BaseCallback
+
+from sb3_icrl.constraints.networks import _ConstraintNet
+from sb3_icrl.constraints.wrappers import GACLRewardWrapper, LearnedCostVecEnvWrapper
+from sb3_icrl.icrl.recorder import NominalData, TrajectoryRecorderVecEnvWrapper
+
+
+class Minibatch(NamedTuple):
+    """
+    One minibatch of a constraint update.
+
+    :param expert_obs: Expert observations
+    :param expert_acts: Expert actions
+    :param nominal_obs: Nominal observations (raw)
+    :param nominal_acts: Nominal actions
+    :param nominal_idx: Indices of the nominal pairs in the update's :class:`NominalData` (for per-pair weights)
+    """
+
+    expert_obs: np.ndarray
+    expert_acts: np.ndarray
+    nominal_obs: np.ndarray
+    nominal_acts: np.ndarray
+    nominal_idx: np.ndarray
+
+
+def install_constraint(wrapper: LearnedCostVecEnvWrapper | GACLRewardWrapper, constraint_net: _ConstraintNet) -> None:
+    """
+    Make ``wrapper`` use ``constraint_net``: its cost ``1 - phi`` for a learned-cost wrapper, its feasibility as the
+    discriminator ``D`` for GACL's reward wrapper.
+
+    :param wrapper: The wrapper that feeds the constraint to the learner
+    :param constraint_net: The constraint model
+    """
+    if isinstance(wrapper, GACLRewardWrapper):
+        wrapper.set_discriminator(constraint_net.predict_feasibility)
+    elif isinstance(wrapper, LearnedCostVecEnvWrapper):
+        wrapper.set_cost_fn(constraint_net.cost)
+    else:
+        raise TypeError(f"Expected a LearnedCostVecEnvWrapper or GACLRewardWrapper, got {type(wrapper).__name__}.")
+
+
+class ICRLTrainer(BaseCallback):
+    """
+    Base of the constraint-model updates of BC2L, GACL, MECL and VICRL (the ``ICRLTrainer`` family).
+
+    At the end of a rollout, once ``update_every`` timesteps have passed since the last update, it takes up to
+    ``n_nominal_trajectories`` of the trajectories the learner finished since then (raw observations and actions,
+    from the :class:`TrajectoryRecorderVecEnvWrapper`), makes ``constraint_steps`` passes over them in minibatches
+    of ``batch_size`` nominal pairs (each with as many random expert pairs), and logs under ``constraint/``.
+    The update happens before the policy update, so the rollout just collected keeps the costs it was judged with.
+
+    Subclasses implement :meth:`loss` and may override :meth:`_before_update`, :meth:`_should_stop` and
+    :meth:`install`.
+
+    :param constraint_net: The constraint model (updated in place)
+    :param optimizer: Its optimizer
+    :param expert_obs: Expert observations, one row per pair
+    :param expert_acts: Expert actions, one row per pair
+    :param recorder: The wrapper that records the learner's trajectories
+    :param wrapper: The wrapper that feeds the constraint to the learner
+    :param update_every: Policy timesteps between constraint updates (checked at the end of each rollout)
+    :param constraint_steps: Passes over the nominal data per update (the reference's ``backward_iterations``)
+    :param batch_size: Nominal pairs per minibatch (``None``: all, one gradient step per pass)
+    :param n_nominal_trajectories: Most recent trajectories used per update (the reference uses the expert count)
+    :param verbose: Verbosity level
+    """
+
+    #: The kind of constraint model the trainer's loss needs
+    constraint_net_type: ClassVar[type[_ConstraintNet]] = _ConstraintNet
+
+    def __init__(
+        self,
+        constraint_net: _ConstraintNet,
+        optimizer: th.optim.Optimizer,
+        expert_obs: np.ndarray,
+        expert_acts: np.ndarray,
+        recorder: TrajectoryRecorderVecEnvWrapper,
+        wrapper: LearnedCostVecEnvWrapper | GACLRewardWrapper,
+        update_every: int,
+        constraint_steps: int = 5,
+        batch_size: int | None = None,
+        n_nominal_trajectories: int = 50,
+        verbose: int = 0,
+    ):
+        super().__init__(verbose)
+        if update_every < 1 or constraint_steps < 1 or n_nominal_trajectories < 1:
+            raise ValueError(
+                "`update_every`, `constraint_steps` and `n_nominal_trajectories` must be >= 1, got "
+                f"{update_every}, {constraint_steps} and {n_nominal_trajectories}."
+            )
+        if batch_size is not None and batch_size < 1:
+            raise ValueError(f"`batch_size` must be >= 1 or None, got {batch_size}.")
+        if len(expert_obs) == 0 or len(expert_obs) != len(expert_acts):
+            raise ValueError(
+                f"Need as many expert observations as actions (> 0), got {len(expert_obs)} and {len(expert_acts)}."
+            )
+        if not isinstance(constraint_net, self.constraint_net_type):
+            raise TypeError(
+                f"{type(self).__name__} trains a {self.constraint_net_type.__name__}, got {type(constraint_net).__name__}."
+            )
+        self.constraint_net = constraint_net
+        self.optimizer = optimizer
+        self.expert_obs = expert_obs
+        self.expert_acts = expert_acts
+        self.recorder = recorder
+        self.wrapper = wrapper
+        self.update_every = int(update_every)
+        self.constraint_steps = int(constraint_steps)
+        self.batch_size = batch_size
+        self.n_nominal_trajectories = int(n_nominal_trajectories)
+        self.n_updates = 0
+        self._last_update = 0
+        self._rng = np.random.default_rng()
+
+    # ------------------------------------------------------------------ callback hooks
+
+    def _init_callback(self) -> None:
+        self._last_update = self.num_timesteps
+        if self.model.seed is not None:
+            self._rng = np.random.default_rng(self.model.seed)
+        self.install()
+
+    def _on_step(self) -> bool:
+        return True
+
+    def _on_rollout_end(self) -> None:
+        if self.num_timesteps - self._last_update < self.update_every:
+            return
+        trajectories = self.recorder.pop_trajectories(self.n_nominal_trajectories)
+        if not trajectories:
+            # Episodes longer than a rollout: wait until one ends
+            if self.verbose >= 1:
+                print("ICRL: no finished nominal trajectory yet, constraint update postponed")
+            return
+        self._last_update = self.num_timesteps
+        stats = self.update(NominalData.from_trajectories(trajectories))
+        for key, value in stats.items():
+            self.logger.record(f"constraint/{key}", value)
+        self.install()
+
+    # ------------------------------------------------------------------ the update
+
+    def install(self) -> None:
+        """Feed the (updated) constraint model to the learner's wrapper."""
+        install_constraint(self.wrapper, self.constraint_net)
+
+    @abstractmethod
+    def loss(self, batch: Minibatch) -> tuple[th.Tensor, dict[str, float]]:
+        """
+        The loss of one minibatch.
+
+        :param batch: Expert and nominal pairs
+        :return: The loss to minimise and scalars to log (averaged over the minibatches)
+        """
+
+    def _before_update(self, nominal: NominalData) -> None:
+        """Called once per update before the first pass (e.g. MECL stores the old feasibility)."""
+
+    def _should_stop(self, nominal: NominalData) -> bool:
+        """Called before each pass; ``True`` ends the update early (e.g. MECL's KL bound)."""
+        return False
+
+    def _feasibility(self, obs: np.ndarray, acts: np.ndarray) -> np.ndarray:
+        """Mean feasibility used for logging (the cost is ``1 - phi``)."""
+        return 1.0 - self.constraint_net.cost(obs, acts)
+
+    def update(self, nominal: NominalData) -> dict[str, float]:
+        """
+        Update the constraint model on the expert data vs ``nominal``.
+
+        :param nominal: The learner's recent pairs, grouped by trajectory
+        :return: What to log: ``loss``, ``expert_feasibility``, ``nominal_feasibility``, the loss parts, ``n_passes``...
+        """
+        self.constraint_net.train()
+        self._before_update(nominal)
+        n_nominal = len(nominal)
+        batch_size = n_nominal if self.batch_size is None else min(self.batch_size, n_nominal)
+        logs: dict[str, list[float]] = {}
+        n_passes = 0
+        for _ in range(self.constraint_steps):
+            if self._should_stop(nominal):
+                break
+            n_passes += 1
+            order = self._rng.permutation(n_nominal)
+            for start in range(0, n_nominal, batch_size):
+                nominal_idx = order[start : start + batch_size]
+                expert_idx = self._rng.integers(0, len(self.expert_obs), size=len(nominal_idx))
+                loss, parts = self.loss(
+                    Minibatch(
+                        self.expert_obs[expert_idx],
+                        self.expert_acts[expert_idx],
+                        nominal.obs[nominal_idx],
+                        nominal.acts[nominal_idx],
+                        nominal_idx,
+                    )
+                )
+                self.optimizer.zero_grad()
+                loss.backward()
+                self.optimizer.step()
+                for key, value in {"loss": float(loss.item()), **parts}.items():
+                    logs.setdefault(key, []).append(value)
+        self.constraint_net.eval()
+        self.n_updates += 1
+        stats = {key: float(np.mean(values)) for key, values in logs.items()}
+        stats.update(self._after_update_stats(nominal))
+        stats["expert_feasibility"] = float(np.mean(self._feasibility(self.expert_obs, self.expert_acts)))
+        stats["nominal_feasibility"] = float(np.mean(self._feasibility(nominal.obs, nominal.acts)))
+        stats["n_passes"] = float(n_passes)
+        stats["n_nominal_trajectories"] = float(len(nominal.episode_lengths))
+        stats["n_updates"] = float(self.n_updates)
+        return stats
+
+    def _after_update_stats(self, nominal: NominalData) -> dict[str, Any]:
+        """Extra statistics after the update (e.g. MECL's importance weights)."""
+        return {}

@@ -1,0 +1,3 @@
+from sb3_icrl.vicrl.vicrl import VICRL, VICRLTrainer
+
+__all__ = ["VICRL", "VICRLTrainer"]

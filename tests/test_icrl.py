@@ -1,0 +1,328 @@
+"""The ICRL algorithms (BC2L, GACL, MECL, VICRL): set-up, what the learner sees, constraint updates, logging, saving."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch as th
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.logger import KVWriter, Logger
+from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+from sb3_icrl.bc2l import BC2L, BC2LTrainer
+from sb3_icrl.common.envs import ConstrainedCorridorEnv
+from sb3_icrl.constraints import FeasibilityNet, GACLRewardWrapper, LearnedCostVecEnvWrapper
+from sb3_icrl.data import DemonstrationError, Demonstrations, Trajectory
+from sb3_icrl.gacl import GACL
+from sb3_icrl.icrl import NominalData, TrajectoryRecorderVecEnvWrapper
+from sb3_icrl.mecl import MECL
+from sb3_icrl.vicrl import VICRL
+
+ALGORITHMS = (BC2L, GACL, MECL, VICRL)
+LAGRANGIAN = (BC2L, MECL, VICRL)
+TRUE_COST = 1000.0  # far from any learned cost in [0, 1]: a leak cannot go unnoticed
+EPISODE = 8
+
+
+class TrueCostCorridor(ConstrainedCorridorEnv):
+    """The corridor with 8-step episodes whose info["cost"] is always TRUE_COST."""
+
+    def __init__(self):
+        super().__init__(max_steps=EPISODE)
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = super().step(action)
+        info["cost"] = TRUE_COST
+        return obs, reward, terminated, truncated, info
+
+
+def make_env(n_envs: int = 1) -> DummyVecEnv:
+    return DummyVecEnv([lambda: Monitor(TrueCostCorridor()) for _ in range(n_envs)])
+
+
+def corridor_demonstrations(n_trajectories: int = 4) -> Demonstrations:
+    """An expert that walks right to the last safe cell (6) and stays there."""
+    env = ConstrainedCorridorEnv(max_steps=EPISODE)
+    trajectories = []
+    for _ in range(n_trajectories):
+        obs, _ = env.reset()
+        observations, actions, rewards = [obs], [], []
+        for _ in range(EPISODE):
+            action = 2 if env.position < env.safe_limit else 1
+            obs, reward, _, _, _ = env.step(action)
+            observations.append(obs)
+            actions.append(action)
+            rewards.append(reward)
+        trajectories.append(
+            Trajectory(
+                obs=np.array(observations),
+                acts=np.array(actions),
+                infos=None,
+                terminal=False,
+                rews=np.array(rewards),
+                costs=np.zeros(EPISODE),
+            )
+        )
+    return Demonstrations(trajectories, {"env_id": "corridor"})
+
+
+def make_model(cls, env=None, **kwargs):
+    kwargs = {
+        "n_steps": 32,
+        "batch_size": 32,
+        "n_epochs": 1,
+        "seed": 0,
+        "policy_kwargs": {"net_arch": [8]},
+        "constraint_net_kwargs": {"hidden_sizes": [8]},
+        **kwargs,
+    }
+    return cls("MlpPolicy", make_env() if env is None else env, corridor_demonstrations(), **kwargs)
+
+
+class CapturingWriter(KVWriter):
+    """Keeps every key that was dumped."""
+
+    def __init__(self):
+        self.keys: set[str] = set()
+        self.values: dict[str, list[float]] = {}
+
+    def write(self, key_values, key_excluded, step=0):
+        for key, value in key_values.items():
+            self.keys.add(key)
+            self.values.setdefault(key, []).append(value)
+
+
+@pytest.mark.parametrize("cls", ALGORITHMS)
+def test_env_is_wrapped_at_the_bottom_below_vec_normalize(cls):
+    model = make_model(cls, env=VecNormalize(make_env()))
+    assert isinstance(model.env, VecNormalize)
+    wrapper = model.env.venv
+    assert isinstance(wrapper, GACLRewardWrapper if cls is GACL else LearnedCostVecEnvWrapper)
+    assert isinstance(wrapper.venv, TrajectoryRecorderVecEnvWrapper)
+    assert isinstance(wrapper.venv.venv, DummyVecEnv)
+    assert model.get_env() is model.env
+
+
+@pytest.mark.parametrize("cls", LAGRANGIAN)
+def test_the_learner_reads_the_learned_cost_never_the_true_one(cls):
+    model = make_model(cls)
+    seen = []
+
+    class Check(BaseCallback):
+        def _on_step(self) -> bool:
+            seen.extend(self.locals["costs"].ravel().tolist())
+            for info in self.locals["infos"]:
+                assert info["true_cost"] == TRUE_COST
+                assert 0.0 <= info["cost"] <= 1.0
+            return True
+
+    model.learn(96, callback=Check())
+    assert model.cost_fn is None  # PPOLagrangian reads info["cost"], which the wrapper fills with the learned cost
+    assert len(seen) == 96 and max(seen) <= 1.0
+    assert np.all(model.rollout_buffer.costs <= 1.0)
+
+
+def test_learned_cost_in_info_is_the_constraint_net_on_the_raw_pairs():
+    # No constraint update (update_every beyond the run), so the net is the same at every step
+    model = make_model(BC2L, env=VecNormalize(make_env()), update_every=10**6)
+    costs_seen = []
+
+    class Record(BaseCallback):
+        def _on_step(self) -> bool:
+            costs_seen.append(self.locals["infos"][0]["cost"])
+            return True
+
+    model.learn(64, callback=Record())
+    trajectories = model.recorder.pop_trajectories()
+    assert len(trajectories) == 64 // EPISODE
+    obs = np.concatenate([t.obs for t in trajectories])
+    acts = np.concatenate([t.acts for t in trajectories])
+    # Raw observations (the corridor's lie in [0, 1] on a grid of 1/10 and 1/8; VecNormalize's would not)
+    np.testing.assert_allclose(obs[:, 1] * EPISODE, np.round(obs[:, 1] * EPISODE), atol=1e-6)
+    np.testing.assert_allclose(costs_seen, model.constraint_cost(obs, acts), rtol=1e-6)
+
+
+def test_gacl_reward_is_env_reward_plus_log_d_and_hides_the_true_cost():
+    model = make_model(GACL)
+
+    class Check(BaseCallback):
+        def _on_step(self) -> bool:
+            for info, reward in zip(self.locals["infos"], self.locals["rewards"], strict=True):
+                assert "cost" not in info and info["true_cost"] == TRUE_COST
+                assert reward <= info["env_reward"] + 1e-6  # log D <= 0
+            return True
+
+    model.learn(64, callback=Check())
+
+
+@pytest.mark.parametrize("cls", ALGORITHMS)
+def test_constraint_updates_and_logged_keys(cls):
+    writer = CapturingWriter()
+    model = make_model(cls, n_steps=64, batch_size=64)
+    model.set_logger(Logger(folder=None, output_formats=[writer]))
+    before = [p.detach().clone() for p in model.constraint_net.parameters()]
+    model.learn(256)
+    assert model.icrl_trainer.n_updates == 4  # one per rollout of 64 steps (8 finished episodes each)
+    assert any(not th.equal(a, b) for a, b in zip(before, model.constraint_net.parameters(), strict=True))
+    expected = {
+        "constraint/loss",
+        "constraint/expert_feasibility",
+        "constraint/nominal_feasibility",
+        "true/violation_rate",
+        "true/feasible_reward",
+    }
+    if cls is VICRL:
+        expected |= {"constraint/kl"}
+    if cls is MECL:
+        expected |= {"constraint/is_weight_min", "constraint/is_weight_max", "constraint/kl_old_new", "constraint/kl_new_old"}
+    assert expected <= writer.keys
+    assert all(0.0 <= v <= 1.0 for v in writer.values["true/violation_rate"])
+    if cls in LAGRANGIAN:  # the learner's episode costs are learned ones (at most 1 per step), not TRUE_COST
+        assert all(v <= EPISODE for v in writer.values["rollout/ep_cost_mean"])
+
+
+def test_bc2l_separates_expert_from_nominal_pairs():
+    model = make_model(BC2L, n_steps=64, batch_size=64, constraint_learning_rate=1e-2, constraint_steps=20)
+    writer = CapturingWriter()
+    model.set_logger(Logger(folder=None, output_formats=[writer]))
+    model.learn(512)
+    # Mean feasibility after the last update, on all expert pairs and on that update's nominal pairs
+    expert, nominal = writer.values["constraint/expert_feasibility"][-1], writer.values["constraint/nominal_feasibility"][-1]
+    assert expert > 0.8 and nominal < expert - 0.2
+
+
+def test_mecl_kl_early_stop():
+    passes = {}
+    for name, bound in (("tight", 0.0), ("loose", None)):
+        writer = CapturingWriter()
+        model = make_model(
+            MECL, constraint_learning_rate=0.05, constraint_steps=10, target_kl_old_new=bound, target_kl_new_old=bound
+        )
+        model.set_logger(Logger(folder=None, output_formats=[writer]))
+        model.learn(32)
+        passes[name] = writer.values["constraint/n_passes"]
+    # The first pass always runs (old == new feasibility); a zero bound stops the update right after it
+    assert passes == {"tight": [1.0], "loose": [10.0]}
+
+
+@pytest.mark.parametrize("cls", ALGORITHMS)
+def test_save_load_round_trip_restores_policy_and_constraint_exactly(cls, tmp_path):
+    model = make_model(cls, n_steps=64, batch_size=64, constraint_learning_rate=1e-2)
+    model.learn(128)
+    path = tmp_path / "model.zip"
+    model.save(path)
+    loaded = cls.load(path, env=make_env(), demonstrations=corridor_demonstrations())
+
+    obs = np.random.default_rng(0).uniform(0, 1, size=(50, 2)).astype(np.float32)
+    acts = np.arange(50) % 3
+    np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0], loaded.predict(obs, deterministic=True)[0])
+    if cls is VICRL:
+        # Both parameters of the Beta, hence every cost mode; a sampled cost matches under the same torch seed
+        mine, theirs = model.constraint_net.alpha_beta(obs, acts), loaded.constraint_net.alpha_beta(obs, acts)
+        assert th.equal(mine[0], theirs[0]) and th.equal(mine[1], theirs[1])
+        th.manual_seed(3)
+        sampled = model.constraint_cost(obs, acts)
+        th.manual_seed(3)
+        np.testing.assert_array_equal(sampled, loaded.constraint_cost(obs, acts))
+        assert loaded.constraint_net.cost_mode == model.constraint_net.cost_mode
+    else:
+        np.testing.assert_array_equal(model.constraint_cost(obs, acts), loaded.constraint_cost(obs, acts))
+    for key, value in model.constraint_optimizer.state_dict()["state"].items():
+        assert th.equal(value["exp_avg"], loaded.constraint_optimizer.state_dict()["state"][key]["exp_avg"])
+    assert type(loaded.constraint_net) is type(model.constraint_net)
+    assert loaded.trainer_kwargs == model.trainer_kwargs or cls is VICRL
+    if cls in LAGRANGIAN:
+        np.testing.assert_array_equal(loaded.lagrange_multiplier.value, model.lagrange_multiplier.value)
+    # The loaded model keeps learning, with its constraint wired into its new env
+    loaded.learn(64)
+    assert loaded.icrl_trainer.n_updates == 1
+
+
+def test_load_without_env_predicts_costs_and_asks_for_demonstrations(tmp_path):
+    model = make_model(BC2L)
+    model.save(tmp_path / "m.zip")
+    loaded = BC2L.load(tmp_path / "m.zip")
+    obs, acts = np.zeros((3, 2), dtype=np.float32), np.array([0, 1, 2])
+    np.testing.assert_array_equal(model.constraint_cost(obs, acts), loaded.constraint_cost(obs, acts))
+    assert loaded.demonstrations is None
+    with pytest.raises(ValueError, match="no demonstrations to learn from"):
+        loaded.learn(10)
+
+
+def test_shipped_demonstrations_by_name_are_reloaded(tmp_path):
+    env = DummyVecEnv([lambda: Monitor(gym.make("sb3_icrl/GridWorldWall-v0"))])
+    model = BC2L("MlpPolicy", env, "GridWorldWall-v0", n_steps=32, batch_size=32, n_epochs=1, seed=0)
+    assert len(model.demonstrations) == 50
+    model.save(tmp_path / "m.zip")
+    loaded = BC2L.load(tmp_path / "m.zip", env=DummyVecEnv([lambda: Monitor(gym.make("sb3_icrl/GridWorldWall-v0"))]))
+    assert loaded.demonstrations_source == "GridWorldWall-v0" and len(loaded.demonstrations) == 50
+
+
+@pytest.mark.parametrize("cls", ALGORITHMS)
+def test_demonstrations_that_do_not_match_the_env_are_refused(cls):
+    # Grid-world data (Discrete observations) on the corridor (Box(2) observations)
+    with pytest.raises(DemonstrationError, match="do not match the target env"):
+        cls("MlpPolicy", make_env(), "GridWorldWall-v0")
+    # Actions out of the corridor's Discrete(3)
+    demos = corridor_demonstrations()
+    bad = [Trajectory(obs=t.obs, acts=t.acts + 5, infos=None, terminal=False, rews=t.rews, costs=t.costs) for t in demos]
+    with pytest.raises(DemonstrationError, match=r"actions range over .* outside Discrete\(3\)"):
+        cls("MlpPolicy", make_env(), bad)
+    with pytest.raises(TypeError, match="`demonstrations` must be"):
+        cls("MlpPolicy", make_env(), 42)
+
+
+def test_no_demonstrations_cannot_learn():
+    model = BC2L("MlpPolicy", make_env(), n_steps=32, batch_size=32)
+    with pytest.raises(ValueError, match="no demonstrations"):
+        model.learn(32)
+    model.set_demonstrations(corridor_demonstrations())
+    model.learn(32)
+
+
+def test_bad_arguments_are_refused():
+    with pytest.raises(ValueError, match="learns its cost"):
+        make_model(BC2L, cost_fn=lambda obs, acts: np.zeros(len(obs)))
+    with pytest.raises(ValueError, match="not both"):
+        make_model(BC2L, constraint_net=FeasibilityNet(2, 3, discrete_actions=True))
+    with pytest.raises(TypeError, match="subclass of ICRLTrainer"):
+        make_model(BC2L, trainer_class=object)
+    # VICRL needs a Beta net: the trainer says so when learning starts
+    net = FeasibilityNet(2, 3, discrete_actions=True, hidden_sizes=[8])
+    model = VICRL("MlpPolicy", make_env(), corridor_demonstrations(), constraint_net=net, n_steps=32, batch_size=32)
+    with pytest.raises(TypeError, match="VICRLTrainer trains a BetaFeasibilityNet"):
+        model.learn(32)
+
+
+def test_custom_constraint_net_and_trainer():
+    calls = []
+
+    class CountingTrainer(BC2LTrainer):
+        def update(self, nominal):
+            calls.append(len(nominal))
+            return super().update(nominal)
+
+    net = FeasibilityNet(2, 3, discrete_actions=True, hidden_sizes=[4], normalize_input=False)
+    model = make_model(BC2L, constraint_net=net, constraint_net_kwargs=None, trainer_class=CountingTrainer)
+    assert model.constraint_net is net
+    model.learn(64)
+    assert calls == [32, 32]  # 4 finished 8-step episodes per 32-step rollout
+
+
+def test_recorder_groups_raw_pairs_by_trajectory():
+    venv = TrajectoryRecorderVecEnvWrapper(make_env(n_envs=2))
+    obs = venv.reset()
+    sent = []
+    for step in range(EPISODE + 3):
+        actions = np.array([step % 3, 2])
+        sent.append((obs.copy(), actions))
+        obs, _, _, _ = venv.step(actions)
+    trajectories = venv.pop_trajectories()
+    assert len(trajectories) == 2 and all(len(t) == EPISODE for t in trajectories)
+    np.testing.assert_array_equal(trajectories[0].obs, np.stack([o[0] for o, _ in sent[:EPISODE]]))
+    np.testing.assert_array_equal(trajectories[1].acts, np.full(EPISODE, 2))
+    assert venv.pop_trajectories() == []
+    data = NominalData.from_trajectories(trajectories)
+    assert len(data) == 2 * EPISODE and data.episode_lengths.tolist() == [EPISODE, EPISODE]
+    with pytest.raises(ValueError, match="VecNormalize"):
+        TrajectoryRecorderVecEnvWrapper(VecNormalize(make_env()))
