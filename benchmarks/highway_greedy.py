@@ -5,9 +5,11 @@ A constraint is worth inferring only if breaking it pays: the greedy driver (tar
 2 m standstill gap, 0.3 s headway) should earn more than the same driver made to respect the
 constraint (39.5 m/s; 22 m gap, lane changes only into 22 m gaps). Episodes use the test recordings,
 seeds 0..N-1, the same for every driver. "viol" is the share of episodes with a broken constraint,
-"feasible" the reward summed up to the first violation of that constraint (the paper's metrics).
+"feasible" the reward summed up to the first violation of that constraint (the paper's metrics);
+"gain" is the greedy driver's return minus the row's, paired by episode, "greedy ahead" the share
+of episodes where the greedy driver earns more.
 
-    python benchmarks/highway_greedy.py [--episodes 60]
+    python benchmarks/highway_greedy.py [--episodes 120] [--no-feasible-start]
 """
 
 import argparse
@@ -26,12 +28,12 @@ DRIVERS: dict[str, dict] = {
 OUTCOMES = ("collision", "off_road", "time_out", "goal_reached")
 
 
-def evaluate(env: HighwayConstraintEnv, driver: RuleBasedDriver, episodes: int) -> dict[str, float]:
+def evaluate(env: HighwayConstraintEnv, driver: RuleBasedDriver, episodes: int) -> dict[str, np.ndarray]:
     """
     :param env: Environment (its own cost is not used: both constraints are read from info)
     :param driver: Driver to evaluate
     :param episodes: Episodes, reset with seeds ``0..episodes-1``
-    :return: Means over episodes of the return, violations, feasible rewards, outcomes and speed
+    :return: Per episode: return, violations, feasible rewards, outcomes and mean speed
     """
     rows = []
     for seed in range(episodes):
@@ -52,26 +54,29 @@ def evaluate(env: HighwayConstraintEnv, driver: RuleBasedDriver, episodes: int) 
             | {f"viol_{k}": float(v) for k, v in broken.items()}
             | {f"feasible_{k}": v for k, v in feasible.items()}
         )
-    return {key: float(np.mean([row[key] for row in rows])) for key in rows[0]} | {
-        "return_std": float(np.std([row["return"] for row in rows]))
-    }
+    return {key: np.array([row[key] for row in rows]) for key in rows[0]}
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--episodes", type=int, default=60)
+    parser.add_argument("--episodes", type=int, default=120)
+    parser.add_argument(
+        "--feasible-start", action=argparse.BooleanOptionalAction, default=True, help="the envs' feasible_start"
+    )
     args = parser.parse_args()
-    header = "traffic driver       return        viol v/d   feasible v/d   speed  collision off-road time-out goal"
-    print(header)
+    print(f"feasible_start={args.feasible_start}, {args.episodes} test episodes per row; gain: greedy minus driver, paired")
+    print("traffic driver      return  gain (+- se)  greedy ahead  viol v/d   feasible v/d   speed  coll  off  t-out goal")
     for traffic in ("sparse", "dense"):
-        env = HighwayConstraintEnv(traffic=traffic, split="test")
-        for name, kwargs in DRIVERS.items():
-            r = evaluate(env, RuleBasedDriver(**kwargs), args.episodes)
+        env = HighwayConstraintEnv(traffic=traffic, split="test", feasible_start=args.feasible_start)
+        results = {name: evaluate(env, RuleBasedDriver(**kwargs), args.episodes) for name, kwargs in DRIVERS.items()}
+        for name, r in results.items():
+            gain = results["greedy"]["return"] - r["return"]
+            m = {key: value.mean() for key, value in r.items()}
             print(
-                f"{traffic:<7} {name:<10} {r['return']:6.2f} +- {r['return_std']:4.2f}  "
-                f"{r['viol_velocity']:.2f}/{r['viol_distance']:.2f}  "
-                f"{r['feasible_velocity']:6.2f}/{r['feasible_distance']:5.2f}  "
-                f"{r['speed']:5.1f}  {r['collision']:9.2f} {r['off_road']:8.2f} {r['time_out']:8.2f} {r['goal_reached']:4.2f}"
+                f"{traffic:<7} {name:<10} {m['return']:6.2f}  {gain.mean():5.2f} ({gain.std() / np.sqrt(len(gain)):.2f})  "
+                f"{np.mean(gain > 0):12.2f}  {m['viol_velocity']:.2f}/{m['viol_distance']:.2f}  "
+                f"{m['feasible_velocity']:6.2f}/{m['feasible_distance']:6.2f}  {m['speed']:5.1f}  "
+                f"{m['collision']:.2f}  {m['off_road']:.2f}  {m['time_out']:.2f}  {m['goal_reached']:.2f}"
             )
 
 

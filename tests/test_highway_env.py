@@ -52,7 +52,8 @@ def make_scenario(ego_lane: int = 1, ego_speed: float = 30.0, others=FREE_ROAD, 
 
 
 def make_env(scenario: Scenario, **kwargs) -> HighwayConstraintEnv:
-    env = HighwayConstraintEnv(scenarios=[scenario], **kwargs)
+    # Also start from states that break the constraint: these tests are about what the cost says there
+    env = HighwayConstraintEnv(scenarios=[scenario], feasible_start=False, **kwargs)
     reset_to_car_0(env)
     return env
 
@@ -317,3 +318,21 @@ def test_breaking_the_speed_limit_pays_in_sparse_traffic():
             speeders += 1
             assert returns[60.0] > returns[39.5]
     assert speeders >= 3
+
+
+def test_feasible_start():
+    # By default an episode never starts in violation: a 15 m leader rules car 0 out as ego, for the gap constraint only
+    too_close = make_scenario(others=[(15.0, 1, 30.0, 5.0)])
+    with pytest.raises(ValueError, match="feasible_start=True"):
+        HighwayConstraintEnv(scenarios=[too_close], constraints=("distance",))
+    assert HighwayConstraintEnv(scenarios=[too_close], constraints=("velocity",)).candidates == [(0, 0, 1)]
+    fast = make_scenario(ego_speed=45.0)
+    with pytest.raises(ValueError, match="feasible_start=True"):
+        HighwayConstraintEnv(scenarios=[fast], constraints=("velocity",))
+    # In dense traffic about a third of the recorded gaps are shorter than 20 m: none of them is a start
+    everyone = HighwayConstraintEnv(traffic="dense", split="test", feasible_start=False)
+    env = HighwayConstraintEnv(traffic="dense", split="test", constraints=("distance",))
+    assert len(env.candidates) < 0.9 * len(everyone.candidates)
+    for seed in range(30):
+        _, info = env.reset(seed=seed)
+        assert info["cost"] == 0.0 and info["lead_gap"] >= 20.0

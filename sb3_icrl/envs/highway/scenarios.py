@@ -7,8 +7,9 @@ highway stretch, made once from a seed by :func:`record_scenario` and shipped as
 
 - Every car follows the Intelligent Driver Model (the parameters of highway-env's ``IDMVehicle``
   apart from a per-car desired speed, time gap and minimum gap) and changes lanes with a MOBIL-like
-  rule (incentive, safety check on the new follower, keep-right bias). Faster drivers enter further
-  left; 30 % of the vehicles entering the rightmost lane are 12 m trucks, slower, which stay there.
+  rule (incentive, safety check on the new follower, keep-right bias). Faster drivers, with shorter
+  time gaps, enter further left; 30 % of the vehicles entering the rightmost lane are 12 m trucks,
+  slower, which stay there. In dense traffic the lanes thus flow at different speeds.
   Vehicles enter upstream with a spacing drawn from the density and leave downstream; the first
   ``warmup`` seconds are simulated but not stored.
 - Only the stretch ``[-100, road_length + 100]`` m is stored, one row per (frame, car):
@@ -34,8 +35,10 @@ from numpy.typing import NDArray
 #: Shipped recordings: ``scenarios/<density>_<split>_<index>.npz``
 SCENARIO_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "scenarios")
 SPLITS = ("train", "test")
-#: Vehicles per km and lane at the upstream entry
-DENSITIES: dict[str, float] = {"sparse": 8.0, "dense": 40.0}
+#: Vehicles per km and lane at the upstream entry. Sparse: free flow, about 30 m/s, where breaking the
+#: speed limit pays; dense: about 12-21 m/s from the right lane to the left one, gaps near 20 m, where
+#: short gaps pay (``benchmarks/highway_greedy.py`` measures both)
+DENSITIES: dict[str, float] = {"sparse": 8.0, "dense": 50.0}
 LANE_WIDTH = 4.0  # highway-env's StraightLane.DEFAULT_WIDTH
 STORE_MARGIN = 100.0  # stored beyond both ends of the stretch: the sensing range of the env
 FORMAT_VERSION = 1
@@ -118,6 +121,21 @@ class Scenario:
         first[present_at_start[x_start >= 0.0]] = -1
         ok = (first >= 0) & (first + n_frames < self.n_frames) & (self.lengths <= max_length)
         return np.stack([np.flatnonzero(ok), first[ok]], axis=1)
+
+    def lead_gap(self, car: int, frame: int) -> float:
+        """
+        :param car: Car id
+        :param frame: Frame index (the car must be stored in it)
+        :return: Bumper-to-bumper gap to the nearest car ahead in its lane (nearest lane centre), ``inf`` if none
+        """
+        ids, states = self.frame(frame)
+        me = np.flatnonzero(ids == car)[0]
+        lanes = np.rint(states[:, 1] / self.lane_width)
+        ahead = np.flatnonzero((lanes == lanes[me]) & (states[:, 0] > states[me, 0]))
+        if not len(ahead):
+            return float("inf")
+        j = ahead[np.argmin(states[ahead, 0])]
+        return float(states[j, 0] - states[me, 0] - (self.lengths[ids[j]] + self.lengths[car]) / 2)
 
     def save(self, path: str) -> None:
         """
@@ -223,7 +241,8 @@ class _Traffic:
         self.speed[i] = self.desired[i] if leader_speed is None else min(self.desired[i], leader_speed)
         self.x[i], self.lane[i] = x, lane
         self.y[i] = self.target_y[i] = lane * LANE_WIDTH
-        self.headway[i] = self.rng.uniform(1.2, 2.0) if truck else self.rng.uniform(0.7, 1.6)
+        # Shorter time gaps further left: in dense traffic the left lane is the fast one, with short gaps
+        self.headway[i] = self.rng.uniform(1.5, 2.2) if truck else self.rng.uniform(0.6, 1.0) + 0.6 * (1.0 - fast)
         self.min_gap[i] = self.rng.uniform(2.0, 4.0)
         self.length[i], self.width[i] = (12.0, 2.5) if truck else (5.0, 2.0)
         self.active[i] = True
