@@ -61,16 +61,18 @@ whether the env uses it or not), ``ego_speed``, ``lead_gap`` and the outcome fla
 ``reset`` adds ``scenario``, ``ego_car`` and ``start_frame``: which recorded car the ego replaces, and when.
 
 Registered ids: ``HighwayVelocity-v0`` (speed constraint, sparse traffic), ``HighwayDistance-v0`` (gap
-constraint, dense traffic) and ``HighwayVelocityDistance-v0`` (both, both densities): in sparse traffic
-breaking the speed limit pays, in dense traffic closing up on the leader does (see
+constraint, dense traffic) and ``HighwayVelocityDistance-v0`` (both, recordings of both densities drawn
+alike): in sparse traffic breaking the speed limit pays, in dense traffic short gaps do (see
 ``benchmarks/highway_greedy.py``). Their registered step limit is 200 (40 s); pass
 ``max_episode_steps`` along with a longer ``time_limit``.
 
 Differences from the paper's HighD environments: highway-env kinematics instead of CommonRoad's;
 simulated recordings instead of HighD (see :mod:`sb3_icrl.envs.highway.scenarios`); 23 features
 instead of 76 (no lane curvature, route or friction features: the road is straight); 5 Hz instead of
-25 Hz; one 400 m route per ego. Recorded cars never exceed 40 m/s, so no episode starts in violation of
-the speed limit; the gap constraint can be broken from the first step, as in HighD.
+25 Hz; one 400 m route per ego. By default (``feasible_start=True``) the ego only takes over recorded
+cars that satisfy the env's constraints at the take-over; the paper does not filter
+(``feasible_start=False``), and then a third of the dense starts break the gap constraint before the
+agent has acted. Recorded cars never exceed 40 m/s.
 
 :data:`HIGHWAY_CONSTRAINTS` gives, per environment id, the observation index and threshold of each
 true constraint (for constraint plots); thresholds are constructor arguments
