@@ -329,10 +329,10 @@ def test_feasible_start():
     fast = make_scenario(ego_speed=45.0)
     with pytest.raises(ValueError, match="feasible_start=True"):
         HighwayConstraintEnv(scenarios=[fast], constraints=("velocity",))
-    # In dense traffic about a third of the recorded gaps are shorter than 20 m: none of them is a start
+    # In dense traffic most cars enter the stretch less than 20 m behind their leader: none of them is a start
     everyone = HighwayConstraintEnv(traffic="dense", split="test", feasible_start=False)
     env = HighwayConstraintEnv(traffic="dense", split="test", constraints=("distance",))
-    assert len(env.candidates) < 0.9 * len(everyone.candidates)
+    assert len(env.candidates) < 0.5 * len(everyone.candidates)
     for seed in range(30):
         _, info = env.reset(seed=seed)
         assert info["cost"] == 0.0 and info["lead_gap"] >= 20.0

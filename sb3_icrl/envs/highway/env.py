@@ -71,7 +71,7 @@ simulated recordings instead of HighD (see :mod:`sb3_icrl.envs.highway.scenarios
 instead of 76 (no lane curvature, route or friction features: the road is straight); 5 Hz instead of
 25 Hz; one 400 m route per ego. By default (``feasible_start=True``) the ego only takes over recorded
 cars that satisfy the env's constraints at the take-over; the paper does not filter
-(``feasible_start=False``), and then a third of the dense starts break the gap constraint before the
+(``feasible_start=False``), and then 70 % of the dense starts break the gap constraint before the
 agent has acted. Recorded cars never exceed 40 m/s.
 
 :data:`HIGHWAY_CONSTRAINTS` gives, per environment id, the observation index and threshold of each
@@ -188,8 +188,8 @@ class HighwayConstraintEnv(gymnasium.Env):
     :param time_out_penalty: Penalty on running out of time
     :param scenarios: Recordings to replay instead of the shipped ones (``traffic`` and ``split`` are then ignored)
     :param feasible_start: Only take over recorded cars that satisfy this env's constraints at the take-over
-        (in dense traffic a third of the recorded gaps are below 20 m: such starts would be violations no
-        policy can avoid, which the paper found makes a threshold useless)
+        (in dense traffic 70 % of the cars enter the stretch less than 20 m behind their leader: such starts
+        would be violations no policy can avoid, which the paper found makes a threshold useless)
     :param render_mode: ``None`` or ``"rgb_array"``
     """
 
