@@ -13,6 +13,7 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from sb3_icrl import PPOLagrangian
+from sb3_icrl.common.callbacks import EpisodeCostRecorder
 from sb3_icrl.common.envs import ConstrainedCorridorEnv
 from sb3_icrl.common.policies import CostActorCriticPolicy
 
@@ -227,3 +228,43 @@ class DictObsCorridor(ConstrainedCorridorEnv):
     def __init__(self):
         super().__init__()
         self.observation_space = gym.spaces.Dict({"x": gym.spaces.Box(0, 1, shape=(2,))})
+
+
+def test_policy_loss_uses_the_lagrangian_advantage():
+    """First minibatch of an update (ratio = 1): the policy loss is -mean((A_r - lambda A_c) / (1 + lambda))."""
+    model = PPOLagrangian(
+        "MlpPolicy",
+        ConstrainedCorridorEnv(safe_limit=0),
+        n_steps=64,
+        batch_size=64,
+        n_epochs=1,
+        normalize_advantage=False,
+        lagrange_kwargs=dict(init=2.0, lr=0.0),
+        seed=0,
+    )
+    model.learn(64)
+    buffer = model.rollout_buffer  # flattened by the update
+    expected = -np.mean((buffer.advantages - 2.0 * buffer.cost_advantages[:, 0]) / 3.0)
+    assert np.abs(buffer.cost_advantages).max() > 0.1, "the test needs non-trivial cost advantages"
+    assert model.logger.name_to_value["train/policy_gradient_loss"] == pytest.approx(expected, rel=1e-5, abs=1e-7)
+
+
+def test_episode_statistic_uses_the_episodes_ended_since_the_last_update():
+    """Budget 0, SGD lr 1: each update adds the mean cost of the episodes that ended during the rollout."""
+    recorder = EpisodeCostRecorder()
+    model = PPOLagrangian(
+        "MlpPolicy",
+        ConstrainedCorridorEnv(safe_limit=0),
+        cost_budget=0.0,
+        budget_statistic="episode",
+        lagrange_kwargs=dict(init=0.0, lr=1.0, optimizer="sgd"),
+        seed=0,
+        n_steps=30,  # 20-step episodes end at steps 20 | 40, 60 | 80: one, two, one per rollout
+        batch_size=30,
+        n_epochs=1,
+    )
+    model.learn(90, callback=recorder)
+    costs = recorder.recent(10)[:, 2]
+    assert len(costs) == 4
+    expected = costs[0] + np.mean(costs[1:3]) + costs[3]
+    assert model.lagrange_multiplier.value[0] == pytest.approx(expected)
