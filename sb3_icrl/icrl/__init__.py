@@ -3,6 +3,7 @@
 from sb3_icrl.icrl.base import DEFAULT_LAGRANGE_KWARGS, ICRLAlgorithmMixin, LagrangianICRL
 from sb3_icrl.icrl.callbacks import TrueConstraintLogger
 from sb3_icrl.icrl.recorder import NominalData, NominalTrajectory, TrajectoryRecorderVecEnvWrapper
+from sb3_icrl.icrl.tabular import TabularICRLResult, cost_table, tabular_icrl
 from sb3_icrl.icrl.trainer import ICRLTrainer, install_constraint
 
 __all__ = [
@@ -12,7 +13,10 @@ __all__ = [
     "LagrangianICRL",
     "NominalData",
     "NominalTrajectory",
+    "TabularICRLResult",
     "TrajectoryRecorderVecEnvWrapper",
     "TrueConstraintLogger",
+    "cost_table",
     "install_constraint",
+    "tabular_icrl",
 ]

@@ -66,12 +66,14 @@ class ICRLTrainer(BaseCallback):
     :param optimizer: Its optimizer
     :param expert_obs: Expert observations, one row per pair
     :param expert_acts: Expert actions, one row per pair
-    :param recorder: The wrapper that records the learner's trajectories
-    :param wrapper: The wrapper that feeds the constraint to the learner
+    :param recorder: The wrapper that records the learner's trajectories (``None``: no callback use, :meth:`update`
+        is called by hand, as in :func:`~sb3_icrl.icrl.tabular.tabular_icrl`)
+    :param wrapper: The wrapper that feeds the constraint to the learner (``None``: nothing to install)
     :param update_every: Policy timesteps between constraint updates (checked at the end of each rollout)
     :param constraint_steps: Passes over the nominal data per update (the reference's ``backward_iterations``)
     :param batch_size: Nominal pairs per minibatch (``None``: all, one gradient step per pass)
     :param n_nominal_trajectories: Most recent trajectories used per update (the reference uses the expert count)
+    :param seed: Seed of the minibatch sampling (the model's seed, when it has one, replaces it at training start)
     :param verbose: Verbosity level
     """
 
@@ -84,12 +86,13 @@ class ICRLTrainer(BaseCallback):
         optimizer: th.optim.Optimizer,
         expert_obs: np.ndarray,
         expert_acts: np.ndarray,
-        recorder: TrajectoryRecorderVecEnvWrapper,
-        wrapper: LearnedCostVecEnvWrapper | GACLRewardWrapper,
+        recorder: TrajectoryRecorderVecEnvWrapper | None,
+        wrapper: LearnedCostVecEnvWrapper | GACLRewardWrapper | None,
         update_every: int,
         constraint_steps: int = 5,
         batch_size: int | None = None,
         n_nominal_trajectories: int = 50,
+        seed: int | None = None,
         verbose: int = 0,
     ):
         super().__init__(verbose)
@@ -120,7 +123,7 @@ class ICRLTrainer(BaseCallback):
         self.n_nominal_trajectories = int(n_nominal_trajectories)
         self.n_updates = 0
         self._last_update = 0
-        self._rng = np.random.default_rng()
+        self._rng = np.random.default_rng(seed)
 
     # ------------------------------------------------------------------ callback hooks
 
@@ -136,6 +139,8 @@ class ICRLTrainer(BaseCallback):
     def _on_rollout_end(self) -> None:
         if self.num_timesteps - self._last_update < self.update_every:
             return
+        if self.recorder is None:
+            raise RuntimeError("This trainer has no trajectory recorder: it cannot run as a callback.")
         trajectories = self.recorder.pop_trajectories(self.n_nominal_trajectories)
         if not trajectories:
             # Episodes longer than a rollout: wait until one ends
@@ -152,7 +157,8 @@ class ICRLTrainer(BaseCallback):
 
     def install(self) -> None:
         """Feed the (updated) constraint model to the learner's wrapper."""
-        install_constraint(self.wrapper, self.constraint_net)
+        if self.wrapper is not None:
+            install_constraint(self.wrapper, self.constraint_net)
 
     @abstractmethod
     def loss(self, batch: Minibatch) -> tuple[th.Tensor, dict[str, float]]:
