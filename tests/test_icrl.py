@@ -9,17 +9,17 @@ from stable_baselines3.common.logger import KVWriter, Logger
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
-from sb3_icrl.bc2l import BC2L, BC2LTrainer
+from sb3_icrl import BC2L, GACL, MECL, VICRL
+from sb3_icrl.bc2l import BC2LTrainer
 from sb3_icrl.common.envs import ConstrainedCorridorEnv
 from sb3_icrl.common.evaluation import evaluate_constraint
 from sb3_icrl.constraints import BetaFeasibilityNet, FeasibilityNet, GACLRewardWrapper, LearnedCostVecEnvWrapper
 from sb3_icrl.data import DemonstrationError, Demonstrations, Trajectory, load_demonstrations
-from sb3_icrl.gacl import GACL
 from sb3_icrl.icrl import NominalData, TrajectoryRecorderVecEnvWrapper
 from sb3_icrl.icrl.tabular import cost_table, tabular_icrl
-from sb3_icrl.mecl import MECL, MECLTrainer
+from sb3_icrl.mecl import MECLTrainer
 from sb3_icrl.pi_lagrangian import PILagrangian
-from sb3_icrl.vicrl import VICRL, VICRLTrainer
+from sb3_icrl.vicrl import VICRLTrainer
 
 ALGORITHMS = (BC2L, GACL, MECL, VICRL)
 LAGRANGIAN = (BC2L, MECL, VICRL)

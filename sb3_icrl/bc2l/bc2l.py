@@ -1,6 +1,5 @@
 """BC2L: a binary classifier of expert (feasible) vs nominal pairs, its cost ``1 - phi`` fed to PPO-Lagrangian."""
 
-from collections.abc import Callable
 from typing import ClassVar
 
 import torch as th
@@ -19,8 +18,10 @@ class BC2LTrainer(ICRLTrainer):
     """
 
     constraint_net_type: ClassVar[type[_ConstraintNet]] = FeasibilityNet
-    #: The expert-vs-nominal cross-entropy (GACL's trainer swaps in its own)
-    binary_loss: ClassVar[Callable[[th.Tensor, th.Tensor], ConstraintLoss]] = staticmethod(bc2l_loss)
+
+    def binary_loss(self, expert_feasibility: th.Tensor, nominal_feasibility: th.Tensor) -> ConstraintLoss:
+        """The expert-vs-nominal cross-entropy (GACL's trainer swaps in its own)."""
+        return bc2l_loss(expert_feasibility, nominal_feasibility)
 
     def loss(self, batch: Minibatch) -> tuple[th.Tensor, dict[str, float]]:
         assert isinstance(self.constraint_net, FeasibilityNet)

@@ -2,13 +2,14 @@
 
 from typing import Any, ClassVar
 
+import torch as th
 from stable_baselines3 import PPO
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.type_aliases import GymEnv
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_icrl.bc2l.bc2l import BC2LTrainer
-from sb3_icrl.constraints.losses import gacl_discriminator_loss
+from sb3_icrl.constraints.losses import ConstraintLoss, gacl_discriminator_loss
 from sb3_icrl.constraints.networks import FeasibilityNet, _ConstraintNet
 from sb3_icrl.constraints.wrappers import GACLRewardWrapper
 from sb3_icrl.icrl.base import DemonstrationsLike, ICRLAlgorithmMixin
@@ -23,7 +24,8 @@ class GACLTrainer(BC2LTrainer):
     ``feasibility`` is ``D``).
     """
 
-    binary_loss = staticmethod(gacl_discriminator_loss)
+    def binary_loss(self, expert_feasibility: th.Tensor, nominal_feasibility: th.Tensor) -> ConstraintLoss:
+        return gacl_discriminator_loss(expert_feasibility, nominal_feasibility)
 
 
 class GACL(ICRLAlgorithmMixin, PPO):

@@ -153,7 +153,7 @@ class ICRLAlgorithmMixin:
         elif isinstance(demonstrations, Demonstrations):
             demos = demonstrations
         elif isinstance(demonstrations, Sequence) and all(isinstance(t, Trajectory) for t in demonstrations):
-            demos = Demonstrations(list(demonstrations))
+            demos = Demonstrations([t for t in demonstrations if isinstance(t, Trajectory)])
         else:
             raise TypeError(
                 "`demonstrations` must be a Demonstrations, a list of Trajectory, a shipped dataset name or an .npz path, "
@@ -167,6 +167,7 @@ class ICRLAlgorithmMixin:
         self.demonstrations = demos
         self._pending_demonstrations = None
         self.expert_obs, self.expert_acts = transitions.obs, transitions.acts
+        assert self.constraint_net is not None
         normalizer = self.constraint_net.normalizer
         if normalizer is not None and not bool(normalizer.fitted):
             self.constraint_net.fit_normalizer(self.expert_obs, self.expert_acts)

@@ -44,8 +44,8 @@ def cost_table(constraint_net: _ConstraintNet, n_states: int, n_actions: int) ->
     :param n_actions: Number of actions
     :return: ``C[s, a]``, shape ``(n_states, n_actions)``
     """
-    states, actions = np.meshgrid(np.arange(n_states), np.arange(n_actions), indexing="ij")
-    states, actions = states.ravel(), actions.ravel()
+    state_grid, action_grid = np.meshgrid(np.arange(n_states), np.arange(n_actions), indexing="ij")
+    states, actions = state_grid.ravel(), action_grid.ravel()
     if isinstance(constraint_net, BetaFeasibilityNet):
         costs = 1.0 - constraint_net.predict_feasibility(states, actions, cost_mode="mean")
     else:
