@@ -297,6 +297,25 @@ def test_bad_arguments_are_refused():
         model.learn(32)
 
 
+def test_env_already_wrapped():
+    # A model's own env can be given back to it, or to another model of the same kind
+    model = make_model(BC2L)
+    other = make_model(MECL, env=model.get_env())
+    assert other.recorder is model.recorder and other.constraint_wrapper is model.constraint_wrapper
+    other.learn(32)
+    model.set_env(model.get_env())
+    model.learn(32)
+    with pytest.raises(ValueError, match="already contains a LearnedCostVecEnvWrapper; GACL adds its own GACLRewardWrapper"):
+        make_model(GACL, env=model.get_env())
+    with pytest.raises(ValueError, match="already contains a LearnedCostVecEnvWrapper"):
+        make_model(BC2L, env=LearnedCostVecEnvWrapper(make_env(), lambda obs, acts: np.zeros(len(obs))))
+
+
+def test_custom_constraint_net_must_fit_the_env():
+    with pytest.raises(ValueError, match="takes 3 observation and 3 action features"):
+        make_model(BC2L, constraint_net=FeasibilityNet(3, 3, discrete_actions=True), constraint_net_kwargs=None)
+
+
 def test_custom_constraint_net_and_trainer():
     calls = []
 

@@ -6,7 +6,7 @@ import torch as th
 from stable_baselines3 import PPO
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.type_aliases import GymEnv
-from stable_baselines3.common.vec_env import VecEnv
+from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
 from sb3_icrl.bc2l.bc2l import BC2LTrainer
 from sb3_icrl.constraints.losses import ConstraintLoss, gacl_discriminator_loss
@@ -53,6 +53,7 @@ class GACL(ICRLAlgorithmMixin, PPO):
 
     constraint_net_class: ClassVar[type[_ConstraintNet]] = FeasibilityNet
     default_trainer_class: ClassVar[type[ICRLTrainer]] = GACLTrainer
+    constraint_wrapper_class: ClassVar[type[VecEnvWrapper]] = GACLRewardWrapper
 
     def __init__(
         self,

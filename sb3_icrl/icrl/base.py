@@ -10,12 +10,13 @@ from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 import torch as th
+from gymnasium import spaces
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList, ConvertCallback
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
 from sb3_icrl.common.policies import CostActorCriticPolicy
-from sb3_icrl.constraints.networks import FeasibilityNet, _ConstraintNet
+from sb3_icrl.constraints.networks import FeasibilityNet, _ConstraintNet, _space_features
 from sb3_icrl.constraints.wrappers import GACLRewardWrapper, LearnedCostVecEnvWrapper
 from sb3_icrl.data.registry import load_demonstrations
 from sb3_icrl.data.serialize import DemonstrationError, check_spaces
@@ -51,9 +52,13 @@ class ICRLAlgorithmMixin:
     constraint_net_class: ClassVar[type[_ConstraintNet]] = FeasibilityNet
     #: Default trainer class
     default_trainer_class: ClassVar[type[ICRLTrainer]]
+    #: The wrapper that feeds the constraint model to the learner (see :meth:`_make_constraint_wrapper`)
+    constraint_wrapper_class: ClassVar[type[VecEnvWrapper]] = LearnedCostVecEnvWrapper
 
     # Attributes of the SB3 algorithm this mixin is combined with
     env: VecEnv | None
+    observation_space: spaces.Space
+    action_space: spaces.Space
     seed: int | None
     device: th.device
     n_steps: int
@@ -118,8 +123,9 @@ class ICRLAlgorithmMixin:
                 self.constraint_net = spec["class"].from_constructor_kwargs(spec["kwargs"])
             else:
                 self.constraint_net = self.constraint_net_class_.from_spaces(
-                    self.observation_space, self.action_space, **self.constraint_net_kwargs  # type: ignore[attr-defined]
+                    self.observation_space, self.action_space, **self.constraint_net_kwargs
                 )
+        self._check_constraint_net_spaces()
         self.constraint_net.to(self.device)
         self.constraint_net_spec_ = {"class": type(self.constraint_net), "kwargs": self.constraint_net.constructor_kwargs}
         self.constraint_optimizer = th.optim.Adam(self.constraint_net.parameters(), lr=self.constraint_learning_rate)
@@ -138,6 +144,21 @@ class ICRLAlgorithmMixin:
                     "but to train it pass `demonstrations=` to `load` or call `set_demonstrations(...)`."
                 )
         self._wrap_icrl_env()
+
+    def _check_constraint_net_spaces(self) -> None:
+        assert self.constraint_net is not None
+        net = self.constraint_net
+        expected = (
+            _space_features(self.observation_space, "observation"),
+            _space_features(self.action_space, "action"),
+        )
+        if expected != ((net.obs_dim, net.discrete_obs), (net.action_dim, net.discrete_actions)):
+            raise ValueError(
+                f"The constraint net takes {net.obs_dim} observation and {net.action_dim} action features "
+                f"(discrete: {net.discrete_obs}, {net.discrete_actions}), but the env has {self.observation_space} and "
+                f"{self.action_space}: build it with `{type(net).__name__}.from_spaces(env.observation_space, "
+                "env.action_space, ...)`."
+            )
 
     def set_demonstrations(self, demonstrations: DemonstrationsLike) -> None:
         """
@@ -185,14 +206,17 @@ class ICRLAlgorithmMixin:
         parent: VecEnvWrapper | None = None
         node: VecEnv = self.env
         while isinstance(node, VecEnvWrapper):
-            if isinstance(node, (LearnedCostVecEnvWrapper, GACLRewardWrapper)) and isinstance(
-                node.venv, TrajectoryRecorderVecEnvWrapper
-            ):
-                # Already wrapped (e.g. the env of another ICRL model): reuse, with this model's constraint
-                self.constraint_wrapper, self.recorder = node, node.venv
-                assert self.constraint_net is not None
-                install_constraint(node, self.constraint_net)
-                return
+            if isinstance(node, (LearnedCostVecEnvWrapper, GACLRewardWrapper)):
+                if type(node) is self.constraint_wrapper_class and isinstance(node.venv, TrajectoryRecorderVecEnvWrapper):
+                    # The env of another model of this kind (or this model's own): reuse it, with this constraint
+                    self.constraint_wrapper, self.recorder = node, node.venv
+                    assert self.constraint_net is not None
+                    install_constraint(node, self.constraint_net)
+                    return
+                raise ValueError(
+                    f"The env already contains a {type(node).__name__}; {type(self).__name__} adds its own "
+                    f"{self.constraint_wrapper_class.__name__}: pass the env without it."
+                )
             parent, node = node, node.venv
         self.recorder = TrajectoryRecorderVecEnvWrapper(node)
         self.constraint_wrapper = self._make_constraint_wrapper(self.recorder)
