@@ -73,7 +73,7 @@ class ICRLTrainer(BaseCallback):
     :param constraint_steps: Passes over the nominal data per update (the reference's ``backward_iterations``)
     :param batch_size: Nominal pairs per minibatch (``None``: all, one gradient step per pass)
     :param n_nominal_trajectories: Most recent trajectories used per update (the reference uses the expert count)
-    :param seed: Seed of the minibatch sampling (the model's seed, when it has one, replaces it at training start)
+    :param seed: Seed of the minibatch sampling (the model's seed, when it has one, replaces it before the first update)
     :param verbose: Verbosity level
     """
 
@@ -129,7 +129,8 @@ class ICRLTrainer(BaseCallback):
 
     def _init_callback(self) -> None:
         self._last_update = self.num_timesteps
-        if self.model.seed is not None:
+        if self.model.seed is not None and self.n_updates == 0:
+            # Seeded once: a later learn() call continues the sequence
             self._rng = np.random.default_rng(self.model.seed)
         self.install()
 
