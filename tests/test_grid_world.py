@@ -6,6 +6,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env as gymnasium_check_env
+from stable_baselines3 import PPO
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import sb3_icrl.envs  # noqa: F401
@@ -157,3 +158,17 @@ def test_invalid_action():
     env.reset(seed=0)
     with pytest.raises(ValueError, match=r"actions 0\.\.7"):
         env.step(8)
+
+
+def test_rgb_array_render_and_env_id_with_sb3():
+    env = GridWorldEnv(map_name="wall", render_mode="rgb_array")
+    env.reset(seed=0)
+    image = env.render()
+    size = GridWorldEnv.cell_pixels
+    assert image.shape == (7 * size, 7 * size, 3) and image.dtype == np.uint8
+    assert tuple(image[0, 0]) == GridWorldEnv.colors["agent"]  # the agent starts top-left
+    assert tuple(image[3 * size, 0]) == GridWorldEnv.colors["unsafe"]  # the wall starts at row 3
+    assert tuple(image[6 * size, 0]) == GridWorldEnv.colors["goal"]
+    assert tuple(image[0, size]) == GridWorldEnv.colors["free"]
+    # SB3 builds envs given by id with render_mode="rgb_array"
+    PPO("MlpPolicy", "sb3_icrl/GridWorldWall-v0", n_steps=8, batch_size=8).learn(8)

@@ -113,10 +113,14 @@ class GridWorldEnv(Env):
     :param desc: A map of your own, one string per row over ``S`` start, ``G`` goal, ``X`` unsafe, ``.`` free
     :param slip_prob: Probability that the move is replaced by a uniformly random one (0: deterministic)
     :param goal_reward: Reward for entering the goal
-    :param render_mode: ``None`` or ``"ansi"``
+    :param render_mode: ``None``, ``"ansi"`` (text) or ``"rgb_array"`` (an image: free cells white, unsafe red,
+        goal green, agent blue; SB3 asks for it when given an env id)
     """
 
-    metadata = {"render_modes": ["ansi"], "render_fps": 4}
+    metadata = {"render_modes": ["ansi", "rgb_array"], "render_fps": 4}
+    #: Pixels per cell side and the colours of the ``rgb_array`` image
+    cell_pixels = 16
+    colors = {"free": (255, 255, 255), "unsafe": (220, 50, 50), "goal": (40, 170, 70), "agent": (40, 90, 220)}
 
     def __init__(
         self,
@@ -138,7 +142,7 @@ class GridWorldEnv(Env):
         if not np.isfinite(goal_reward):
             raise ValueError(f"`goal_reward` must be finite, got {goal_reward}.")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"Unsupported render_mode {render_mode!r}: use None or 'ansi'.")
+            raise ValueError(f"Unsupported render_mode {render_mode!r}: use None, 'ansi' or 'rgb_array'.")
 
         self.map_name = map_name
         self.start_cell, self.goal_cell, self.unsafe_mask = parse_map(desc)
@@ -222,10 +226,20 @@ class GridWorldEnv(Env):
         reward = self.goal_reward if terminated else 0.0
         return next_state, reward, terminated, False, self._info()
 
-    def render(self) -> str | None:
+    def render(self) -> str | np.ndarray | None:
+        if self.render_mode == "rgb_array":
+            return self._render_rgb()
         if self.render_mode != "ansi":
             return None
         rows = [list(row) for row in self.desc]
         row, col = self.state_to_cell(self._state)
         rows[row][col] = "A"
         return "\n".join("".join(r) for r in rows) + "\n"
+
+    def _render_rgb(self) -> np.ndarray:
+        cells = np.empty((self.n_rows, self.n_cols, 3), dtype=np.uint8)
+        cells[:] = self.colors["free"]
+        cells[self.unsafe_mask] = self.colors["unsafe"]
+        cells[self.goal_cell] = self.colors["goal"]
+        cells[self.state_to_cell(self._state)] = self.colors["agent"]
+        return np.kron(cells, np.ones((self.cell_pixels, self.cell_pixels, 1), dtype=np.uint8))
