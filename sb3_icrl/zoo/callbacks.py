@@ -1,0 +1,154 @@
+"""Evaluation callback with the benchmark's metrics; model selection sees only what the learner knows."""
+
+import os
+import warnings
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+from stable_baselines3.common.callbacks import EvalCallback
+from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, sync_envs_normalization
+from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
+
+from sb3_icrl.common.evaluation import evaluate_constraint
+
+
+class LearnedCostRecorder(VecEnvWrapper):
+    """
+    Records, per finished episode, the reward and the reward summed until the learned cost first exceeds
+    ``threshold`` (the "learned feasible reward"). Goes below any ``VecNormalize``: it sees raw observations.
+
+    :param venv: The evaluation env
+    :param threshold: A step counts as infeasible when its learned cost ``1 - phi`` exceeds this
+    """
+
+    def __init__(self, venv: VecEnv, threshold: float = 0.5):
+        super().__init__(venv)
+        self.threshold = threshold
+        self.cost_fn: Any = None
+        self.episodes: list[tuple[float, float, float]] = []  # (reward, learned feasible reward, learned cost)
+        self._obs: Any = None  # VecEnvObs
+        self._actions: np.ndarray | None = None
+        self._reset_stats()
+
+    def _reset_stats(self) -> None:
+        n = self.num_envs
+        self._reward, self._feasible, self._cost = np.zeros(n), np.zeros(n), np.zeros(n)
+        self._broken = np.zeros(n, dtype=bool)
+
+    def reset(self) -> Any:
+        self._obs = self.venv.reset()
+        self._reset_stats()
+        return self._obs
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = actions
+        self.venv.step_async(actions)
+
+    def step_wait(self) -> VecEnvStepReturn:
+        obs, rewards, dones, infos = self.venv.step_wait()
+        if self.cost_fn is not None and self._obs is not None and self._actions is not None:
+            actions = self._actions
+            if isinstance(self.action_space, spaces.Box):
+                actions = np.clip(actions, self.action_space.low, self.action_space.high)
+            costs = np.asarray(self.cost_fn(self._obs, actions), dtype=float).reshape(self.num_envs)
+            self._broken |= costs > self.threshold
+            self._reward += rewards
+            self._cost += costs
+            self._feasible += np.where(self._broken, 0.0, rewards)
+            for idx in np.flatnonzero(dones):
+                self.episodes.append((self._reward[idx], self._feasible[idx], self._cost[idx]))
+                self._reward[idx] = self._feasible[idx] = self._cost[idx] = 0.0
+                self._broken[idx] = False
+        self._obs = obs
+        return obs, rewards, dones, infos
+
+
+class ConstraintEvalCallback(EvalCallback):
+    """
+    rl-zoo's evaluation callback with the ICRL metrics. Each evaluation logs under ``eval/``: ``mean_reward``,
+    ``feasible_reward``, ``violation_rate`` and ``mean_cost`` (true constraint, reporting only), and for models with a
+    learned constraint ``learned_feasible_reward`` and ``mean_learned_cost``; all go to ``evaluations.npz``.
+
+    The best model (``best_model.zip``) is chosen on what the learner itself knows, never the true constraint:
+    models with a learned constraint (``constraint_net``) by the reward summed until the learned cost first exceeds
+    0.5; PPO-Lagrangian (trained on the env's cost) by its feasible reward; PPO by its mean reward.
+
+    :param eval_env: The evaluation env; wrap its bottom in :class:`LearnedCostRecorder` for the learned metrics
+    :param kwargs: :class:`~stable_baselines3.common.callbacks.EvalCallback`'s arguments
+    """
+
+    def __init__(self, eval_env: VecEnv, recorder: LearnedCostRecorder | None = None, **kwargs: Any):
+        super().__init__(eval_env, **kwargs)
+        self.recorder = recorder
+        self.history: dict[str, list] = {}
+        self.best_score = -np.inf
+
+    def _init_callback(self) -> None:
+        # The eval env is built like the training one, but the ICRL models add their own wrappers to theirs
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="Training and eval env are not of the same type")
+            super()._init_callback()
+
+    def _selection_score(self, metrics: dict[str, float]) -> float:
+        if "learned_feasible_reward" in metrics:
+            return metrics["learned_feasible_reward"]
+        if getattr(self.model, "cost_fn", "absent") is None:  # PPO-Lagrangian on the env's own cost
+            return metrics["feasible_reward"]
+        return metrics["mean_reward"]
+
+    def _on_step(self) -> bool:
+        if self.eval_freq <= 0 or self.n_calls % self.eval_freq != 0:
+            return True
+        if self.model.get_vec_normalize_env() is not None:
+            sync_envs_normalization(self.training_env, self.eval_env)
+        constraint_net = getattr(self.model, "constraint_net", None)
+        if self.recorder is not None:
+            self.recorder.cost_fn = constraint_net.cost if constraint_net is not None else None
+            self.recorder.episodes = []
+        result = evaluate_constraint(
+            self.model, self.eval_env, n_episodes=self.n_eval_episodes, deterministic=self.deterministic
+        )
+        metrics = {
+            "mean_reward": result.mean_reward,
+            "std_reward": float(np.std(result.episode_rewards)),
+            "feasible_reward": result.mean_feasible_reward,
+            "violation_rate": result.violation_rate,
+            "mean_cost": result.mean_cost,
+            "mean_ep_length": float(np.mean(result.episode_lengths)),
+        }
+        if self.recorder is not None and constraint_net is not None and self.recorder.episodes:
+            learned = np.array(self.recorder.episodes[: self.n_eval_episodes])
+            metrics["learned_feasible_reward"] = float(learned[:, 1].mean())
+            metrics["mean_learned_cost"] = float(learned[:, 2].mean())
+        self.last_mean_reward = metrics["mean_reward"]
+        for key, value in metrics.items():
+            self.logger.record(f"eval/{key}", value)
+        self.logger.record("time/total_timesteps", self.num_timesteps, exclude="tensorboard")
+        self.logger.dump(self.num_timesteps)
+        if self.verbose >= 1:
+            print(f"Eval num_timesteps={self.num_timesteps}, " + ", ".join(f"{k}={v:.3g}" for k, v in metrics.items()))
+
+        self.history.setdefault("timesteps", []).append(self.num_timesteps)
+        self.history.setdefault("results", []).append(result.episode_rewards)
+        self.history.setdefault("ep_lengths", []).append(result.episode_lengths)
+        self.history.setdefault("feasible_rewards", []).append(result.feasible_rewards)
+        self.history.setdefault("violations", []).append(result.violations)
+        self.history.setdefault("episode_costs", []).append(result.episode_costs)
+        for key in ("learned_feasible_reward", "mean_learned_cost"):
+            self.history.setdefault(key, []).append(metrics.get(key, np.nan))
+        score = self._selection_score(metrics)
+        self.history.setdefault("selection_score", []).append(score)
+        if self.log_path is not None:
+            arrays: dict[str, Any] = {key: np.array(value) for key, value in self.history.items()}
+            np.savez(self.log_path, **arrays)
+
+        if score > self.best_score:
+            self.best_score = score
+            if self.verbose >= 1:
+                print(f"New best model (selection score {score:.3g})")
+            if self.best_model_save_path is not None:
+                self.model.save(os.path.join(self.best_model_save_path, "best_model"))
+            if self.callback_on_new_best is not None:
+                return self.callback_on_new_best.on_step()
+        return True

@@ -1,0 +1,196 @@
+"""
+Hyper-parameter files (``zoo_hyperparams/<algo>.yml``) read with rl-baselines3-zoo's conventions.
+
+Strings that rl-zoo evaluates are evaluated here too: ``policy_kwargs`` (and the ICRL dict arguments
+``constraint_net_kwargs``, ``lagrange_kwargs``, ``trainer_kwargs``) as Python expressions with ``nn`` and ``th``
+in scope, ``lin_<value>`` learning rates and clip ranges as linear schedules, ``normalize`` as a bool or a dict
+string, ``env_wrapper`` and ``callback`` as import paths (optionally ``{path: kwargs}``).
+"""
+
+import importlib
+import os
+import pathlib
+from typing import Any
+
+import gymnasium as gym
+import torch as th
+import yaml
+from stable_baselines3 import PPO
+from stable_baselines3.common.base_class import BaseAlgorithm
+
+from sb3_icrl import BC2L, GACL, MECL, VICRL, PPOLagrangian
+
+#: Command-line name -> algorithm class
+ALGOS: dict[str, type[BaseAlgorithm]] = {
+    "ppo": PPO,
+    "ppolag": PPOLagrangian,
+    "gacl": GACL,
+    "bc2l": BC2L,
+    "mecl": MECL,
+    "vicrl": VICRL,
+}
+#: Algorithms that learn a constraint from demonstrations
+ICRL_ALGOS = ("gacl", "bc2l", "mecl", "vicrl")
+#: Keys handled by the zoo itself, not passed to the algorithm
+ZOO_KEYS = ("n_timesteps", "n_envs", "normalize", "normalize_kwargs", "env_wrapper", "callback", "policy")
+#: Dict-valued arguments that may be written as strings
+EVAL_KEYS = ("policy_kwargs", "constraint_net_kwargs", "lagrange_kwargs", "trainer_kwargs", "normalize_kwargs")
+#: Where the shipped hyper-parameter files live (the repository root's ``zoo_hyperparams``)
+DEFAULT_HYPERPARAMS_DIR = pathlib.Path(__file__).resolve().parents[2] / "zoo_hyperparams"
+NAMESPACE = "sb3_icrl"
+
+
+class HyperparameterError(ValueError):
+    """A hyper-parameter file, entry or override that cannot be used."""
+
+
+def resolve_env_id(env_id: str) -> str:
+    """
+    The registered gymnasium id of ``env_id``: ``BlockedHalfCheetah-v0`` becomes ``sb3_icrl/BlockedHalfCheetah-v0``.
+
+    :param env_id: An id as typed on the command line
+    :return: The registered id
+    :raises ValueError: When neither ``env_id`` nor ``sb3_icrl/<env_id>`` is registered (the message lists ours)
+    """
+    if env_id in gym.registry:
+        return env_id
+    if f"{NAMESPACE}/{env_id}" in gym.registry:
+        return f"{NAMESPACE}/{env_id}"
+    ours = sorted(key.split("/", 1)[1] for key in gym.registry if key.startswith(f"{NAMESPACE}/"))
+    raise ValueError(f"Unknown env {env_id!r}. sb3-icrl envs: {', '.join(ours)} (or any registered gymnasium id).")
+
+
+def env_name(env_id: str) -> str:
+    """The id without the ``sb3_icrl/`` namespace, as used for yml keys and folder names (other ``/`` become ``-``)."""
+    return env_id.split("/", 1)[1] if env_id.startswith(f"{NAMESPACE}/") else env_id.replace("/", "-")
+
+
+def linear_schedule(initial_value: float | str) -> Any:
+    """rl-zoo's ``lin_<value>``: a schedule decreasing linearly from ``initial_value`` to 0."""
+    initial = float(initial_value)
+
+    def schedule(progress_remaining: float) -> float:
+        return progress_remaining * initial
+
+    return schedule
+
+
+def _eval_string(key: str, value: str) -> Any:
+    try:
+        return eval(value, {"nn": th.nn, "th": th, "dict": dict})  # rl-zoo convention: trusted config strings
+    except Exception as error:
+        raise HyperparameterError(f"Cannot evaluate {key}: {value!r} ({error}).") from error
+
+
+def import_object(path: str) -> Any:
+    """Import ``package.module.Name`` (or ``package.module:Name``)."""
+    module_name, _, name = path.replace(":", ".").rpartition(".")
+    try:
+        return getattr(importlib.import_module(module_name), name)
+    except (ImportError, AttributeError, ValueError) as error:
+        raise HyperparameterError(f"Cannot import {path!r}: {error}.") from error
+
+
+def _import_specs(value: Any) -> list[tuple[Any, dict[str, Any]]]:
+    """``"a.B"``, ``{"a.B": {kwargs}}`` or a list of those -> ``[(object, kwargs), ...]``."""
+    items = value if isinstance(value, list) else [value]
+    specs: list[tuple[Any, dict[str, Any]]] = []
+    for item in items:
+        if isinstance(item, str):
+            specs.append((import_object(item), {}))
+        elif isinstance(item, dict) and len(item) == 1:
+            path, kwargs = next(iter(item.items()))
+            specs.append((import_object(path), dict(kwargs or {})))
+        else:
+            raise HyperparameterError(f"Expected an import path or {{path: kwargs}}, got {item!r}.")
+    return specs
+
+
+def read_hyperparams_file(algo: str, directory: str | os.PathLike | None = None, conf_file: str | None = None) -> dict:
+    """
+    The whole ``<algo>.yml`` (or ``conf_file``) as a dict of entries.
+
+    :param algo: Command-line algorithm name
+    :param directory: Folder of the yml files (default: the repository's ``zoo_hyperparams``)
+    :param conf_file: Explicit file, as rl-zoo's ``-conf``
+    """
+    path = pathlib.Path(conf_file) if conf_file else pathlib.Path(directory or DEFAULT_HYPERPARAMS_DIR) / f"{algo}.yml"
+    if not path.is_file():
+        raise HyperparameterError(f"No hyper-parameter file {path}.")
+    with open(path) as file:
+        content = yaml.safe_load(file)
+    if not isinstance(content, dict):
+        raise HyperparameterError(f"{path} must map env names to entries.")
+    return content
+
+
+def load_hyperparams(
+    algo: str,
+    env_id: str,
+    overrides: dict[str, Any] | None = None,
+    directory: str | os.PathLike | None = None,
+    conf_file: str | None = None,
+) -> tuple[dict[str, Any], str]:
+    """
+    The raw entry for ``env_id`` (falling back to ``default``) with ``overrides`` applied, as saved in ``config.yml``.
+
+    :param algo: Command-line algorithm name
+    :param env_id: Registered or short env id
+    :param overrides: ``-params`` values (replace the file's)
+    :param directory: Folder of the yml files
+    :param conf_file: Explicit file
+    :return: The entry (strings not yet evaluated) and the key it came from
+    """
+    if algo not in ALGOS:
+        raise HyperparameterError(f"Unknown algo {algo!r}: use one of {', '.join(ALGOS)}.")
+    content = read_hyperparams_file(algo, directory, conf_file)
+    for key in (env_name(env_id), env_id, "default"):
+        if key in content:
+            entry = dict(content[key] or {})
+            break
+    else:
+        raise HyperparameterError(f"No entry for {env_name(env_id)!r} and no `default` in the {algo} hyper-parameters.")
+    entry.update(overrides or {})
+    return entry, key
+
+
+def preprocess_hyperparams(entry: dict[str, Any]) -> dict[str, Any]:
+    """
+    Evaluate rl-zoo's string conventions; the zoo keys stay in the returned dict.
+
+    :param entry: Raw entry from :func:`load_hyperparams`
+    :return: A copy with dict strings evaluated, ``lin_`` schedules built, ``normalize`` parsed,
+        ``env_wrapper`` and ``callback`` imported (as lists of ``(object, kwargs)``)
+    """
+    params = dict(entry)
+    for key in EVAL_KEYS:
+        if isinstance(params.get(key), str):
+            params[key] = _eval_string(key, params[key])
+    for key in ("learning_rate", "clip_range", "clip_range_vf"):
+        value = params.get(key)
+        if isinstance(value, str):
+            if not value.startswith("lin_"):
+                raise HyperparameterError(f"{key}: {value!r} is neither a number nor 'lin_<value>'.")
+            params[key] = linear_schedule(value[len("lin_") :])
+    normalize = params.get("normalize", False)
+    if isinstance(normalize, str):
+        normalize = _eval_string("normalize", normalize)
+    if isinstance(normalize, dict):
+        params["normalize_kwargs"] = {**params.get("normalize_kwargs", {}), **normalize}
+        normalize = True
+    params["normalize"] = bool(normalize)
+    for key in ("env_wrapper", "callback"):
+        params[key] = _import_specs(params[key]) if params.get(key) else []
+    if isinstance(params.get("prior"), list):
+        params["prior"] = tuple(params["prior"])
+    params.setdefault("policy", "MlpPolicy")
+    params.setdefault("n_envs", 1)
+    if "n_timesteps" not in params:
+        raise HyperparameterError("The hyper-parameters lack `n_timesteps`.")
+    params["n_timesteps"] = int(float(params["n_timesteps"]))
+    return params
+
+
+def algo_kwargs(params: dict[str, Any]) -> dict[str, Any]:
+    """The part of preprocessed ``params`` that goes to the algorithm's constructor."""
+    return {key: value for key, value in params.items() if key not in ZOO_KEYS}

@@ -1,0 +1,331 @@
+"""
+Train any sb3-icrl algorithm the rl-baselines3-zoo way::
+
+    python train.py --algo mecl --env BlockedHalfCheetah-v0 --demonstrations experts.npz -tb runs/
+    sb3-icrl train --algo vicrl --env GridWorldWall-v0 -n 20000 --seed 123
+
+Hyper-parameters come from ``zoo_hyperparams/<algo>.yml`` (the one source of truth), overridden with ``-params``.
+A run writes ``<folder>/<algo>/<EnvName>_<N>/``: the final model ``<EnvName>.zip``, ``best_model.zip``, periodic
+``rl_model_<steps>_steps.zip``, ``evaluations.npz``, monitor files, ``<EnvName>/{config,args,versions}.yml``,
+``<EnvName>/vecnormalize.pkl`` when normalising, and ``command.txt``.
+"""
+
+import argparse
+import difflib
+import os
+import platform
+import shlex
+import shutil
+import subprocess
+import sys
+import time
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import stable_baselines3
+import torch as th
+import yaml
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.utils import set_random_seed
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
+
+import sb3_icrl
+from sb3_icrl.data import load_demonstrations
+from sb3_icrl.envs.wrappers import TransitionNoiseWrapper
+from sb3_icrl.zoo.callbacks import ConstraintEvalCallback, LearnedCostRecorder
+from sb3_icrl.zoo.hyperparams import (
+    ALGOS,
+    ICRL_ALGOS,
+    HyperparameterError,
+    algo_kwargs,
+    env_name,
+    load_hyperparams,
+    preprocess_hyperparams,
+    resolve_env_id,
+)
+
+
+class StoreDict(argparse.Action):
+    """rl-zoo's ``-params k:v k2:v2``: each value is evaluated as a Python literal/expression, else kept as a string."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any, option_string=None):
+        result: dict[str, Any] = {}
+        for item in values:
+            key, sep, value = item.partition(":")
+            if not sep or not key:
+                parser.error(f"{option_string} expects key:value pairs, got {item!r}.")
+            try:
+                result[key] = eval(value, {"nn": th.nn, "th": th, "dict": dict})  # rl-zoo convention: trusted config strings
+            except Exception:
+                result[key] = value  # plain strings such as lin_3e-4 or MlpPolicy
+        setattr(namespace, self.dest, result)
+
+
+def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
+    """
+    The command-line parser, with rl-zoo's flags plus the ICRL ones.
+
+    :param prog: Program name in the usage line (default: the script's)
+    """
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--algo", type=str, required=True, choices=list(ALGOS), help="Algorithm")
+    parser.add_argument("--env", type=str, required=True, help="Env id, with or without the sb3_icrl/ prefix")
+    parser.add_argument("-n", "--n-timesteps", type=int, default=-1, help="Timesteps (default: the yml's n_timesteps)")
+    parser.add_argument("--seed", type=int, default=-1, help="Random seed (default: drawn at random, then saved)")
+    parser.add_argument("-f", "--log-folder", type=str, default="logs", help="Log folder")
+    parser.add_argument("-tb", "--tensorboard-log", type=str, default="", help="TensorBoard log dir")
+    parser.add_argument("--eval-freq", type=int, default=25000, help="Evaluate every n steps (<= 0: never)")
+    parser.add_argument("--eval-episodes", type=int, default=5, help="Episodes per evaluation")
+    parser.add_argument("--save-freq", type=int, default=-1, help="Checkpoint every n steps (<= 0: never)")
+    parser.add_argument("-params", "--hyperparams", type=str, nargs="+", action=StoreDict, help="Overrides: k:v")
+    parser.add_argument("-conf", "--conf-file", type=str, default=None, help="Custom yml file (replaces <algo>.yml)")
+    parser.add_argument("--env-kwargs", type=str, nargs="+", action=StoreDict, help="Env keyword arguments: k:v")
+    parser.add_argument("--progress", action="store_true", default=False, help="Show a progress bar")
+    parser.add_argument("--verbose", type=int, default=1, help="Verbose mode (0: none, 1: training info)")
+    parser.add_argument("--num-threads", type=int, default=1, help="torch threads (<= 0: torch's default)")
+    parser.add_argument("--device", type=str, default="auto", help="torch device")
+    parser.add_argument("--demonstrations", type=str, default=None, help="Shipped dataset name or .npz path (ICRL)")
+    parser.add_argument(
+        "--violating-fraction", type=float, default=None, help="Shipped imperfect-expert variant (0.2, 0.5, 0.8)"
+    )
+    parser.add_argument("--transition-noise", type=float, default=0.0, help="Std of N(0, sigma) next-state noise")
+    return parser
+
+
+def get_latest_run_id(log_path: str, name: str) -> int:
+    """Highest ``N`` of the ``<name>_<N>`` folders in ``log_path`` (0 when none), as rl-zoo."""
+    run_id = 0
+    if os.path.isdir(log_path):
+        for entry in os.listdir(log_path):
+            stem, _, suffix = entry.rpartition("_")
+            if stem == name and suffix.isdigit():
+                run_id = max(run_id, int(suffix))
+    return run_id
+
+
+def versions() -> dict[str, str]:
+    """Package versions and the git revision of the sb3-icrl checkout (``unknown`` outside a git checkout)."""
+    info = {
+        "python": platform.python_version(),
+        "sb3_icrl": sb3_icrl.__version__,
+        "stable_baselines3": stable_baselines3.__version__,
+        "gymnasium": gym.__version__,
+        "torch": str(th.__version__),
+        "numpy": np.__version__,
+        "platform": platform.platform(),
+    }
+    root = os.path.dirname(os.path.dirname(os.path.abspath(sb3_icrl.__file__)))
+    try:
+        revision = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, check=True)
+        status = subprocess.run(["git", "status", "--porcelain"], cwd=root, capture_output=True, text=True, check=True)
+        info["git_revision"] = revision.stdout.strip() + ("-dirty" if status.stdout.strip() else "")
+    except (OSError, subprocess.CalledProcessError):
+        info["git_revision"] = "unknown"
+    return info
+
+
+def _wrapper_class(wrappers: list[tuple[Any, dict[str, Any]]], transition_noise: float) -> Any:
+    def wrap(env: gym.Env) -> gym.Env:
+        if transition_noise > 0:
+            env = TransitionNoiseWrapper(env, sigma=transition_noise)
+        for wrapper, kwargs in wrappers:
+            env = wrapper(env, **kwargs)
+        return env
+
+    return wrap if wrappers or transition_noise > 0 else None
+
+
+def create_env(
+    env_id: str,
+    params: dict[str, Any],
+    n_envs: int,
+    seed: int,
+    env_kwargs: dict[str, Any],
+    transition_noise: float,
+    monitor_dir: str | None,
+    eval_env: bool = False,
+) -> tuple[VecEnv, LearnedCostRecorder | None]:
+    """Vectorised env with Monitor, the yml's wrappers, transition noise and VecNormalize (eval: frozen, raw reward)."""
+    venv = make_vec_env(
+        env_id,
+        n_envs=n_envs,
+        seed=seed,
+        env_kwargs=env_kwargs,
+        monitor_dir=monitor_dir,
+        wrapper_class=_wrapper_class(params["env_wrapper"], transition_noise),
+        vec_env_cls=DummyVecEnv,
+    )
+    recorder = None
+    if eval_env:
+        venv = recorder = LearnedCostRecorder(venv)
+    if params["normalize"]:
+        kwargs = dict(params.get("normalize_kwargs") or {})
+        if eval_env:
+            kwargs.update(training=False, norm_reward=False)
+        venv = VecNormalize(venv, **kwargs)
+    return venv, recorder
+
+
+def _demonstrations(algo: str, env_id: str, args: argparse.Namespace, env: VecEnv) -> Any:
+    if algo not in ICRL_ALGOS:
+        if args.demonstrations is not None:
+            raise ValueError(f"--demonstrations is for the ICRL algorithms ({', '.join(ICRL_ALGOS)}), not {algo}.")
+        return None
+    name = args.demonstrations if args.demonstrations is not None else env_name(env_id)
+    try:
+        return load_demonstrations(name, env=env, violating_fraction=args.violating_fraction)
+    except Exception as error:
+        if args.demonstrations is None:
+            raise ValueError(
+                f"{algo} learns from demonstrations and none are shipped for {env_name(env_id)}: pass "
+                f"--demonstrations PATH.npz (see `python -m sb3_icrl.data generate --help`). ({error})"
+            ) from error
+        raise
+
+
+def _setup(
+    args: argparse.Namespace, env_id: str, params: dict[str, Any], kwargs: dict[str, Any], save_path: str
+) -> tuple[BaseAlgorithm, list[BaseCallback]]:
+    """Envs, model and callbacks of a run."""
+    env_kwargs = args.env_kwargs or {}
+    env, _ = create_env(env_id, params, params["n_envs"], args.seed, env_kwargs, args.transition_noise, save_path)
+    demonstrations = _demonstrations(args.algo, env_id, args, env)
+    if demonstrations is not None:
+        kwargs["demonstrations"] = demonstrations
+    algo_class = ALGOS[args.algo]
+    tensorboard_log = os.path.join(args.tensorboard_log, env_name(env_id)) if args.tensorboard_log else None
+    try:
+        model = algo_class(
+            params["policy"],
+            env,
+            tensorboard_log=tensorboard_log,
+            seed=args.seed,
+            verbose=args.verbose,
+            device=args.device,
+            **kwargs,
+        )
+    except TypeError as error:
+        raise HyperparameterError(f"{algo_class.__name__} rejects the hyper-parameters {sorted(kwargs)}: {error}") from error
+
+    callbacks: list[BaseCallback] = [callback(**cb_kwargs) for callback, cb_kwargs in params["callback"]]
+    n_envs = params["n_envs"]
+    if args.save_freq > 0:
+        callbacks.append(CheckpointCallback(max(args.save_freq // n_envs, 1), save_path, name_prefix="rl_model"))
+    if args.eval_freq > 0:
+        eval_env, recorder = create_env(
+            env_id,
+            params,
+            1,
+            args.seed + 1000,
+            env_kwargs,
+            args.transition_noise,
+            os.path.join(save_path, "eval"),
+            eval_env=True,
+        )
+        callbacks.append(
+            ConstraintEvalCallback(
+                eval_env,
+                recorder=recorder,
+                n_eval_episodes=args.eval_episodes,
+                eval_freq=max(args.eval_freq // n_envs, 1),
+                log_path=save_path,
+                best_model_save_path=save_path,
+                deterministic=True,
+                verbose=args.verbose,
+            )
+        )
+    return model, callbacks
+
+
+def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
+    """
+    Run one training as described by parsed ``args``; return the run folder.
+
+    :param args: From :func:`get_parser`
+    :param argv: The command line, for ``command.txt``
+    """
+    env_id = resolve_env_id(args.env)
+    name = env_name(env_id)
+    if args.num_threads > 0:
+        th.set_num_threads(args.num_threads)
+    if args.seed < 0:
+        args.seed = int(np.random.randint(2**31 - 1))
+    set_random_seed(args.seed)
+
+    raw_params, source = load_hyperparams(args.algo, env_id, args.hyperparams, conf_file=args.conf_file)
+    params = preprocess_hyperparams(raw_params)
+    n_timesteps = args.n_timesteps if args.n_timesteps > 0 else params["n_timesteps"]
+    kwargs = algo_kwargs(params)
+
+    log_path = os.path.join(args.log_folder, args.algo)
+    save_path = os.path.join(log_path, f"{name}_{get_latest_run_id(log_path, name) + 1}")
+    params_path = os.path.join(save_path, name)
+    os.makedirs(params_path, exist_ok=True)
+    with open(os.path.join(params_path, "config.yml"), "w") as file:
+        yaml.safe_dump({**raw_params, "n_timesteps": n_timesteps}, file)
+    with open(os.path.join(params_path, "args.yml"), "w") as file:
+        yaml.safe_dump({**vars(args), "env": env_id, "hyperparams_entry": source}, file)
+    with open(os.path.join(params_path, "versions.yml"), "w") as file:
+        yaml.safe_dump(versions(), file)
+    with open(os.path.join(save_path, "command.txt"), "w") as file:
+        file.write(shlex.join(["python", sys.argv[0], *(argv if argv is not None else sys.argv[1:])]) + "\n")
+
+    try:
+        model, callbacks = _setup(args, env_id, params, kwargs, save_path)
+    except Exception:
+        shutil.rmtree(save_path, ignore_errors=True)  # no half-made run folder for a run that never started
+        raise
+    start = time.time()
+    try:
+        model.learn(n_timesteps, callback=callbacks, tb_log_name=f"{args.algo}_{name}", progress_bar=args.progress)
+    except KeyboardInterrupt:
+        print("Interrupted: saving the model")
+    finally:
+        model.save(os.path.join(save_path, name))
+        vec_normalize = model.get_vec_normalize_env()
+        if vec_normalize is not None:
+            vec_normalize.save(os.path.join(params_path, "vecnormalize.pkl"))
+    if args.verbose:
+        print(f"Saved {save_path} ({time.time() - start:.1f} s)")
+    return save_path
+
+
+def _suggest(value: str, choices: list[str]) -> str:
+    close = difflib.get_close_matches(value, choices, n=1)
+    return f" Did you mean {close[0]!r}?" if close else ""
+
+
+def main(argv: list[str] | None = None, prog: str | None = None) -> int:
+    """
+    Command-line entry point (``train.py`` and ``sb3-icrl train``).
+
+    :param argv: Arguments (default: ``sys.argv[1:]``)
+    :param prog: Program name in the usage line
+    :return: Exit status: 0, or 2 after a clear error
+    """
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = get_parser(prog).parse_args(argv)
+    try:
+        train(args, argv)
+    except (ValueError, HyperparameterError) as error:
+        ours = [key.split("/", 1)[1] for key in gym.registry if key.startswith("sb3_icrl/")]
+        hint = _suggest(args.env, ours) if "Unknown env" in str(error) else ""
+        print(f"error: {error}{hint}", file=sys.stderr)
+        return 2
+    return 0
+
+
+def cli(argv: list[str] | None = None) -> int:
+    """``sb3-icrl <command>``: only ``train`` for now."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] != "train":
+        print("usage: sb3-icrl train --algo ALGO --env ENV [options] (see sb3-icrl train --help)", file=sys.stderr)
+        return 2
+    return main(argv[1:], prog="sb3-icrl train")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,177 @@
+"""train.py / sb3_icrl.zoo: the rl-zoo style command line, its hyper-parameter files and its run folders."""
+
+import os
+import pathlib
+import subprocess
+import sys
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import yaml
+
+from sb3_icrl.zoo import ALGOS, ICRL_ALGOS, main, resolve_env_id
+from sb3_icrl.zoo.callbacks import ConstraintEvalCallback
+from sb3_icrl.zoo.hyperparams import (
+    DEFAULT_HYPERPARAMS_DIR,
+    HyperparameterError,
+    algo_kwargs,
+    load_hyperparams,
+    preprocess_hyperparams,
+    read_hyperparams_file,
+)
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+FAST = ["-n", "256", "-params", "n_steps:128", "batch_size:32", "--eval-freq", "128", "--eval-episodes", "2", "--seed", "1"]
+
+
+@pytest.mark.parametrize("algo", list(ALGOS))
+def test_train_subprocess_writes_zoo_run_folder(algo: str, tmp_path: pathlib.Path) -> None:
+    """The root ``train.py`` trains each algo on the grid world (shipped demonstrations) and leaves rl-zoo's layout."""
+    command = [sys.executable, str(ROOT / "train.py"), "--algo", algo, "--env", "GridWorldWall-v0", *FAST]
+    command += ["--save-freq", "128", "-f", "logs", "-tb", "tb", "--verbose", "0"]
+    result = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr[-3000:]
+
+    run = tmp_path / "logs" / algo / "GridWorldWall-v0_1"
+    for name in ("GridWorldWall-v0.zip", "best_model.zip", "rl_model_128_steps.zip", "rl_model_256_steps.zip"):
+        assert (run / name).is_file(), name
+    assert (run / "0.monitor.csv").is_file() and (run / "eval" / "0.monitor.csv").is_file()
+    assert "--algo" in (run / "command.txt").read_text()
+
+    config = yaml.safe_load((run / "GridWorldWall-v0" / "config.yml").read_text())
+    assert config["n_steps"] == 128 and config["batch_size"] == 32 and config["n_timesteps"] == 256
+    args = yaml.safe_load((run / "GridWorldWall-v0" / "args.yml").read_text())
+    assert args["env"] == "sb3_icrl/GridWorldWall-v0" and args["seed"] == 1 and args["algo"] == algo
+    versions = yaml.safe_load((run / "GridWorldWall-v0" / "versions.yml").read_text())
+    assert {"sb3_icrl", "stable_baselines3", "gymnasium", "torch", "git_revision"} <= set(versions)
+
+    evaluations = np.load(run / "evaluations.npz")
+    assert evaluations["timesteps"].tolist() == [128, 256]
+    for key in ("results", "ep_lengths", "feasible_rewards", "violations", "episode_costs"):
+        assert evaluations[key].shape == (2, 2), key
+    learned = evaluations["learned_feasible_reward"]
+    assert np.isfinite(learned).all() == (algo in ICRL_ALGOS)  # NaN for the algos without a learned constraint
+    assert list(tmp_path.glob("tb/GridWorldWall-v0/*/events.out.tfevents.*"))
+
+
+def test_normalize_noise_and_run_ids(tmp_path: pathlib.Path) -> None:
+    """VecNormalize statistics are saved, transition noise reaches the env, and a second run gets the next id."""
+    fast = [*FAST[:5], "normalize:True", *FAST[5:]]  # -n 256 -params n_steps:128 batch_size:32 normalize:True ...
+    args = ["--algo", "ppolag", "--env", "ConstrainedCorridor-v0", *fast, "--transition-noise", "0.01"]
+    args += ["-f", str(tmp_path), "--verbose", "0"]
+    assert main(args) == 0
+    assert main(args) == 0
+    first, second = tmp_path / "ppolag" / "ConstrainedCorridor-v0_1", tmp_path / "ppolag" / "ConstrainedCorridor-v0_2"
+    assert (first / "ConstrainedCorridor-v0" / "vecnormalize.pkl").is_file() and second.is_dir()
+    assert yaml.safe_load((first / "ConstrainedCorridor-v0" / "args.yml").read_text())["transition_noise"] == 0.01
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--algo", "ppo", "--env", "GridWorldWal-v0"], "Did you mean 'GridWorldWall-v0'"),
+        (["--algo", "ppo", "--env", "GridWorldWall-v0", "-params", "bogus:1"], "rejects the hyper-parameters"),
+        (["--algo", "mecl", "--env", "BlockedHalfCheetah-v0"], "--demonstrations"),
+        (["--algo", "ppo", "--env", "GridWorldWall-v0", "--demonstrations", "GridWorldWall-v0"], "ICRL algorithms"),
+    ],
+)
+def test_clear_errors_leave_no_run_folder(args: list[str], message: str, tmp_path, capsys) -> None:
+    assert main([*args, "-n", "64", "-f", str(tmp_path)]) == 2
+    assert message in capsys.readouterr().err
+    assert not any(path.is_dir() for path in tmp_path.glob("*/*_*"))
+
+
+def test_malformed_params_exit_with_usage(tmp_path: pathlib.Path) -> None:
+    with pytest.raises(SystemExit):
+        main(["--algo", "ppo", "--env", "GridWorldWall-v0", "-params", "no_colon", "-f", str(tmp_path)])
+
+
+def test_short_and_full_env_ids() -> None:
+    assert resolve_env_id("BlockedHalfCheetah-v0") == "sb3_icrl/BlockedHalfCheetah-v0"
+    assert resolve_env_id("sb3_icrl/GridWorldWall-v0") == "sb3_icrl/GridWorldWall-v0"
+    assert resolve_env_id("CartPole-v1") == "CartPole-v1"
+    with pytest.raises(ValueError, match="BlockedAnt-v0"):
+        resolve_env_id("Nope-v0")
+
+
+def test_rl_zoo_string_conventions() -> None:
+    raw = {
+        "n_timesteps": "1e3",
+        "policy_kwargs": "dict(net_arch=[8], activation_fn=nn.Tanh)",
+        "learning_rate": "lin_1e-3",
+        "normalize": "{'norm_obs': True, 'norm_reward': False}",
+        "env_wrapper": [{"sb3_icrl.envs.wrappers.TransitionNoiseWrapper": {"sigma": 0.1}}],
+    }
+    params = preprocess_hyperparams(raw)
+    assert params["n_timesteps"] == 1000 and params["normalize"] is True
+    assert params["normalize_kwargs"] == {"norm_obs": True, "norm_reward": False}
+    assert params["learning_rate"](0.5) == pytest.approx(5e-4)
+    assert params["policy_kwargs"]["activation_fn"].__name__ == "Tanh"
+    assert params["env_wrapper"][0][1] == {"sigma": 0.1}
+    assert set(algo_kwargs(params)) == {"policy_kwargs", "learning_rate"}
+    with pytest.raises(HyperparameterError, match="policy_kwargs"):
+        preprocess_hyperparams({"n_timesteps": 1, "policy_kwargs": "dict(("})
+    with pytest.raises(HyperparameterError, match="Unknown algo"):
+        load_hyperparams("sac", "GridWorldWall-v0")
+
+
+def _entries() -> list[tuple[str, str]]:
+    return [(algo, key) for algo in ALGOS for key in read_hyperparams_file(algo)]
+
+
+def test_every_benchmark_env_has_an_entry() -> None:
+    mujoco = ["BlockedHalfCheetah-v0", "BlockedAnt-v0", "BiasedPendulum-v0", "BlockedWalker-v0", "BlockedSwimmer-v0"]
+    for algo in ALGOS:
+        assert (DEFAULT_HYPERPARAMS_DIR / f"{algo}.yml").is_file()
+        assert {"default", "GridWorldWall-v0", *mujoco} <= set(read_hyperparams_file(algo)), algo
+
+
+def test_reference_table_values() -> None:
+    """Spot checks against MISSION.md section 2 (HalfCheetah: 30 x 200k, lambda 1/0.1, constraint lr 5e-3, [20], 10, 0.5)."""
+    entry, _ = load_hyperparams("mecl", "BlockedHalfCheetah-v0")
+    params = preprocess_hyperparams(entry)
+    assert params["n_timesteps"] == 30 * 200_000 and params["update_every"] == 200_000
+    assert (params["n_steps"], params["batch_size"], params["learning_rate"]) == (2048, 64, 3e-4)
+    assert params["lagrange_kwargs"]["init"] == 1.0 and params["lagrange_kwargs"]["lr"] == 0.1
+    assert params["constraint_learning_rate"] == 5e-3 and params["constraint_net_kwargs"]["hidden_sizes"] == [20]
+    assert params["constraint_steps"] == 10 and params["regularizer_coef"] == 0.5
+    vicrl, _ = load_hyperparams("vicrl", "BlockedAnt-v0")
+    assert preprocess_hyperparams(vicrl)["prior"] == (0.9, 0.1)
+
+
+@pytest.mark.parametrize("algo, key", _entries())
+def test_every_entry_builds_its_model(algo: str, key: str) -> None:
+    """Each yml entry's arguments are accepted by its algorithm (env: the entry's own, the corridor for `default`)."""
+    env_id = resolve_env_id("ConstrainedCorridor-v0" if key == "default" else key)
+    params = preprocess_hyperparams(load_hyperparams(algo, env_id)[0])
+    env = gym.make(env_id)
+    try:
+        model = ALGOS[algo](params["policy"], env, device="cpu", **algo_kwargs(params))
+        assert model.n_steps == params["n_steps"]
+    finally:
+        env.close()
+
+
+class _Model:
+    def __init__(self, **attributes):
+        self.__dict__.update(attributes)
+
+
+def test_best_model_selection_never_reads_the_true_constraint() -> None:
+    """Learned-constraint models are ranked by their learned feasible reward; only PPO-Lag (trained on it) uses the cost."""
+    metrics = {"mean_reward": 10.0, "feasible_reward": 1.0, "violation_rate": 1.0, "learned_feasible_reward": 7.0}
+    callback = ConstraintEvalCallback.__new__(ConstraintEvalCallback)
+    callback.model = _Model(constraint_net=object(), cost_fn=None)
+    assert callback._selection_score(metrics) == 7.0
+    callback.model = _Model(cost_fn=None)
+    assert callback._selection_score({k: v for k, v in metrics.items() if k != "learned_feasible_reward"}) == 1.0
+    callback.model = _Model()
+    assert callback._selection_score({"mean_reward": 10.0, "feasible_reward": 1.0}) == 10.0
+
+
+def test_console_entry_point() -> None:
+    from sb3_icrl.zoo.train import cli
+
+    assert cli([]) == 2
+    assert os.path.isfile(ROOT / "train.py")
