@@ -21,17 +21,21 @@ class ConstrainedCorridorEnv(gym.Env):
     :param length: Number of cells
     :param safe_limit: Last safe cell; cells to its right cost 1 per step
     :param max_steps: Episode length
+    :param render_mode: ``None`` or ``"rgb_array"`` (one row of cells: safe white, unsafe red, agent blue)
     """
 
-    metadata = {"render_modes": []}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
 
-    def __init__(self, length: int = 11, safe_limit: int = 6, max_steps: int = 20):
+    def __init__(self, length: int = 11, safe_limit: int = 6, max_steps: int = 20, render_mode: str | None = None):
         if length < 2 or not 0 <= safe_limit < length - 1:
             raise ValueError(
                 f"Need length >= 2 and 0 <= safe_limit < length - 1, got length={length}, safe_limit={safe_limit}."
             )
         if max_steps < 1:
             raise ValueError(f"`max_steps` must be >= 1, got {max_steps}.")
+        if render_mode not in (None, *self.metadata["render_modes"]):
+            raise ValueError(f"Unsupported render_mode {render_mode!r}: use None or 'rgb_array'.")
+        self.render_mode = render_mode
         self.length = length
         self.safe_limit = safe_limit
         self.max_steps = max_steps
@@ -58,3 +62,11 @@ class ConstrainedCorridorEnv(gym.Env):
         cost = float(self.position > self.safe_limit)
         info = {"cost": cost, "x_position": self.position}
         return self._obs(), reward, False, self.steps >= self.max_steps, info
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode != "rgb_array":
+            return None
+        cells = np.full((1, self.length, 3), 255, dtype=np.uint8)
+        cells[0, self.safe_limit + 1 :] = (220, 50, 50)
+        cells[0, self.position] = (40, 90, 220)
+        return np.kron(cells, np.ones((16, 16, 1), dtype=np.uint8))
