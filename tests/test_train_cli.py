@@ -175,3 +175,40 @@ def test_console_entry_point() -> None:
 
     assert cli([]) == 2
     assert os.path.isfile(ROOT / "train.py")
+
+
+def _safe_corridor_demonstrations(path: pathlib.Path) -> None:
+    """Scripted expert: run right to the last safe cell and stay there (never breaks the constraint)."""
+    from sb3_icrl.data.serialize import save
+    from sb3_icrl.data.types import Trajectory
+
+    trajectories = []
+    for _ in range(2):
+        env = gym.make("sb3_icrl/ConstrainedCorridor-v0")
+        obs, _ = env.reset()
+        observations, actions, rewards, costs = [obs], [], [], []
+        done = False
+        while not done:
+            action = 2 if env.unwrapped.position < env.unwrapped.safe_limit else 1
+            obs, reward, terminated, truncated, info = env.step(action)
+            observations.append(obs), actions.append(action), rewards.append(reward), costs.append(info["cost"])
+            done = terminated or truncated
+        trajectories.append(
+            Trajectory(np.array(observations), np.array(actions), None, terminated, np.array(rewards), np.array(costs))
+        )
+    save(path, trajectories, {"env_id": "sb3_icrl/ConstrainedCorridor-v0"})
+
+
+@pytest.mark.parametrize("algo", ICRL_ALGOS)
+def test_icrl_with_vecnormalize_and_demonstration_path(algo: str, tmp_path: pathlib.Path) -> None:
+    """ICRL models wrap their training env further than the eval env: normalisation statistics must still reach it."""
+    demos = tmp_path / "demos.npz"
+    _safe_corridor_demonstrations(demos)
+    fast = [*FAST[:5], "normalize:True", *FAST[5:]]
+    args = ["--algo", algo, "--env", "ConstrainedCorridor-v0", *fast, "--demonstrations", str(demos), "-f", str(tmp_path)]
+    assert main([*args, "--verbose", "0"]) == 0
+    run = tmp_path / algo / "ConstrainedCorridor-v0_1"
+    assert (run / "ConstrainedCorridor-v0" / "vecnormalize.pkl").is_file()
+    evaluations = np.load(run / "evaluations.npz")
+    assert evaluations["timesteps"].tolist() == [128, 256]
+    assert np.isfinite(evaluations["learned_feasible_reward"]).all()

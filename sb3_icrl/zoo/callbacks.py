@@ -2,12 +2,13 @@
 
 import os
 import warnings
+from copy import deepcopy
 from typing import Any
 
 import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.callbacks import EvalCallback
-from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, sync_envs_normalization
+from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, unwrap_vec_normalize
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 
 from sb3_icrl.common.evaluation import evaluate_constraint
@@ -90,6 +91,18 @@ class ConstraintEvalCallback(EvalCallback):
             warnings.filterwarnings("ignore", message="Training and eval env are not of the same type")
             super()._init_callback()
 
+    def _sync_normalization(self) -> None:
+        # The ICRL models wrap their training env further than the eval env (nominal recorder, learned cost), so
+        # SB3's ``sync_envs_normalization``, which walks both stacks in step, cannot pair them: copy the statistics
+        train_normalize = self.model.get_vec_normalize_env()
+        eval_normalize = unwrap_vec_normalize(self.eval_env)
+        if train_normalize is None or eval_normalize is None:
+            if (train_normalize is None) != (eval_normalize is None):
+                raise ValueError("The training and evaluation envs must both use VecNormalize, or neither.")
+            return
+        eval_normalize.obs_rms = deepcopy(train_normalize.obs_rms)
+        eval_normalize.ret_rms = deepcopy(train_normalize.ret_rms)
+
     def _selection_score(self, metrics: dict[str, float]) -> float:
         if "learned_feasible_reward" in metrics:
             return metrics["learned_feasible_reward"]
@@ -100,8 +113,7 @@ class ConstraintEvalCallback(EvalCallback):
     def _on_step(self) -> bool:
         if self.eval_freq <= 0 or self.n_calls % self.eval_freq != 0:
             return True
-        if self.model.get_vec_normalize_env() is not None:
-            sync_envs_normalization(self.training_env, self.eval_env)
+        self._sync_normalization()
         constraint_net = getattr(self.model, "constraint_net", None)
         if self.recorder is not None:
             self.recorder.cost_fn = constraint_net.cost if constraint_net is not None else None
