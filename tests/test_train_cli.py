@@ -58,13 +58,24 @@ def test_train_subprocess_writes_zoo_run_folder(algo: str, tmp_path: pathlib.Pat
 def test_normalize_noise_and_run_ids(tmp_path: pathlib.Path) -> None:
     """VecNormalize statistics are saved, transition noise reaches the env, and a second run gets the next id."""
     fast = [*FAST[:5], "normalize:True", *FAST[5:]]  # -n 256 -params n_steps:128 batch_size:32 normalize:True ...
-    args = ["--algo", "ppolag", "--env", "ConstrainedCorridor-v0", *fast, "--transition-noise", "0.01"]
+    args = ["--algo", "ppolag", "--env", "ConstrainedCorridor-v0", *fast, "--transition-noise", "0.01", "--env-kwargs"]
+    args += ["max_steps:8"]
     args += ["-f", str(tmp_path), "--verbose", "0"]
     assert main(args) == 0
     assert main(args) == 0
     first, second = tmp_path / "ppolag" / "ConstrainedCorridor-v0_1", tmp_path / "ppolag" / "ConstrainedCorridor-v0_2"
     assert (first / "ConstrainedCorridor-v0" / "vecnormalize.pkl").is_file() and second.is_dir()
     assert yaml.safe_load((first / "ConstrainedCorridor-v0" / "args.yml").read_text())["transition_noise"] == 0.01
+    assert (np.load(first / "evaluations.npz")["ep_lengths"] == 8).all()  # --env-kwargs reached the envs
+
+
+def test_violating_fraction_picks_the_shipped_variant(tmp_path: pathlib.Path) -> None:
+    args = ["--algo", "bc2l", "--env", "GridWorldWall-v0", *FAST, "--violating-fraction", "0.2", "-f", str(tmp_path)]
+    assert main([*args, "--verbose", "0"]) == 0
+    assert yaml.safe_load((tmp_path / "bc2l" / "GridWorldWall-v0_1" / "GridWorldWall-v0" / "args.yml").read_text())[
+        "violating_fraction"
+    ] == pytest.approx(0.2)
+    assert main(["--algo", "bc2l", "--env", "GridWorldWall-v0", "--violating-fraction", "0.3", "-f", str(tmp_path)]) == 2
 
 
 @pytest.mark.parametrize(
@@ -74,6 +85,7 @@ def test_normalize_noise_and_run_ids(tmp_path: pathlib.Path) -> None:
         (["--algo", "ppo", "--env", "GridWorldWall-v0", "-params", "bogus:1"], "rejects the hyper-parameters"),
         (["--algo", "mecl", "--env", "BlockedHalfCheetah-v0"], "--demonstrations"),
         (["--algo", "ppo", "--env", "GridWorldWall-v0", "--demonstrations", "GridWorldWall-v0"], "ICRL algorithms"),
+        (["--algo", "ppolag", "--env", "GridWorldWall-v0", "--violating-fraction", "0.2"], "ICRL algorithms"),
     ],
 )
 def test_clear_errors_leave_no_run_folder(args: list[str], message: str, tmp_path, capsys) -> None:

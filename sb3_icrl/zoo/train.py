@@ -171,8 +171,10 @@ def create_env(
 
 def _demonstrations(algo: str, env_id: str, args: argparse.Namespace, env: VecEnv) -> Any:
     if algo not in ICRL_ALGOS:
-        if args.demonstrations is not None:
-            raise ValueError(f"--demonstrations is for the ICRL algorithms ({', '.join(ICRL_ALGOS)}), not {algo}.")
+        if args.demonstrations is not None or args.violating_fraction is not None:
+            raise ValueError(
+                f"--demonstrations and --violating-fraction are for the ICRL algorithms ({', '.join(ICRL_ALGOS)}), not {algo}."
+            )
         return None
     name = args.demonstrations if args.demonstrations is not None else env_name(env_id)
     try:
