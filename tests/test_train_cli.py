@@ -224,3 +224,14 @@ def test_icrl_with_vecnormalize_and_demonstration_path(algo: str, tmp_path: path
     evaluations = np.load(run / "evaluations.npz")
     assert evaluations["timesteps"].tolist() == [128, 256]
     assert np.isfinite(evaluations["learned_feasible_reward"]).all()
+
+
+def test_conf_file_replaces_the_shipped_yml(tmp_path: pathlib.Path) -> None:
+    conf = tmp_path / "mine.yml"
+    conf.write_text("default:\n  n_timesteps: 128\n  n_steps: 64\n  batch_size: 16\n")
+    entry, source = load_hyperparams("ppo", "sb3_icrl/GridWorldWall-v0", {"batch_size": 32}, conf_file=str(conf))
+    assert source == "default" and entry == {"n_timesteps": 128, "n_steps": 64, "batch_size": 32}
+    args = ["--algo", "ppo", "--env", "GridWorldWall-v0", "-conf", str(conf), "--eval-freq", "-1", "-f", str(tmp_path)]
+    assert main([*args, "--verbose", "0"]) == 0
+    config = yaml.safe_load((tmp_path / "ppo" / "GridWorldWall-v0_1" / "GridWorldWall-v0" / "config.yml").read_text())
+    assert config == {"n_timesteps": 128, "n_steps": 64, "batch_size": 16}
