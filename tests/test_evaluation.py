@@ -42,4 +42,3 @@ def test_errors():
         evaluate_constraint(FixedAction(1), ConstrainedCorridorEnv(), n_episodes=0)
     with pytest.raises(KeyError, match="true cost in info\\['danger'\\]"):
         evaluate_constraint(FixedAction(1), ConstrainedCorridorEnv(), cost_info_key="danger")
-
