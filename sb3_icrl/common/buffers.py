@@ -9,6 +9,9 @@ from gymnasium import spaces
 from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.vec_env import VecNormalize
 
+#: SB3 RolloutBuffer's arrays that are flattened for sampling
+SAMPLED_FIELDS = ("observations", "actions", "values", "log_probs", "advantages", "returns")
+
 
 class CostRolloutBufferSamples(NamedTuple):
     observations: th.Tensor
@@ -164,9 +167,7 @@ class CostRolloutBuffer(RolloutBuffer):
         # Same single permutation as SB3's RolloutBuffer, so runs are reproducible against PPO
         indices = np.random.permutation(self.buffer_size * self.n_envs)
         if not self.generator_ready:
-            for tensor in ("observations", "actions", "values", "log_probs", "advantages", "returns"):
-                self.__dict__[tensor] = self.swap_and_flatten(self.__dict__[tensor])
-            for tensor in ("cost_values", "cost_advantages", "cost_returns"):
+            for tensor in (*SAMPLED_FIELDS, "cost_values", "cost_advantages", "cost_returns"):
                 self.__dict__[tensor] = self.swap_and_flatten(self.__dict__[tensor])
             self.generator_ready = True
 
