@@ -38,6 +38,7 @@ from sb3_icrl.envs.wrappers import TransitionNoiseWrapper
 from sb3_icrl.zoo.callbacks import ConstraintEvalCallback, LearnedCostRecorder
 from sb3_icrl.zoo.hyperparams import (
     ALGOS,
+    EVAL_KEYS,
     ICRL_ALGOS,
     HyperparameterError,
     algo_kwargs,
@@ -57,6 +58,9 @@ class StoreDict(argparse.Action):
             key, sep, value = item.partition(":")
             if not sep or not key:
                 parser.error(f"{option_string} expects key:value pairs, got {item!r}.")
+            if key in EVAL_KEYS:
+                result[key] = value  # evaluated with the yml's strings, so config.yml records it as written
+                continue
             try:
                 result[key] = eval(value, {"nn": th.nn, "th": th, "dict": dict})  # rl-zoo convention: trusted config strings
             except Exception:
