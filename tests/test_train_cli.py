@@ -137,6 +137,13 @@ def test_every_benchmark_env_has_an_entry() -> None:
     for algo in ALGOS:
         assert (DEFAULT_HYPERPARAMS_DIR / f"{algo}.yml").is_file()
         assert {"default", "GridWorldWall-v0", *mujoco} <= set(read_hyperparams_file(algo)), algo
+    highway = {"HighwayVelocity-v0", "HighwayDistance-v0", "HighwayVelocityDistance-v0"}
+    for algo in ("ppo", *ICRL_ALGOS):  # ppolag.yml's driving experts are configured separately
+        assert highway <= set(read_hyperparams_file(algo)), algo
+        if algo in ICRL_ALGOS:
+            params = preprocess_hyperparams(load_hyperparams(algo, "HighwayDistance-v0")[0])
+            assert (params["n_timesteps"], params["update_every"], params["constraint_steps"]) == (2_000_000, 100_000, 5)
+            assert params["constraint_net_kwargs"] == {"hidden_sizes": [64, 64]} and params["normalize"]
 
 
 def test_reference_table_values() -> None:
