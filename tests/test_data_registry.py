@@ -7,37 +7,47 @@ import pytest
 
 import sb3_icrl  # noqa: F401  (registers the envs)
 from sb3_icrl.data import DEMONSTRATIONS_DIR, DemonstrationError, available_demonstrations, load_demonstrations, metadata_path
-from sb3_icrl.data.registry import SHIPPED_DATASETS, SHIPPED_FRACTIONS, dataset_file_name, regenerate_shipped
+from sb3_icrl.data.generate import file_sha256
+from sb3_icrl.data.registry import SHIPPED_DATASETS, ShippedDataset, dataset_file_name, expert_paths, regenerate_shipped
 
-SHIPPED = [(name, fraction) for name in SHIPPED_DATASETS for fraction in SHIPPED_FRACTIONS]
+SHIPPED = [(name, fraction) for name, spec in SHIPPED_DATASETS.items() for fraction in spec.fractions]
 
 
 def test_every_shipped_dataset_is_present():
-    assert available_demonstrations() == {name: list(SHIPPED_FRACTIONS) for name in sorted(SHIPPED_DATASETS)}
+    assert available_demonstrations() == {name: list(spec.fractions) for name, spec in sorted(SHIPPED_DATASETS.items())}
 
 
 @pytest.mark.parametrize(("name", "fraction"), SHIPPED)
 def test_shipped_dataset_loads_by_name_and_fits_its_env(name, fraction):
     # Loading checks the checksum, the layout and the env's spaces
     demos = load_demonstrations(name, env=f"sb3_icrl/{name}", violating_fraction=fraction)
-    _, n_trajectories = SHIPPED_DATASETS[name]
+    spec = SHIPPED_DATASETS[name]
+    n_trajectories = spec.n_trajectories
     assert len(demos) == n_trajectories
     assert demos.metadata["env_id"] == f"sb3_icrl/{name}"
     # Clean data has no violation at all; imperfect data has exactly the requested share of violating trajectories
     assert demos.violations.sum() == round(fraction * n_trajectories)
     assert demos.metadata["generation"]["deterministic"] is True
-    assert demos.metadata["expert"]["algorithm"] == "PILagrangian"
-    # Clean expert trajectories reach the goal
-    clean = [t for t in demos if not t.violates]
-    assert clean and all(t.terminal and t.episode_return == 1.0 for t in clean)
+    if spec.expert == "pilag":
+        assert demos.metadata["expert"]["algorithm"] == "PILagrangian"
+        # Clean expert trajectories reach the goal
+        clean = [t for t in demos if not t.violates]
+        assert clean and all(t.terminal and t.episode_return == 1.0 for t in clean)
+    else:
+        # Made by the shipped expert: same file, same normalisation statistics
+        model, statistics = expert_paths(name)
+        assert demos.metadata["expert"]["algorithm"] == "PPOLagrangian"
+        assert demos.metadata["expert"]["sha256"] == file_sha256(model)
+        assert demos.metadata["expert"]["path"] == f"sb3_icrl/data/experts/{name}.zip"
+        assert (statistics is None) == (demos.metadata["expert"].get("vec_normalize_sha256") is None)
 
 
 def test_names_paths_and_errors():
     by_id = load_demonstrations("sb3_icrl/GridWorldWall-v0")
     by_path = load_demonstrations(DEMONSTRATIONS_DIR / "GridWorldWall-v0.npz")
     assert np.array_equal(by_id.transitions.obs, by_path.transitions.obs)
-    with pytest.raises(DemonstrationError, match=r"No demonstrations named 'BlockedHalfCheetah-v0'.*Available: GridWorld"):
-        load_demonstrations("BlockedHalfCheetah-v0")
+    with pytest.raises(DemonstrationError, match=r"No demonstrations named 'Hopper-v5'.*Available: .*GridWorldWall-v0"):
+        load_demonstrations("Hopper-v5")
     with pytest.raises(DemonstrationError, match=r"violating_fraction=0.3 .*GridWorldWall-v0 \(violating_fraction 0, 0.2"):
         load_demonstrations("GridWorldWall-v0", violating_fraction=0.3)
     with pytest.raises(DemonstrationError, match="drop the argument"):
@@ -47,8 +57,9 @@ def test_names_paths_and_errors():
 
 def test_regeneration_reproduces_the_shipped_files(tmp_path, monkeypatch):
     # One command rebuilds every shipped file; with the same seed the archives are identical byte for byte
-    monkeypatch.setattr("sb3_icrl.data.registry.SHIPPED_DATASETS", {"GridWorldZigzag-v0": ("pilag", 50)})
-    monkeypatch.setattr("sb3_icrl.data.registry.SHIPPED_FRACTIONS", (0.0, 0.5))
+    monkeypatch.setattr(
+        "sb3_icrl.data.registry.SHIPPED_DATASETS", {"GridWorldZigzag-v0": ShippedDataset(50, (0.0, 0.5), "pilag")}
+    )
     regenerate_shipped(tmp_path, verbose=False)
     for fraction in (0.0, 0.5):
         file_name = dataset_file_name("GridWorldZigzag-v0", fraction)
@@ -56,3 +67,10 @@ def test_regeneration_reproduces_the_shipped_files(tmp_path, monkeypatch):
         fresh = json.loads(metadata_path(tmp_path / file_name).read_text())
         shipped = json.loads(metadata_path(DEMONSTRATIONS_DIR / file_name).read_text())
         assert fresh["sha256"] == shipped["sha256"] and fresh["command"] == shipped["command"]
+
+
+def test_regeneration_errors(tmp_path):
+    with pytest.raises(ValueError, match=r"Not shipped: \['Hopper-v5'\]"):
+        regenerate_shipped(tmp_path, names=["Hopper-v5"], verbose=False)
+    with pytest.raises(FileNotFoundError, match="No shipped expert for 'GridWorldWall-v0'"):
+        expert_paths("GridWorldWall-v0", tmp_path)

@@ -13,8 +13,10 @@ Command line: ``python -m sb3_icrl.data generate --env NAME --expert PATH_OR_pil
 from sb3_icrl.data.generate import NormalizedExpert, build_dataset, generate_demonstrations, load_expert
 from sb3_icrl.data.registry import (
     DEMONSTRATIONS_DIR,
+    EXPERTS_DIR,
     available_demonstrations,
     dataset_file_name,
+    expert_paths,
     load_demonstrations,
     regenerate_shipped,
 )
@@ -23,6 +25,7 @@ from sb3_icrl.data.types import Demonstrations, Trajectory, Transitions, flatten
 
 __all__ = [
     "DEMONSTRATIONS_DIR",
+    "EXPERTS_DIR",
     "DemonstrationError",
     "Demonstrations",
     "NormalizedExpert",
@@ -31,6 +34,7 @@ __all__ = [
     "available_demonstrations",
     "build_dataset",
     "dataset_file_name",
+    "expert_paths",
     "flatten_trajectories",
     "from_imitation",
     "generate_demonstrations",

@@ -48,7 +48,8 @@ def _parser() -> argparse.ArgumentParser:
     )
     generate.add_argument("--max-attempts", type=int, default=None, help="Episodes to try before giving up")
 
-    commands.add_parser("shipped", help=f"Regenerate the datasets shipped in {DEMONSTRATIONS_DIR}.")
+    shipped = commands.add_parser("shipped", help=f"Regenerate the datasets shipped in {DEMONSTRATIONS_DIR}.")
+    shipped.add_argument("--env", nargs="+", default=None, help="Only these env names (default: all)")
     commands.add_parser("list", help="List the shipped datasets.")
     info = commands.add_parser("info", help="Validate a dataset and print its statistics.")
     info.add_argument("name_or_path")
@@ -87,7 +88,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 f"{generation['expert_violation_rate']:.1%} of its episodes."
             )
         elif args.command == "shipped":
-            regenerate_shipped()
+            regenerate_shipped(names=args.env)
         elif args.command == "list":
             for name, fractions in available_demonstrations().items():
                 print(f"{name}: violating_fraction {', '.join(f'{f:g}' for f in fractions)}")

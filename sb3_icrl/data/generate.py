@@ -307,7 +307,16 @@ def resolve_env_id(name: str) -> str:
     raise ValueError(f"Unknown env {name!r}: give a registered gymnasium id, e.g. one of {ours}.")
 
 
-def _file_sha256(path: str | os.PathLike) -> str:
+def portable_path(path: str | os.PathLike) -> str:
+    """Files shipped in the package are recorded relative to it (``sb3_icrl/data/experts/...``): same on every machine."""
+    package_root = pathlib.Path(__file__).resolve().parents[2]
+    resolved = pathlib.Path(path).resolve()
+    if resolved.is_relative_to(package_root / "sb3_icrl"):
+        return resolved.relative_to(package_root).as_posix()
+    return os.fspath(path)
+
+
+def file_sha256(path: str | os.PathLike) -> str:
     return hashlib.sha256(pathlib.Path(path).read_bytes()).hexdigest()
 
 
@@ -338,7 +347,7 @@ def load_expert(
     else:
         if not os.path.isfile(expert):
             raise FileNotFoundError(f"No expert file at {expert!r}: give a saved model (.zip, .npz) or 'pilag'.")
-        source = {"path": os.fspath(expert), "sha256": _file_sha256(expert)}
+        source = {"path": portable_path(expert), "sha256": file_sha256(expert)}
         if expert.endswith(".npz"):
             model = PILagrangian.load(expert)
         elif algo in EXPERT_ALGORITHMS:
@@ -348,8 +357,8 @@ def load_expert(
     if vec_normalize_path is not None:
         venv = DummyVecEnv([lambda: gym.make(env_id, **env_kwargs)])
         model = NormalizedExpert(model, VecNormalize.load(vec_normalize_path, venv))
-        source["vec_normalize_path"] = os.fspath(vec_normalize_path)
-        source["vec_normalize_sha256"] = _file_sha256(vec_normalize_path)
+        source["vec_normalize_path"] = portable_path(vec_normalize_path)
+        source["vec_normalize_sha256"] = file_sha256(vec_normalize_path)
     return model, {**describe_expert(model), **source}
 
 

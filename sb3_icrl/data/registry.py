@@ -14,11 +14,13 @@ regenerates them; ``python -m sb3_icrl.data list`` lists them.
 import os
 import pathlib
 import re
+from collections.abc import Sequence
+from dataclasses import dataclass
 
 import gymnasium as gym
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_icrl.data.generate import build_dataset
+from sb3_icrl.data.generate import build_dataset, portable_path
 from sb3_icrl.data.serialize import DemonstrationError, load
 from sb3_icrl.data.types import Demonstrations
 from sb3_icrl.envs import NAMESPACE
@@ -28,18 +30,53 @@ DEMONSTRATIONS_DIR = pathlib.Path(__file__).parent / "demonstrations"
 _VIOLATING_SUFFIX = "_violating-"
 _FILE_PATTERN = re.compile(rf"^(?P<name>.+?)(?:{_VIOLATING_SUFFIX}(?P<fraction>[0-9.]+))?\.npz$")
 
-#: The shipped datasets: env name -> (expert, number of trajectories); each in every fraction of SHIPPED_FRACTIONS.
-#: The grid world experts are PI-Lagrangian (trained in seconds); MuJoCo experts take hours and are made with the CLI.
-SHIPPED_DATASETS: dict[str, tuple[str, int]] = {
-    "GridWorldWall-v0": ("pilag", 50),
-    "GridWorldSquare-v0": ("pilag", 50),
-    "GridWorldBigSquare-v0": ("pilag", 50),
-    "GridWorldZigzag-v0": ("pilag", 50),
+#: Folder of the shipped experts: ``<EnvName>.zip`` and, when trained with ``VecNormalize``, ``<EnvName>.vecnormalize.pkl``
+EXPERTS_DIR = pathlib.Path(__file__).parent / "experts"
+
+
+@dataclass(frozen=True)
+class ShippedDataset:
+    """
+    How a shipped dataset is made.
+
+    :param n_trajectories: Trajectories kept
+    :param fractions: Violating fractions shipped (0: clean expert data; the others are the paper's imperfect experts)
+    :param expert: ``"pilag"`` (trained on the fly, grid world) or ``"zip"`` (the PPO-Lagrangian in :data:`EXPERTS_DIR`)
+    """
+
+    n_trajectories: int
+    fractions: tuple[float, ...] = (0.0,)
+    expert: str = "zip"
+
+
+#: The paper's imperfect-expert fractions
+IMPERFECT_FRACTIONS = (0.0, 0.2, 0.5, 0.8)
+#: The shipped datasets by env name. Grid worlds: PI-Lagrangian experts (seconds). MuJoCo and driving: PPO-Lagrangian
+#: experts trained with ``zoo_hyperparams/ppolag.yml`` and shipped in :data:`EXPERTS_DIR`; 20 trajectories for MuJoCo
+#: (the reference uses 10-50), 100 for driving (as the paper).
+SHIPPED_DATASETS: dict[str, ShippedDataset] = {
+    "GridWorldWall-v0": ShippedDataset(50, IMPERFECT_FRACTIONS, "pilag"),
+    "GridWorldSquare-v0": ShippedDataset(50, IMPERFECT_FRACTIONS, "pilag"),
+    "GridWorldBigSquare-v0": ShippedDataset(50, IMPERFECT_FRACTIONS, "pilag"),
+    "GridWorldZigzag-v0": ShippedDataset(50, IMPERFECT_FRACTIONS, "pilag"),
 }
-#: Violating fractions shipped for each dataset (0: clean expert data; the others are the paper's imperfect experts)
-SHIPPED_FRACTIONS = (0.0, 0.2, 0.5, 0.8)
 #: Seed of the shipped datasets
 SHIPPED_SEED = 0
+
+
+def expert_paths(name: str, directory: str | os.PathLike = EXPERTS_DIR) -> tuple[pathlib.Path, pathlib.Path | None]:
+    """
+    :param name: Env name or id of a shipped expert
+    :param directory: Where the experts are
+    :return: The model zip and its ``VecNormalize`` statistics (``None`` when it was trained without)
+    """
+    base = env_name(name)
+    model = pathlib.Path(directory) / f"{base}.zip"
+    if not model.is_file():
+        shipped = sorted(path.stem for path in pathlib.Path(directory).glob("*.zip"))
+        raise FileNotFoundError(f"No shipped expert for {base!r} in {directory}. Shipped: {', '.join(shipped) or 'none'}.")
+    statistics = pathlib.Path(directory) / f"{base}.vecnormalize.pkl"
+    return model, statistics if statistics.is_file() else None
 
 
 def env_name(env_id: str) -> str:
@@ -118,28 +155,45 @@ def load_demonstrations(
     return load(path, env=env)
 
 
-def regenerate_shipped(directory: str | os.PathLike = DEMONSTRATIONS_DIR, verbose: bool = True) -> list[dict]:
+def regenerate_shipped(
+    directory: str | os.PathLike = DEMONSTRATIONS_DIR,
+    names: Sequence[str] | None = None,
+    experts_directory: str | os.PathLike = EXPERTS_DIR,
+    verbose: bool = True,
+) -> list[dict]:
     """
-    Regenerate every shipped dataset (:data:`SHIPPED_DATASETS` x :data:`SHIPPED_FRACTIONS`): deterministic
-    expert, violating trajectories dropped from the clean data, seed :data:`SHIPPED_SEED`.
+    Regenerate shipped datasets (:data:`SHIPPED_DATASETS`, each in its fractions): deterministic expert,
+    violating trajectories dropped from the clean data, seed :data:`SHIPPED_SEED`.
 
     :param directory: Where to write them
+    :param names: Env names to regenerate (default: all)
+    :param experts_directory: Where the PPO-Lagrangian experts are
     :param verbose: Print a line per dataset
     :return: The sidecars written
     """
+    unknown = sorted(set(names or ()) - set(SHIPPED_DATASETS))
+    if unknown:
+        raise ValueError(f"Not shipped: {unknown}. Shipped datasets: {', '.join(SHIPPED_DATASETS)}.")
     sidecars = []
-    for name, (expert, n_trajectories) in SHIPPED_DATASETS.items():
-        for fraction in SHIPPED_FRACTIONS:
+    for name, spec in SHIPPED_DATASETS.items():
+        if names and name not in names:
+            continue
+        expert, statistics = ("pilag", None) if spec.expert == "pilag" else expert_paths(name, experts_directory)
+        for fraction in spec.fractions:
             path = pathlib.Path(directory) / dataset_file_name(name, fraction)
+            expert_flags = "--expert pilag" if spec.expert == "pilag" else f"--expert {portable_path(expert)}"
+            if statistics is not None:
+                expert_flags += f" --vecnormalize {portable_path(statistics)}"
             command = (
-                f"python -m sb3_icrl.data generate --env {name} --expert {expert} --n {n_trajectories} --out {path.name} "
+                f"python -m sb3_icrl.data generate --env {name} {expert_flags} --n {spec.n_trajectories} --out {path.name} "
                 f"--violating-fraction {fraction:g} --seed {SHIPPED_SEED} --deterministic"
             )
             sidecar = build_dataset(
                 path,
                 name,
-                expert,
-                n_trajectories,
+                os.fspath(expert),
+                spec.n_trajectories,
+                vec_normalize_path=None if statistics is None else os.fspath(statistics),
                 command=command,
                 violating_fraction=fraction,
                 seed=SHIPPED_SEED,
@@ -147,5 +201,8 @@ def regenerate_shipped(directory: str | os.PathLike = DEMONSTRATIONS_DIR, verbos
             )
             sidecars.append(sidecar)
             if verbose:
-                print(f"{path.name}: {sidecar['n_trajectories']} trajectories, mean return {sidecar['mean_return']:.3f}")
+                print(
+                    f"{path.name}: {sidecar['n_trajectories']} trajectories, mean return {sidecar['mean_return']:.3f}, "
+                    f"expert violation rate {sidecar['generation']['expert_violation_rate']:.1%}"
+                )
     return sidecars
