@@ -74,3 +74,13 @@ def test_regeneration_errors(tmp_path):
         regenerate_shipped(tmp_path, names=["Hopper-v5"], verbose=False)
     with pytest.raises(FileNotFoundError, match="No shipped expert for 'GridWorldWall-v0'"):
         expert_paths("GridWorldWall-v0", tmp_path)
+
+
+def test_datasets_table_has_a_row_per_shipped_file():
+    from sb3_icrl.data.registry import datasets_table
+
+    lines = datasets_table().splitlines()
+    assert lines[0].startswith("| dataset | expert | trajectories |")
+    assert len(lines) == 2 + len(SHIPPED)
+    wall = next(line for line in lines if line.startswith("| GridWorldWall-v0_violating-0.2 |"))
+    assert "| PILagrangian | 50 | 1.00 +- 0.00 |" in wall and "| 10 |" in wall

@@ -6,6 +6,7 @@ Command line for demonstrations::
     python -m sb3_icrl.data generate --env GridWorldWall-v0 --expert pilag --n 50 --out GridWorldWall-v0.npz
     python -m sb3_icrl.data shipped   # regenerate the datasets shipped with the package
     python -m sb3_icrl.data list      # list them
+    python -m sb3_icrl.data table     # Markdown table of them (the README's)
     python -m sb3_icrl.data info FILE_OR_NAME
 """
 
@@ -16,7 +17,13 @@ import sys
 from collections.abc import Sequence
 
 from sb3_icrl.data.generate import EXPERT_ALGORITHMS, build_dataset
-from sb3_icrl.data.registry import DEMONSTRATIONS_DIR, available_demonstrations, load_demonstrations, regenerate_shipped
+from sb3_icrl.data.registry import (
+    DEMONSTRATIONS_DIR,
+    available_demonstrations,
+    datasets_table,
+    load_demonstrations,
+    regenerate_shipped,
+)
 from sb3_icrl.data.serialize import DemonstrationError
 
 
@@ -51,6 +58,7 @@ def _parser() -> argparse.ArgumentParser:
     shipped = commands.add_parser("shipped", help=f"Regenerate the datasets shipped in {DEMONSTRATIONS_DIR}.")
     shipped.add_argument("--env", nargs="+", default=None, help="Only these env names (default: all)")
     commands.add_parser("list", help="List the shipped datasets.")
+    commands.add_parser("table", help="Markdown table of the shipped datasets (the README's).")
     info = commands.add_parser("info", help="Validate a dataset and print its statistics.")
     info.add_argument("name_or_path")
     info.add_argument("--violating-fraction", type=float, default=None)
@@ -89,6 +97,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             )
         elif args.command == "shipped":
             regenerate_shipped(names=args.env)
+        elif args.command == "table":
+            print(datasets_table())
         elif args.command == "list":
             for name, fractions in available_demonstrations().items():
                 print(f"{name}: violating_fraction {', '.join(f'{f:g}' for f in fractions)}")

@@ -206,3 +206,27 @@ def regenerate_shipped(
                     f"expert violation rate {sidecar['generation']['expert_violation_rate']:.1%}"
                 )
     return sidecars
+
+
+def datasets_table(directory: str | os.PathLike = DEMONSTRATIONS_DIR) -> str:
+    """
+    A Markdown table of the datasets in ``directory``, read from their sidecars (what the README shows).
+
+    :param directory: Folder of the datasets
+    :return: One row per file: trajectories, mean +- std return, the expert's violation rate over the episodes it
+        ran (the deterministic expert, before violating ones were dropped), violating trajectories kept, file size
+    """
+    rows = [
+        "| dataset | expert | trajectories | return (mean +- std) | expert violation rate | violating kept | size |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for path in sorted(pathlib.Path(directory).glob("*.npz")):
+        metadata = load(path).metadata
+        generation = metadata["generation"]
+        rows.append(
+            f"| {path.stem} | {metadata['expert']['algorithm']} | {metadata['n_trajectories']} | "
+            f"{metadata['mean_return']:.2f} +- {metadata['std_return']:.2f} | "
+            f"{generation['expert_violation_rate']:.0%} of {generation['expert_episodes']} | "
+            f"{metadata['n_violating_trajectories']} | {path.stat().st_size / 1e3:.0f} kB |"
+        )
+    return "\n".join(rows)
