@@ -19,6 +19,7 @@ from sb3_icrl import BC2L
 from sb3_icrl.common.envs import ConstrainedCorridorEnv
 from sb3_icrl.constraints import BetaFeasibilityNet, FeasibilityNet
 from sb3_icrl.data import Demonstrations, Trajectory
+from sb3_icrl.data import save as save_demonstrations
 from sb3_icrl.envs.grid_world import GridWorldEnv
 from sb3_icrl.icrl.tabular import cost_table
 from sb3_icrl.plots import (
@@ -287,6 +288,7 @@ def test_cli_curves_writes_a_png(tmp_path: pathlib.Path, capsys: pytest.CaptureF
     error = capsys.readouterr().err
     assert "No evaluations.npz" in error and "BlockedHalfCheetah-v0_3" in error and "--skip-missing" in error
     assert main([*args, "--skip-missing"]) == 0
+    assert "BlockedHalfCheetah-v0_3" in capsys.readouterr().err  # named in the warning
     assert main(["curves", "-f", str(logs), "--algos", "gacl", "--env", "BlockedHalfCheetah-v0", "-o", str(output)]) == 2
     assert "No runs of 'gacl'" in capsys.readouterr().err
     assert main(["curves", "-f", str(logs), "--algos", "mecl", "--env", "BlockedWalker-v0", "-o", str(output)]) == 2
@@ -298,7 +300,8 @@ def write_model_run(folder: pathlib.Path, algo: str, model: object, env: str, **
     name = env.split("/")[-1]
     (folder / name).mkdir(parents=True)
     model.save(folder / f"{name}.zip")  # type: ignore[attr-defined]
-    args = {"algo": algo, "env": env, "env_kwargs": None, "demonstrations": None, "violating_fraction": None, **extra}
+    args = {"algo": algo, "env": env, "env_kwargs": None, "demonstrations": None, "violating_fraction": None}
+    args.update(extra)
     (folder / name / "args.yml").write_text(yaml.safe_dump(args))
     return folder
 
@@ -329,6 +332,26 @@ def test_cli_constraint_draws_the_grid_map(tmp_path: pathlib.Path, capsys: pytes
     assert "not a training run folder" in capsys.readouterr().err
     assert main(["constraint", str(run), "--model", "best", "-o", str(output)]) == 2
     assert "best_model.zip" in capsys.readouterr().err
+
+
+def test_cli_constraint_draws_the_partial_dependence(tmp_path: pathlib.Path, capsys: pytest.CaptureFixture) -> None:
+    demonstrations = corridor_demonstrations()
+    save_demonstrations(tmp_path / "corridor.npz", list(demonstrations), {"env_id": "sb3_icrl/ConstrainedCorridor-v0"})
+    env = DummyVecEnv([lambda: Monitor(gym.make("sb3_icrl/ConstrainedCorridor-v0", max_steps=CORRIDOR_STEPS))])
+    model = BC2L("MlpPolicy", env, demonstrations, n_steps=32, batch_size=32, seed=0)
+    run = write_model_run(
+        tmp_path / "bc2l" / "ConstrainedCorridor-v0_1",
+        "bc2l",
+        model,
+        "sb3_icrl/ConstrainedCorridor-v0",
+        env_kwargs={"max_steps": CORRIDOR_STEPS},
+        demonstrations=str(tmp_path / "corridor.npz"),
+    )
+    output = tmp_path / "pd.png"
+    assert main(["constraint", str(run), "--episodes", "2", "-o", str(output)]) == 0
+    assert matplotlib.image.imread(output).shape[:2] == (400, 1000)
+    assert main(["constraint", str(run), "--feature", "ego_speed", "-o", str(output)]) == 2
+    assert "Unknown feature 'ego_speed'" in capsys.readouterr().err
 
 
 # ------------------------------------------------------------------------------------------------ callback

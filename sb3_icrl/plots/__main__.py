@@ -11,6 +11,7 @@ Constraint plots from the command line::
 import argparse
 import pathlib
 import sys
+import warnings
 from typing import Any
 
 import numpy as np
@@ -20,10 +21,9 @@ from sb3_icrl.plots.figures import (
     CURVE_METRICS,
     TrueConstraint,
     constraint_features,
-    find_runs,
     grid_constraint_figure,
     grid_cost_map,
-    load_evaluations,
+    load_runs,
     partial_dependence_figure,
     save_figure,
     training_curves_figure,
@@ -60,19 +60,15 @@ def get_parser() -> argparse.ArgumentParser:
 
 def plot_curves(args: argparse.Namespace) -> pathlib.Path:
     """The ``curves`` command; returns the image written."""
-    runs: dict[str, list[dict[str, np.ndarray]]] = {}
-    for algo in args.algos:
-        seeds = []
-        for folder in find_runs(args.log_folder, algo, args.env):
-            try:
-                seeds.append(load_evaluations(folder))
-            except FileNotFoundError as error:
-                if not args.skip_missing:
-                    raise FileNotFoundError(f"{error} Pass --skip-missing to plot the other runs.") from error
-                print(f"warning: {error} Skipped.", file=sys.stderr)
-        if not seeds:
-            raise FileNotFoundError(f"No run of {algo} on {args.env} in {args.log_folder} has an evaluations.npz yet.")
-        runs[algo.upper()] = seeds
+    try:
+        with warnings.catch_warnings(record=True) as skipped:
+            warnings.simplefilter("always")
+            runs = load_runs(args.log_folder, args.algos, args.env, skip_missing=args.skip_missing)
+    except FileNotFoundError as error:
+        hint = " Pass --skip-missing to plot the other runs." if "No evaluations.npz" in str(error) else ""
+        raise FileNotFoundError(f"{error}{hint}") from error
+    for warning in skipped:
+        print(f"warning: {warning.message}", file=sys.stderr)
     title = args.title if args.title is not None else args.env.split("/")[-1]
     return save_figure(training_curves_figure(runs, metrics=args.metrics, title=title), args.output)
 

@@ -100,7 +100,7 @@ class ConstraintFigureCallback(BaseCallback):
         :return: The number of figures recorded
         """
         net: Any = self.model.constraint_net  # type: ignore[attr-defined]
-        step = f"{self.env_id} at {self.num_timesteps} steps"
+        step = f"{str(self.env_id).removeprefix('sb3_icrl/')} at {self.num_timesteps} steps"
         if self.grid_env is not None:
             grid = self.grid_env
             expert_obs = getattr(self.model, "expert_obs", None)

@@ -10,6 +10,7 @@ array and :func:`save_figure` writes it atomically.
 import io
 import os
 import pathlib
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
@@ -20,6 +21,7 @@ from matplotlib import patheffects
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import ListedColormap
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
 from sb3_icrl.common.utils import atomic_write_bytes
 from sb3_icrl.constraints.networks import BetaFeasibilityNet, _ConstraintNet
@@ -420,7 +422,7 @@ def partial_dependence_figure(
     :param threshold: The true threshold
     :param true_side: Where the true constraint is broken: ``"below"``/``"above"`` or an op (``"<="``, ``">"``...)
     :param visited_values: Visited values of the feature (an array, or ``{label: array}`` for several histograms,
-        e.g. expert and policy)
+        e.g. expert and policy; each normalised to a density so that sets of different sizes compare)
     :param beta_samples: For a Beta net: show the spread of sampled costs
     :param values: Grid of feature values (default: over the visited values and the threshold)
     :param feature_name: Axis label of the feature (default ``obs[<index>]``)
@@ -461,8 +463,8 @@ def partial_dependence_figure(
         np.concatenate(list(visited.values())) if visited else grid, bins=bins, range=(grid[0], grid[-1])
     )
     for name, array in visited.items():
-        hist_axis.hist(array[np.isfinite(array)], bins=edges, alpha=0.6, label=name)
-    hist_axis.set_ylabel("visited states")
+        hist_axis.hist(array[np.isfinite(array)], bins=edges, density=True, alpha=0.6, label=name)
+    hist_axis.set_ylabel("density of visited states")
     hist_axis.set_title("visited values")
     for axis in (pd_axis, hist_axis):
         axis.axvline(threshold, color="black", linestyle="--", linewidth=1.2, label=f"true threshold {threshold:g}")
@@ -471,6 +473,7 @@ def partial_dependence_figure(
         else:
             axis.axvspan(threshold, grid[-1], color="grey", alpha=0.12)
         axis.set_xlim(grid[0], grid[-1])
+        axis.xaxis.set_major_locator(MaxNLocator(6))
         axis.set_xlabel(label)
         axis.legend(fontsize=7, loc="best")
     if feature_index not in constraint_net.obs_select_dim:
@@ -537,6 +540,35 @@ def find_runs(log_folder: str | os.PathLike, algo: str, env: str) -> list[pathli
         there = sorted({entry.name.rpartition("_")[0] for entry in algo_folder.iterdir() if entry.is_dir()})
         raise FileNotFoundError(f"No {name}_<N> runs in {algo_folder} (envs there: {', '.join(there) or 'none'}).")
     return [entry for _, entry in sorted(runs)]
+
+
+def load_runs(
+    log_folder: str | os.PathLike, algos: Sequence[str], env: str, skip_missing: bool = False
+) -> dict[str, list[dict[str, np.ndarray]]]:
+    """
+    The ``evaluations.npz`` arrays of every seed of each algorithm, ready for :func:`training_curves_figure`.
+
+    :param log_folder: The training log folder (holds ``<algo>/<EnvName>_<N>``)
+    :param algos: Algorithm names (``["mecl", "vicrl"]``)
+    :param env: Env name or id
+    :param skip_missing: Skip (with a warning) runs without ``evaluations.npz`` instead of raising
+    :return: ``{ALGO: [arrays of each run]}``
+    :raises FileNotFoundError: For a missing folder, an algorithm without runs, or a run without evaluations
+    """
+    runs: dict[str, list[dict[str, np.ndarray]]] = {}
+    for algo in algos:
+        seeds = []
+        for folder in find_runs(log_folder, algo, env):
+            try:
+                seeds.append(load_evaluations(folder))
+            except FileNotFoundError as error:
+                if not skip_missing:
+                    raise
+                warnings.warn(f"{error} Skipped.", stacklevel=2)
+        if not seeds:
+            raise FileNotFoundError(f"No run of {algo} on {env} in {log_folder} has an {EVALUATIONS_FILE} yet.")
+        runs[algo.upper()] = seeds
+    return runs
 
 
 def _metric_series(arrays: dict[str, np.ndarray], metric: str, source: str) -> np.ndarray:
