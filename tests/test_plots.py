@@ -238,7 +238,7 @@ def test_training_curves_figure_renders() -> None:
     }
     figure = training_curves_figure(runs, title="corridor")
     assert len(figure.axes) == 2
-    assert [line.get_label() for line in figure.axes[0].get_lines()] == ["MECL (2 seeds)", "VICRL (1 seeds)"]
+    assert [line.get_label() for line in figure.axes[0].get_lines()] == ["MECL (2 seeds)", "VICRL (1 seed)"]
     np.testing.assert_allclose(figure.axes[0].get_lines()[1].get_ydata(), [0.5, 0.25, 0.0])
     assert_drawn(figure_to_rgb(figure), 10.0, 4.0)
     with pytest.raises(ValueError, match="Unknown metric"):

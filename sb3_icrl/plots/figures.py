@@ -637,7 +637,7 @@ def training_curves_figure(
                 mean,
                 marker="o" if len(timesteps) < 20 else None,
                 markersize=3,
-                label=f"{label} ({len(seeds)} seeds)",
+                label=f"{label} ({len(seeds)} seed{'s' if len(seeds) != 1 else ''})",
             )
             axis.fill_between(timesteps, mean - std, mean + std, color=line.get_color(), alpha=0.2)
         axis.set_xlabel("timesteps")
