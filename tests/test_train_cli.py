@@ -242,3 +242,83 @@ def test_conf_file_replaces_the_shipped_yml(tmp_path: pathlib.Path) -> None:
     assert main([*args, "--verbose", "0"]) == 0
     config = yaml.safe_load((tmp_path / "ppo" / "GridWorldWall-v0_1" / "GridWorldWall-v0" / "config.yml").read_text())
     assert config == {"n_timesteps": 128, "n_steps": 64, "batch_size": 16}
+
+
+def _resume_args(algo: str, tmp_path: pathlib.Path) -> list[str]:
+    fast = [*FAST[:5], "normalize:True", *FAST[5:]]  # -n 256 -params n_steps:128 batch_size:32 normalize:True ...
+    args = ["--algo", algo, "--env", "ConstrainedCorridor-v0", *fast, "--save-freq", "128", "-f", str(tmp_path)]
+    args += ["--verbose", "0", "--env-kwargs", "safe_limit:0"]  # every step right costs: the multiplier moves at once
+    if algo in ICRL_ALGOS:
+        _safe_corridor_demonstrations(tmp_path / "demos.npz")
+        args += ["--demonstrations", str(tmp_path / "demos.npz")]
+    return args
+
+
+@pytest.mark.parametrize("algo", ["ppolag", "mecl"])
+def test_resume_from_a_checkpoint(algo: str, tmp_path: pathlib.Path) -> None:
+    """-i: the checkpoint's multiplier, constraint net and VecNormalize statistics go on, and so does the step count."""
+    import torch as th
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    from sb3_icrl.zoo.train import _setup, get_parser
+
+    args = _resume_args(algo, tmp_path)
+    assert main([*args, "-n", "384"]) == 0
+    first = tmp_path / algo / "ConstrainedCorridor-v0_1"
+    # Saved at the 256th step, before the second rollout's update: one multiplier and constraint update behind the end
+    checkpoint = first / "rl_model_256_steps.zip"
+    assert all((first / f"rl_model_vecnormalize_{steps}_steps.pkl").is_file() for steps in (128, 256, 384))
+
+    # The model the resumed run starts from, built by the command line's own set-up
+    resume = get_parser().parse_args([*args, "-i", str(checkpoint)])
+    env_id = resolve_env_id(resume.env)
+    params = preprocess_hyperparams(load_hyperparams(algo, env_id, resume.hyperparams)[0])
+    model, _ = _setup(resume, env_id, params, algo_kwargs(params), str(tmp_path / "probe"))
+    saved, final = ALGOS[algo].load(checkpoint), ALGOS[algo].load(first / "ConstrainedCorridor-v0.zip")
+    assert model.num_timesteps == 256 and final.num_timesteps == 384
+    assert not np.allclose(saved.lagrange_multiplier.value, 0.1)  # it moved from its initial value: a real check
+    np.testing.assert_array_equal(model.lagrange_multiplier.value, saved.lagrange_multiplier.value)
+    assert not np.array_equal(final.lagrange_multiplier.value, saved.lagrange_multiplier.value)
+    if algo in ICRL_ALGOS:
+        resumed_net, saved_net = model.constraint_net.state_dict(), saved.constraint_net.state_dict()
+        assert resumed_net.keys() == saved_net.keys()
+        assert all(th.equal(resumed_net[key].cpu(), value.cpu()) for key, value in saved_net.items())
+        final_net = final.constraint_net.state_dict()
+        assert not all(th.equal(final_net[key].cpu(), value.cpu()) for key, value in saved_net.items())
+    stats = VecNormalize.load(str(first / "rl_model_vecnormalize_256_steps.pkl"), DummyVecEnv([lambda: gym.make(env_id)]))
+    end_stats = VecNormalize.load(str(first / "ConstrainedCorridor-v0" / "vecnormalize.pkl"), stats.venv)
+    normalize = model.get_vec_normalize_env()
+    assert normalize is not None and normalize.training
+    np.testing.assert_array_equal(normalize.obs_rms.mean, stats.obs_rms.mean)
+    assert normalize.obs_rms.count == stats.obs_rms.count != end_stats.obs_rms.count
+
+    with pytest.warns(UserWarning, match=r"overrides \['batch_size', 'n_steps'\] are not used"):  # the zip's are kept
+        assert main([*args, "-n", "256", "-i", str(checkpoint)]) == 0
+    second = tmp_path / algo / "ConstrainedCorridor-v0_2"
+    assert (second / "rl_model_384_steps.zip").is_file() and (second / "rl_model_512_steps.zip").is_file()
+    assert np.load(second / "evaluations.npz")["timesteps"].tolist() == [384, 512]
+    assert ALGOS[algo].load(second / "ConstrainedCorridor-v0.zip").num_timesteps == 512
+    recorded = yaml.safe_load((second / "ConstrainedCorridor-v0" / "args.yml").read_text())
+    assert recorded["trained_agent"] == str(checkpoint)
+
+
+def test_resume_errors_are_clear(tmp_path: pathlib.Path, capsys) -> None:
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    env = gym.make("sb3_icrl/ConstrainedCorridor-v0")
+    PPO("MlpPolicy", env, n_steps=64, device="cpu").save(tmp_path / "agent" / "ppo_agent")
+    (tmp_path / "not_a_model.zip").write_text("nope")
+    base = ["--env", "ConstrainedCorridor-v0", "-n", "64", "-f", str(tmp_path / "logs"), "--verbose", "0"]
+    cases = [
+        (["--algo", "ppo", "-i", str(tmp_path / "missing.zip")], "does not exist"),
+        (["--algo", "ppo", "-i", str(tmp_path / "not_a_model.zip")], "is not a .zip saved by stable-baselines3"),
+        (["--algo", "mecl", "-i", str(tmp_path / "agent" / "ppo_agent.zip")], "holds a ppo model, not a mecl one"),
+    ]
+    for args, message in cases:
+        assert main([*base, *args]) == 2
+        assert message in capsys.readouterr().err
+    VecNormalize(DummyVecEnv([lambda: env])).save(str(tmp_path / "agent" / "vecnormalize.pkl"))
+    assert main([*base, "--algo", "ppo", "-i", str(tmp_path / "agent" / "ppo_agent.zip")]) == 2
+    assert "pass -params normalize:True" in capsys.readouterr().err
+    assert not any(path.is_dir() for path in tmp_path.glob("logs/*/*_*"))

@@ -3,11 +3,14 @@ Train any sb3-icrl algorithm the rl-baselines3-zoo way::
 
     python train.py --algo mecl --env BlockedHalfCheetah-v0 --demonstrations experts.npz -tb runs/
     sb3-icrl train --algo vicrl --env GridWorldWall-v0 -n 20000 --seed 123
+    sb3-icrl train --algo mecl --env BlockedHalfCheetah-v0 -i logs/mecl/BlockedHalfCheetah-v0_1/rl_model_400000_steps.zip
 
 Hyper-parameters come from ``zoo_hyperparams/<algo>.yml`` (the one source of truth), overridden with ``-params``.
 A run writes ``<folder>/<algo>/<EnvName>_<N>/``: the final model ``<EnvName>.zip``, ``best_model.zip``, periodic
-``rl_model_<steps>_steps.zip``, ``evaluations.npz``, monitor files, ``<EnvName>/{config,args,versions}.yml``,
-``<EnvName>/vecnormalize.pkl`` when normalising, and ``command.txt``.
+``rl_model_<steps>_steps.zip`` (with ``rl_model_vecnormalize_<steps>_steps.pkl`` when normalising),
+``evaluations.npz``, monitor files, ``<EnvName>/{config,args,versions}.yml``, ``<EnvName>/vecnormalize.pkl`` when
+normalising, and ``command.txt``. ``-i PATH.zip`` continues a saved model in a new run folder: its timestep count,
+hyper-parameters, multiplier and constraint net go on, with the ``VecNormalize`` statistics saved with it.
 """
 
 import argparse
@@ -19,6 +22,7 @@ import shutil
 import subprocess
 import sys
 import time
+import warnings
 from typing import Any
 
 import gymnasium as gym
@@ -40,6 +44,7 @@ from sb3_icrl.zoo.hyperparams import (
     ALGOS,
     EVAL_KEYS,
     ICRL_ALGOS,
+    ZOO_KEYS,
     HyperparameterError,
     algo_kwargs,
     env_name,
@@ -47,6 +52,7 @@ from sb3_icrl.zoo.hyperparams import (
     preprocess_hyperparams,
     resolve_env_id,
 )
+from sb3_icrl.zoo.runs import TrainedAgentError, check_trained_agent, find_vecnormalize
 
 
 class StoreDict(argparse.Action):
@@ -78,6 +84,13 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
     parser.add_argument("--algo", type=str, required=True, choices=list(ALGOS), help="Algorithm")
     parser.add_argument("--env", type=str, required=True, help="Env id, with or without the sb3_icrl/ prefix")
     parser.add_argument("-n", "--n-timesteps", type=int, default=-1, help="Timesteps (default: the yml's n_timesteps)")
+    parser.add_argument(
+        "-i",
+        "--trained-agent",
+        type=str,
+        default="",
+        help="Continue training this saved model (.zip of --algo; keeps its hyper-parameters and timestep count)",
+    )
     parser.add_argument("--seed", type=int, default=-1, help="Random seed (default: drawn at random, then saved)")
     parser.add_argument("-f", "--log-folder", type=str, default="logs", help="Log folder")
     parser.add_argument("-tb", "--tensorboard-log", type=str, default="", help="TensorBoard log dir")
@@ -151,8 +164,22 @@ def create_env(
     transition_noise: float,
     monitor_dir: str | None,
     eval_env: bool = False,
+    stats_path: str | None = None,
 ) -> tuple[VecEnv, LearnedCostRecorder | None]:
-    """Vectorised env with Monitor, the yml's wrappers, transition noise and VecNormalize (eval: frozen, raw reward)."""
+    """
+    Vectorised env with Monitor, the yml's wrappers, transition noise and VecNormalize (eval: frozen, raw reward).
+
+    :param env_id: Registered env id
+    :param params: Preprocessed hyper-parameters (``normalize``, ``normalize_kwargs``, ``env_wrapper``)
+    :param n_envs: Number of sub-envs
+    :param seed: Seed of the first sub-env
+    :param env_kwargs: Keyword arguments of the env
+    :param transition_noise: Std of the next-state noise (0: none)
+    :param monitor_dir: Folder of the Monitor files (``None``: not written)
+    :param eval_env: Build an evaluation env: a :class:`LearnedCostRecorder` at its bottom, statistics frozen
+    :param stats_path: ``VecNormalize`` statistics to start from (``vecnormalize.pkl``), when normalising
+    :return: The env and its recorder (eval envs only)
+    """
     venv = make_vec_env(
         env_id,
         n_envs=n_envs,
@@ -166,10 +193,15 @@ def create_env(
     if eval_env:
         venv = recorder = LearnedCostRecorder(venv)
     if params["normalize"]:
-        kwargs = dict(params.get("normalize_kwargs") or {})
-        if eval_env:
-            kwargs.update(training=False, norm_reward=False)
-        venv = VecNormalize(venv, **kwargs)
+        if stats_path is not None:
+            venv = VecNormalize.load(stats_path, venv)
+            if eval_env:
+                venv.training, venv.norm_reward = False, False
+        else:
+            kwargs = dict(params.get("normalize_kwargs") or {})
+            if eval_env:
+                kwargs.update(training=False, norm_reward=False)
+            venv = VecNormalize(venv, **kwargs)
     return venv, recorder
 
 
@@ -197,12 +229,18 @@ def _setup(
 ) -> tuple[BaseAlgorithm, list[BaseCallback]]:
     """Envs, model and callbacks of a run."""
     env_kwargs = args.env_kwargs or {}
-    env, _ = create_env(env_id, params, params["n_envs"], args.seed, env_kwargs, args.transition_noise, save_path)
+    stats_path = _resume_statistics(args.trained_agent, env_id, params) if args.trained_agent else None
+    env, _ = create_env(
+        env_id, params, params["n_envs"], args.seed, env_kwargs, args.transition_noise, save_path, stats_path=stats_path
+    )
     demonstrations = _demonstrations(args.algo, env_id, args, env)
     if demonstrations is not None:
         kwargs["demonstrations"] = demonstrations
     algo_class = ALGOS[args.algo]
     tensorboard_log = os.path.join(args.tensorboard_log, env_name(env_id)) if args.tensorboard_log else None
+    if args.trained_agent:
+        model = _load_trained_agent(args, env, demonstrations, tensorboard_log)
+        return model, _callbacks(args, env_id, params, save_path)
     try:
         model = algo_class(
             params["policy"],
@@ -215,11 +253,52 @@ def _setup(
         )
     except TypeError as error:
         raise HyperparameterError(f"{algo_class.__name__} rejects the hyper-parameters {sorted(kwargs)}: {error}") from error
+    return model, _callbacks(args, env_id, params, save_path)
 
+
+def _resume_statistics(trained_agent: str, env_id: str, params: dict[str, Any]) -> str | None:
+    """The ``VecNormalize`` statistics to resume with (see :func:`~sb3_icrl.zoo.runs.find_vecnormalize`)."""
+    stats_path = find_vecnormalize(trained_agent, env_name(env_id))
+    if params["normalize"] and stats_path is None:
+        warnings.warn(
+            f"No VecNormalize statistics found with {trained_agent} (rl_model_vecnormalize_<steps>_steps.pkl, "
+            "<EnvName>/vecnormalize.pkl or vecnormalize.pkl): the normalisation starts afresh."
+        )
+    if not params["normalize"] and stats_path is not None:
+        raise HyperparameterError(
+            f"{trained_agent} was trained on normalised observations ({stats_path}), but normalize is off for this "
+            "run: pass -params normalize:True."
+        )
+    return stats_path
+
+
+def _load_trained_agent(
+    args: argparse.Namespace, env: VecEnv, demonstrations: Any, tensorboard_log: str | None
+) -> BaseAlgorithm:
+    """``args.trained_agent`` on ``env``: everything saved in the zip (multiplier, constraint net, optimisers) goes on."""
+    ignored = sorted(key for key in args.hyperparams or {} if key not in ZOO_KEYS)
+    if ignored:
+        warnings.warn(f"-i keeps the hyper-parameters saved in {args.trained_agent}: the overrides {ignored} are not used.")
+    extra = {"demonstrations": demonstrations} if demonstrations is not None else {}
+    try:
+        model = ALGOS[args.algo].load(
+            args.trained_agent, env=env, device=args.device, tensorboard_log=tensorboard_log, verbose=args.verbose, **extra
+        )
+    except (ValueError, KeyError, TypeError) as error:
+        raise TrainedAgentError(f"Cannot continue {args.trained_agent} as a {args.algo} model on this env: {error}") from error
+    model.set_random_seed(args.seed)
+    return model
+
+
+def _callbacks(args: argparse.Namespace, env_id: str, params: dict[str, Any], save_path: str) -> list[BaseCallback]:
+    """The yml's callbacks, checkpoints (with the normalisation statistics) and the evaluation callback."""
+    env_kwargs = args.env_kwargs or {}
     callbacks: list[BaseCallback] = [callback(**cb_kwargs) for callback, cb_kwargs in params["callback"]]
     n_envs = params["n_envs"]
     if args.save_freq > 0:
-        callbacks.append(CheckpointCallback(max(args.save_freq // n_envs, 1), save_path, name_prefix="rl_model"))
+        callbacks.append(
+            CheckpointCallback(max(args.save_freq // n_envs, 1), save_path, name_prefix="rl_model", save_vecnormalize=True)
+        )
     if args.eval_freq > 0:
         eval_env, recorder = create_env(
             env_id,
@@ -243,7 +322,7 @@ def _setup(
                 verbose=args.verbose,
             )
         )
-    return model, callbacks
+    return callbacks
 
 
 def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
@@ -261,6 +340,8 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
         args.seed = int(np.random.randint(2**31 - 1))
     set_random_seed(args.seed)
 
+    if args.trained_agent:
+        check_trained_agent(args.trained_agent, args.algo)
     raw_params, source = load_hyperparams(args.algo, env_id, args.hyperparams, conf_file=args.conf_file)
     params = preprocess_hyperparams(raw_params)
     n_timesteps = args.n_timesteps if args.n_timesteps > 0 else params["n_timesteps"]
@@ -286,7 +367,13 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
         raise
     start = time.time()
     try:
-        model.learn(n_timesteps, callback=callbacks, tb_log_name=f"{args.algo}_{name}", progress_bar=args.progress)
+        model.learn(
+            n_timesteps,
+            callback=callbacks,
+            tb_log_name=f"{args.algo}_{name}",
+            progress_bar=args.progress,
+            reset_num_timesteps=not args.trained_agent,
+        )
     except KeyboardInterrupt:
         print("Interrupted: saving the model")
     finally:
@@ -325,12 +412,25 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
 
 
 def cli(argv: list[str] | None = None) -> int:
-    """``sb3-icrl <command>``: only ``train`` for now."""
+    """
+    ``sb3-icrl <command>``: ``train`` (this module) or ``enjoy`` (:mod:`sb3_icrl.zoo.enjoy`).
+
+    :param argv: Arguments, the command first (default: ``sys.argv[1:]``)
+    :return: Exit status
+    """
     argv = list(sys.argv[1:] if argv is None else argv)
-    if not argv or argv[0] != "train":
-        print("usage: sb3-icrl train --algo ALGO --env ENV [options] (see sb3-icrl train --help)", file=sys.stderr)
-        return 2
-    return main(argv[1:], prog="sb3-icrl train")
+    if argv and argv[0] == "train":
+        return main(argv[1:], prog="sb3-icrl train")
+    if argv and argv[0] == "enjoy":
+        from sb3_icrl.zoo import enjoy  # imports this module
+
+        return enjoy.main(argv[1:], prog="sb3-icrl enjoy")
+    print(
+        "usage: sb3-icrl train --algo ALGO --env ENV [options] (see sb3-icrl train --help)\n"
+        "       sb3-icrl enjoy --algo ALGO --env ENV [options] (see sb3-icrl enjoy --help)",
+        file=sys.stderr,
+    )
+    return 2
 
 
 if __name__ == "__main__":

@@ -1,0 +1,95 @@
+"""
+Saved models of zoo runs: which algorithm a zip holds, and the ``VecNormalize`` statistics that go with it.
+
+A run folder ``<folder>/<algo>/<EnvName>_<N>/`` holds ``<EnvName>.zip`` (final), ``best_model.zip``,
+``rl_model_<steps>_steps.zip`` checkpoints with their ``rl_model_vecnormalize_<steps>_steps.pkl`` statistics, and
+``<EnvName>/vecnormalize.pkl`` (the statistics at the end of the run).
+"""
+
+import os
+import re
+import zipfile
+from typing import Any
+
+from stable_baselines3.common.save_util import load_from_zip_file
+
+from sb3_icrl.zoo.hyperparams import ALGOS, ICRL_ALGOS
+
+#: ``rl_model_<steps>_steps.zip``, as SB3's ``CheckpointCallback`` names its models
+CHECKPOINT_PATTERN = re.compile(r"^(?P<prefix>.+)_(?P<steps>\d+)_steps\.zip$")
+
+
+class TrainedAgentError(ValueError):
+    """A saved model that cannot be used as asked (missing, not a model zip, another algorithm's)."""
+
+
+def saved_algo(data: dict[str, Any]) -> str | None:
+    """
+    The command-line name of the algorithm that saved ``data`` (a zip's ``data``), told by what each class saves.
+
+    ICRL models save their constraint net and their trainer class (the algorithm whose default trainer is the
+    closest base of it), PPO-Lagrangian its multiplier; a plain PPO model neither.
+
+    :param data: The ``data`` part of an SB3 zip (``load_from_zip_file``)
+    :return: ``"ppo"``, ``"ppolag"``, an ICRL name, or ``None`` when it cannot be told
+    """
+    if "constraint_net_spec_" in data:
+        trainer = data.get("trainer_class")
+        if not isinstance(trainer, type):
+            return None
+        mro = trainer.__mro__
+        candidates = []
+        for name in ICRL_ALGOS:
+            algo_class = ALGOS[name]
+            default = getattr(algo_class, "default_trainer_class", None)
+            if isinstance(default, type) and default in mro:
+                candidates.append((mro.index(default), name))
+        return min(candidates)[1] if candidates else None
+    if "lagrange_multiplier" in data:
+        return "ppolag"
+    if "policy_class" in data:
+        return "ppo"
+    return None
+
+
+def check_trained_agent(path: str, algo: str) -> None:
+    """
+    Fail clearly unless ``path`` is an SB3 zip saved by ``algo``.
+
+    :param path: The ``-i/--trained-agent`` (or enjoy's) model path
+    :param algo: Command-line algorithm name
+    :raises TrainedAgentError: When the file is missing, not a zip, not an SB3 model or another algorithm's
+    """
+    if not os.path.isfile(path):
+        raise TrainedAgentError(f"The trained agent {path!r} does not exist.")
+    if not path.endswith(".zip") or not zipfile.is_zipfile(path):
+        raise TrainedAgentError(f"The trained agent {path!r} is not a .zip saved by stable-baselines3.")
+    try:
+        data, _, _ = load_from_zip_file(path, device="cpu")
+    except Exception as error:
+        raise TrainedAgentError(f"Cannot read the trained agent {path!r}: {error}") from error
+    if not data:
+        raise TrainedAgentError(f"The trained agent {path!r} holds no stable-baselines3 model data.")
+    found = saved_algo(data)
+    if found is None:
+        raise TrainedAgentError(f"Cannot tell which algorithm saved {path!r}; expected a {algo} model.")
+    if found != algo:
+        raise TrainedAgentError(f"{path!r} holds a {found} model, not a {algo} one: use --algo {found}.")
+
+
+def find_vecnormalize(model_path: str, name: str) -> str | None:
+    """
+    The ``VecNormalize`` statistics saved with a model: a checkpoint's own (``<prefix>_vecnormalize_<steps>_steps.pkl``),
+    else the run's ``<EnvName>/vecnormalize.pkl``, else a ``vecnormalize.pkl`` beside the zip.
+
+    :param model_path: The model zip
+    :param name: The env name (folder name of the run's parameters)
+    :return: The path, or ``None`` when there is none
+    """
+    folder = os.path.dirname(os.path.abspath(model_path))
+    candidates = []
+    match = CHECKPOINT_PATTERN.match(os.path.basename(model_path))
+    if match:
+        candidates.append(os.path.join(folder, f"{match['prefix']}_vecnormalize_{match['steps']}_steps.pkl"))
+    candidates += [os.path.join(folder, name, "vecnormalize.pkl"), os.path.join(folder, "vecnormalize.pkl")]
+    return next((path for path in candidates if os.path.isfile(path)), None)
