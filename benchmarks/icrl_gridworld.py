@@ -13,6 +13,12 @@ its grid worlds (:func:`sb3_icrl.icrl.tabular.tabular_icrl`); ``ppo`` runs the `
 (PPO-Lagrangian on the learned cost). Both update the same constraint model with the same trainers. The constraint
 net sees the cell only (``use_action=False``), so its cost is a map of cells.
 
+BC2L classifies whole trajectories (a trajectory is feasible when all its pairs are; expert trajectories 1, nominal
+ones 0), as the reference code does on its grid worlds (``train_traj_nn``); ``--bc2l-per-pair`` gives the per-pair
+classifier instead, which fails here: once the planner walks the expert's path, the pairs both sides visit get
+``phi = 1/2``, a cost of about 0.5 per safe step, and a cost-minimising planner then cuts through a cell or two of
+cost 1 to save several such steps (BigSquare, Zigzag).
+
 A cell counts as recovered unsafe when its learned cost is above ``--threshold`` ("absolute"), or above the largest
 cost of the cells the expert walks through ("relative": what a cost-minimising planner avoids). Cells the expert
 never comes near are expected among them: nothing in the data says they are safe, so a recovered map is a superset of
@@ -63,17 +69,41 @@ PPO_KWARGS: dict[str, Any] = dict(
 
 
 def make_env(env_id: str) -> DummyVecEnv:
+    """
+    :param env_id: A grid world id without the namespace, e.g. ``"GridWorldWall-v0"``
+    :return: One monitored env in a ``DummyVecEnv``
+    """
     return DummyVecEnv([lambda: Monitor(gym.make(f"sb3_icrl/{env_id}"))])
 
 
-def run(algo: str, env_id: str, solver: str, budget: int, seed: int) -> dict[str, Any]:
+def trainer_kwargs(algo: str, env_id: str, bc2l_per_pair: bool = False) -> dict[str, Any]:
+    """
+    Trainer arguments of one algorithm on the grid world: BC2L labels whole trajectories unless ``bc2l_per_pair``.
+
+    :param algo: ``"bc2l"``, ``"mecl"`` or ``"vicrl"``
+    :param env_id: The grid world (its shipped demonstrations give the expert episode lengths)
+    :param bc2l_per_pair: Whether BC2L classifies pairs instead of trajectories
+    :return: Keyword arguments for the trainer
+    """
+    if algo != "bc2l" or bc2l_per_pair:
+        return {}
+    return dict(expert_episode_lengths=[len(trajectory) for trajectory in load_demonstrations(env_id)])
+
+
+def run(algo: str, env_id: str, solver: str, budget: int, seed: int, bc2l_per_pair: bool = False) -> dict[str, Any]:
     """
     Learn the constraint with one algorithm and forward solver, then evaluate the final policy against the true cost.
 
+    :param algo: ``"bc2l"``, ``"mecl"`` or ``"vicrl"``
+    :param env_id: The grid world, e.g. ``"GridWorldZigzag-v0"``
+    :param solver: ``"pilag"`` or ``"ppo"``
     :param budget: PI-Lag iterations (``pilag``) or policy timesteps (``ppo``)
+    :param seed: Seed of the constraint net, the solver and the evaluation
+    :param bc2l_per_pair: BC2L classifies pairs instead of trajectories
     :return: The grid, the learned cell costs, the policy's evaluation and the wall time
     """
     algo_class, trainer_class, net_class = ALGOS[algo]
+    kwargs = trainer_kwargs(algo, env_id, bc2l_per_pair)
     th.manual_seed(seed)
     grid = GridWorldEnv(map_name=gym.spec(f"sb3_icrl/{env_id}").kwargs["map_name"])
     start = time.perf_counter()
@@ -88,6 +118,7 @@ def run(algo: str, env_id: str, solver: str, budget: int, seed: int) -> dict[str
             n_iterations=budget,
             constraint_learning_rate=CONSTRAINT_LEARNING_RATE,
             constraint_steps=CONSTRAINT_STEPS,
+            trainer_kwargs=kwargs,
             seed=seed,
         )
         policy: Any = result.planner
@@ -100,6 +131,7 @@ def run(algo: str, env_id: str, solver: str, budget: int, seed: int) -> dict[str
             constraint_net_kwargs=NET_KWARGS,
             constraint_learning_rate=CONSTRAINT_LEARNING_RATE,
             constraint_steps=CONSTRAINT_STEPS,
+            trainer_kwargs=kwargs,
             **PPO_KWARGS,
         )
         policy.learn(budget)
@@ -113,18 +145,34 @@ def run(algo: str, env_id: str, solver: str, budget: int, seed: int) -> dict[str
 
 
 def expert_cells(env_id: str, grid: GridWorldEnv) -> np.ndarray:
-    """Boolean map of the cells the expert demonstrations walk through (goal excluded)."""
+    """
+    Boolean map of the cells the expert demonstrations walk through (goal excluded).
+
+    :param env_id: The grid world whose shipped demonstrations to read
+    :param grid: The grid world (for its shape)
+    :return: ``(n_rows, n_cols)`` booleans
+    """
     visited = np.zeros(grid.n_states, dtype=bool)
     visited[np.concatenate([t.obs[:-1] for t in load_demonstrations(env_id)]).astype(int)] = True
     return visited.reshape(grid.n_rows, grid.n_cols)
 
 
 def precision_recall(recovered: np.ndarray, true_unsafe: np.ndarray) -> tuple[float, float]:
+    """
+    :param recovered: Boolean map of the cells recovered as unsafe
+    :param true_unsafe: Boolean map of the truly unsafe cells
+    :return: Precision (0 when nothing is recovered) and recall
+    """
     hits = int(np.sum(recovered & true_unsafe))
     return hits / max(int(recovered.sum()), 1), hits / int(true_unsafe.sum())
 
 
 def render(grid: GridWorldEnv, unsafe: np.ndarray) -> list[str]:
+    """
+    :param grid: The grid world (start and goal cells)
+    :param unsafe: Boolean map of the cells to mark ``X``
+    :return: One string per row over ``S G X .``
+    """
     rows = []
     for row in range(grid.n_rows):
         cells = ""
@@ -136,6 +184,13 @@ def render(grid: GridWorldEnv, unsafe: np.ndarray) -> list[str]:
 
 
 def report(result: dict[str, Any], threshold: float) -> dict[str, float]:
+    """
+    Print the true and recovered maps, the learned costs, precision and recall, violation and goal-reaching rates.
+
+    :param result: The output of :func:`run`
+    :param threshold: Cost above which a cell counts as recovered unsafe ("absolute")
+    :return: Violation rate, reach rate, absolute precision and recall
+    """
     grid, costs, evaluation = result["grid"], result["costs"], result["evaluation"]
     endpoints = np.zeros_like(grid.unsafe_mask)
     endpoints[grid.start_cell] = endpoints[grid.goal_cell] = True
@@ -166,11 +221,12 @@ def main() -> None:
     parser.add_argument("--timesteps", type=int, default=40_000, help="policy timesteps (ppo)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threshold", type=float, default=0.5)
+    parser.add_argument("--bc2l-per-pair", action="store_true", help="BC2L classifies pairs, not trajectories")
     args = parser.parse_args()
     th.set_num_threads(1)  # tiny nets: more threads only contend
     budget = args.iterations if args.solver == "pilag" else args.timesteps
     for algo in args.algos:
-        report(run(algo, args.map, args.solver, budget, args.seed), args.threshold)
+        report(run(algo, args.map, args.solver, budget, args.seed, args.bc2l_per_pair), args.threshold)
 
 
 if __name__ == "__main__":

@@ -117,6 +117,58 @@ def bc2l_loss(expert_feasibility: th.Tensor, nominal_feasibility: th.Tensor, eps
     return _expert_vs_nominal_bce(expert_feasibility, nominal_feasibility, eps)
 
 
+def _trajectory_log_feasibility(feasibility: th.Tensor, lengths: Sequence[int] | np.ndarray, eps: float) -> th.Tensor:
+    """``log prod_t phi_t`` of each trajectory, the pairs stored trajectory after trajectory."""
+    lengths = np.asarray(lengths)
+    if lengths.ndim != 1 or lengths.size == 0 or not np.issubdtype(lengths.dtype, np.integer) or np.any(lengths < 1):
+        raise ValueError(f"Episode lengths must be a non-empty list of positive integers, got {lengths!r}.")
+    if int(lengths.sum()) != feasibility.shape[0]:
+        raise ValueError(
+            f"The episode lengths sum to {int(lengths.sum())} but there are {feasibility.shape[0]} pairs; pass the length "
+            "of every trajectory, in the order the pairs are stored."
+        )
+    index = th.repeat_interleave(
+        th.arange(len(lengths), device=feasibility.device), th.as_tensor(lengths, device=feasibility.device)
+    )
+    log_phi = _safe_log(feasibility, eps)
+    return th.zeros(len(lengths), dtype=log_phi.dtype, device=log_phi.device).index_add(0, index, log_phi)
+
+
+def bc2l_trajectory_loss(
+    expert_feasibility: th.Tensor,
+    expert_lengths: Sequence[int] | np.ndarray,
+    nominal_feasibility: th.Tensor,
+    nominal_lengths: Sequence[int] | np.ndarray,
+    eps: float = DEFAULT_LOG_EPS,
+) -> ConstraintLoss:
+    """
+    BC2L with trajectories as the samples: a trajectory is feasible when all its pairs are, ``Phi(tau) = prod_t phi``,
+    and the binary cross-entropy labels expert trajectories 1 and nominal trajectories 0::
+
+        L = -mean_E-traj[log Phi(tau)] - mean_N-traj[log(1 - Phi(tau))]
+
+    This is the reference code's grid-world update (``ConstraintNet.train_traj_nn`` with ``train_gail_lambda``: BCE of
+    the product of the predictions of one game). The label of a nominal trajectory says only that *some* of its pairs
+    are infeasible, so the pairs it shares with the expert are not pushed to 0, unlike the per-pair
+    :func:`bc2l_loss`, whose optimum on a pair both sides visit equally often is ``phi = 1/2``. Still a plain
+    classifier: no importance weights, no regulariser.
+
+    :param expert_feasibility: ``phi`` on the expert pairs, trajectory after trajectory, shape ``(n_expert_pairs,)``
+    :param expert_lengths: Length of each expert trajectory (summing to ``n_expert_pairs``)
+    :param nominal_feasibility: ``phi`` on the nominal pairs, trajectory after trajectory
+    :param nominal_lengths: Length of each nominal trajectory
+    :param eps: Added inside the logs: ``log(phi + eps)`` and ``log(1 - Phi + eps)``
+    :return: The loss and its parts (per-trajectory means)
+    """
+    _check_batch("expert_feasibility", expert_feasibility)
+    _check_batch("nominal_feasibility", nominal_feasibility)
+    expert_term = -_trajectory_log_feasibility(expert_feasibility, expert_lengths, eps).mean()
+    nominal_trajectory_feasibility = th.exp(_trajectory_log_feasibility(nominal_feasibility, nominal_lengths, eps))
+    nominal_term = -_safe_log(1.0 - nominal_trajectory_feasibility, eps).mean()
+    zero = th.zeros((), dtype=expert_term.dtype, device=expert_term.device)
+    return ConstraintLoss(expert_term + nominal_term, expert_term, nominal_term, zero)
+
+
 def gacl_discriminator_loss(
     expert_probability: th.Tensor, nominal_probability: th.Tensor, eps: float = DEFAULT_LOG_EPS
 ) -> ConstraintLoss:

@@ -93,6 +93,7 @@ def tabular_icrl(
     trainer_kwargs: dict[str, Any] | None = None,
     planner_kwargs: dict[str, Any] | None = None,
     deterministic_rollouts: bool = False,
+    nominal_buffer_size: int = 0,
     seed: int = 0,
 ) -> TabularICRLResult:
     """
@@ -110,11 +111,18 @@ def tabular_icrl(
     :param trainer_kwargs: Further arguments of the trainer (``regularizer_coef``, ``prior``...)
     :param planner_kwargs: Arguments of ``PILagrangian`` (default: budget 0, as the reference)
     :param deterministic_rollouts: Whether the planner breaks ties deterministically in the rollouts
+    :param nominal_buffer_size: 0: each update uses the planner's latest trajectories only. ``> 0``: keep up to this
+        many nominal trajectories of all iterations so far (a random one is dropped when full) and update on
+        ``n_nominal_trajectories`` of them drawn at random with replacement, the latest included in the draw; the
+        reference code's grid-world setting (``use_buffer``, ``store_sample_rollouts``). Without it the constraint
+        model only sees the planner's current path, so a cell it was taught to avoid is not labelled again
     :param seed: Seed of the planner, the rollouts and the minibatches
     :return: The planner on the final cost, the constraint model, the trainer and the per-iteration history
     """
     if n_iterations < 1:
         raise ValueError(f"`n_iterations` must be >= 1, got {n_iterations}.")
+    if nominal_buffer_size < 0:
+        raise ValueError(f"`nominal_buffer_size` must be >= 0 (0: no buffer), got {nominal_buffer_size}.")
     transitions = demonstrations.transitions
     check_spaces(transitions.obs, transitions.acts, env, demonstrations.metadata)
     n_nominal = len(demonstrations) if n_nominal_trajectories is None else n_nominal_trajectories
@@ -141,15 +149,21 @@ def tabular_icrl(
         costs[absorbing] = 0.0
         return costs
 
+    buffer: list[NominalTrajectory] = []
+    buffer_rng = np.random.default_rng(seed)
     history = []
     for iteration in range(n_iterations):
         planner.set_cost_table(planning_costs())
         planner.learn()
         episode_reward, episode_cost = planner.episode_returns()
-        nominal = NominalData.from_trajectories(
-            rollout(planner, env, n_nominal, deterministic_rollouts, seed + iteration * n_nominal)
-        )
-        stats = trainer.update(nominal)
+        trajectories = rollout(planner, env, n_nominal, deterministic_rollouts, seed + iteration * n_nominal)
+        if nominal_buffer_size > 0:
+            for trajectory in trajectories:
+                if len(buffer) >= nominal_buffer_size:
+                    buffer.pop(int(buffer_rng.integers(len(buffer))))
+                buffer.append(trajectory)
+            trajectories = [buffer[index] for index in buffer_rng.integers(0, len(buffer), size=n_nominal)]
+        stats = trainer.update(NominalData.from_trajectories(trajectories))
         history.append({"iteration": iteration, "planned_reward": episode_reward, "planned_cost": episode_cost, **stats})
     planner.set_cost_table(planning_costs())
     planner.learn()
