@@ -9,6 +9,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import yaml
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from sb3_icrl.zoo import ALGOS, ICRL_ALGOS, main, resolve_env_id
 from sb3_icrl.zoo.callbacks import ConstraintEvalCallback
@@ -52,7 +53,14 @@ def test_train_subprocess_writes_zoo_run_folder(algo: str, tmp_path: pathlib.Pat
         assert evaluations[key].shape == (2, 2), key
     learned = evaluations["learned_feasible_reward"]
     assert np.isfinite(learned).all() == (algo in ICRL_ALGOS)  # NaN for the algos without a learned constraint
-    assert list(tmp_path.glob("tb/GridWorldWall-v0/*/events.out.tfevents.*"))
+    events = list(tmp_path.glob("tb/GridWorldWall-v0/*/events.out.tfevents.*"))
+    assert events
+    # ICRL runs draw the recovered constraint map into TensorBoard at each evaluation
+    accumulator = EventAccumulator(str(events[0].parent), size_guidance={"images": 0}).Reload()
+    images = accumulator.Tags()["images"]
+    assert images == (["constraint/map"] if algo in ICRL_ALGOS else []), images
+    if algo in ICRL_ALGOS:
+        assert [event.step for event in accumulator.Images("constraint/map")] == [128, 256]
 
 
 def test_normalize_noise_and_run_ids(tmp_path: pathlib.Path) -> None:

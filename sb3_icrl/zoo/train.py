@@ -39,6 +39,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 import sb3_icrl
 from sb3_icrl.data import load_demonstrations
 from sb3_icrl.envs.wrappers import TransitionNoiseWrapper
+from sb3_icrl.plots import ConstraintFigureCallback
 from sb3_icrl.zoo.callbacks import ConstraintEvalCallback, LearnedCostRecorder
 from sb3_icrl.zoo.hyperparams import (
     ALGOS,
@@ -291,7 +292,7 @@ def _load_trained_agent(
 
 
 def _callbacks(args: argparse.Namespace, env_id: str, params: dict[str, Any], save_path: str) -> list[BaseCallback]:
-    """The yml's callbacks, checkpoints (with the normalisation statistics) and the evaluation callback."""
+    """The yml's callbacks, checkpoints (with the normalisation statistics), the evaluation and constraint-figure callbacks."""
     env_kwargs = args.env_kwargs or {}
     callbacks: list[BaseCallback] = [callback(**cb_kwargs) for callback, cb_kwargs in params["callback"]]
     n_envs = params["n_envs"]
@@ -322,6 +323,11 @@ def _callbacks(args: argparse.Namespace, env_id: str, params: dict[str, Any], sa
                 verbose=args.verbose,
             )
         )
+        if args.algo in ICRL_ALGOS and args.tensorboard_log:
+            # The recovered constraint as TensorBoard figures (grid map, or partial dependence on the constrained feature)
+            callbacks.append(
+                ConstraintFigureCallback(eval_freq=max(args.eval_freq // n_envs, 1), env_id=env_id, env_kwargs=env_kwargs)
+            )
     return callbacks
 
 
