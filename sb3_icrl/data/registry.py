@@ -59,6 +59,10 @@ SHIPPED_DATASETS: dict[str, ShippedDataset] = {
     "GridWorldSquare-v0": ShippedDataset(50, IMPERFECT_FRACTIONS, "pilag"),
     "GridWorldBigSquare-v0": ShippedDataset(50, IMPERFECT_FRACTIONS, "pilag"),
     "GridWorldZigzag-v0": ShippedDataset(50, IMPERFECT_FRACTIONS, "pilag"),
+    "BlockedAnt-v0": ShippedDataset(20),
+    "BiasedPendulum-v0": ShippedDataset(20),
+    "BlockedWalker-v0": ShippedDataset(20),
+    "BlockedSwimmer-v0": ShippedDataset(20),
 }
 #: Seed of the shipped datasets
 SHIPPED_SEED = 0
