@@ -63,6 +63,7 @@ SHIPPED_DATASETS: dict[str, ShippedDataset] = {
     "BiasedPendulum-v0": ShippedDataset(20),
     "BlockedWalker-v0": ShippedDataset(20),
     "BlockedSwimmer-v0": ShippedDataset(20),
+    "HighwayVelocity-v0": ShippedDataset(100),
 }
 #: Seed of the shipped datasets
 SHIPPED_SEED = 0
