@@ -42,11 +42,13 @@ class ShippedDataset:
     :param n_trajectories: Trajectories kept
     :param fractions: Violating fractions shipped (0: clean expert data; the others are the paper's imperfect experts)
     :param expert: ``"pilag"`` (trained on the fly, grid world) or ``"zip"`` (the PPO-Lagrangian in :data:`EXPERTS_DIR`)
+    :param random_action_prob: Per-step random actions in the violating rollouts of the imperfect variants
     """
 
     n_trajectories: int
     fractions: tuple[float, ...] = (0.0,)
     expert: str = "zip"
+    random_action_prob: float = 0.5
 
 
 #: The paper's imperfect-expert fractions
@@ -193,6 +195,8 @@ def regenerate_shipped(
                 f"python -m sb3_icrl.data generate --env {name} {expert_flags} --n {spec.n_trajectories} --out {path.name} "
                 f"--violating-fraction {fraction:g} --seed {SHIPPED_SEED} --deterministic"
             )
+            if fraction:
+                command += f" --random-action-prob {spec.random_action_prob:g}"
             sidecar = build_dataset(
                 path,
                 name,
@@ -201,6 +205,7 @@ def regenerate_shipped(
                 vec_normalize_path=None if statistics is None else os.fspath(statistics),
                 command=command,
                 violating_fraction=fraction,
+                random_action_prob=spec.random_action_prob,
                 seed=SHIPPED_SEED,
                 deterministic=True,
             )
