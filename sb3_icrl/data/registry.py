@@ -66,6 +66,7 @@ SHIPPED_DATASETS: dict[str, ShippedDataset] = {
     "BlockedWalker-v0": ShippedDataset(20),
     "BlockedSwimmer-v0": ShippedDataset(20),
     "HighwayVelocity-v0": ShippedDataset(100),
+    "HighwayDistance-v0": ShippedDataset(100),
 }
 #: Seed of the shipped datasets
 SHIPPED_SEED = 0
