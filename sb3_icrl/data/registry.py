@@ -61,6 +61,7 @@ SHIPPED_DATASETS: dict[str, ShippedDataset] = {
     "GridWorldSquare-v0": ShippedDataset(50, IMPERFECT_FRACTIONS, "pilag"),
     "GridWorldBigSquare-v0": ShippedDataset(50, IMPERFECT_FRACTIONS, "pilag"),
     "GridWorldZigzag-v0": ShippedDataset(50, IMPERFECT_FRACTIONS, "pilag"),
+    "BlockedHalfCheetah-v0": ShippedDataset(20, IMPERFECT_FRACTIONS, random_action_prob=0.8),
     "BlockedAnt-v0": ShippedDataset(20),
     "BiasedPendulum-v0": ShippedDataset(20),
     "BlockedWalker-v0": ShippedDataset(20),
