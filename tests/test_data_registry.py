@@ -84,3 +84,15 @@ def test_datasets_table_has_a_row_per_shipped_file():
     assert len(lines) == 2 + len(SHIPPED)
     wall = next(line for line in lines if line.startswith("| GridWorldWall-v0_violating-0.2 |"))
     assert "| PILagrangian | 50 | 1.00 +- 0.00 |" in wall and "| 10 |" in wall
+
+
+def test_readme_datasets_table_matches_the_shipped_files():
+    # The README's table is `python -m sb3_icrl.data table` (grid rows summarised): regenerate it when data changes
+    import pathlib
+
+    from sb3_icrl.data.registry import datasets_table
+
+    readme = (pathlib.Path(__file__).resolve().parents[1] / "README.md").read_text()
+    for row in datasets_table().splitlines():
+        if "GridWorld" not in row:
+            assert row in readme, f"README's datasets table is stale: missing {row!r}"

@@ -146,7 +146,7 @@ def test_every_benchmark_env_has_an_entry() -> None:
         assert (DEFAULT_HYPERPARAMS_DIR / f"{algo}.yml").is_file()
         assert {"default", "GridWorldWall-v0", *mujoco} <= set(read_hyperparams_file(algo)), algo
     highway = {"HighwayVelocity-v0", "HighwayDistance-v0", "HighwayVelocityDistance-v0"}
-    for algo in ("ppo", *ICRL_ALGOS):  # ppolag.yml's driving experts are configured separately
+    for algo in ALGOS:
         assert highway <= set(read_hyperparams_file(algo)), algo
         if algo in ICRL_ALGOS:
             params = preprocess_hyperparams(load_hyperparams(algo, "HighwayDistance-v0")[0])

@@ -68,6 +68,7 @@ SHIPPED_DATASETS: dict[str, ShippedDataset] = {
     "BlockedSwimmer-v0": ShippedDataset(20),
     "HighwayVelocity-v0": ShippedDataset(100),
     "HighwayDistance-v0": ShippedDataset(100),
+    "HighwayVelocityDistance-v0": ShippedDataset(100),
 }
 #: Seed of the shipped datasets
 SHIPPED_SEED = 0
