@@ -1,7 +1,9 @@
+import gymnasium as gym
 import numpy as np
 import pytest
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
+import sb3_icrl  # noqa: F401  (registers the envs)
 from sb3_icrl.common.envs import ConstrainedCorridorEnv
 from sb3_icrl.common.evaluation import evaluate_constraint
 
@@ -42,3 +44,26 @@ def test_errors():
         evaluate_constraint(FixedAction(1), ConstrainedCorridorEnv(), n_episodes=0)
     with pytest.raises(KeyError, match="true cost in info\\['danger'\\]"):
         evaluate_constraint(FixedAction(1), ConstrainedCorridorEnv(), cost_info_key="danger")
+
+
+class _ConstantPolicy:
+    def __init__(self, action: np.ndarray):
+        self.action = action
+
+    def predict(self, observation, state=None, episode_start=None, deterministic=True):
+        return np.tile(self.action, (len(observation), 1)), None
+
+
+def test_driving_outcome_rates():
+    env = gym.make("sb3_icrl/HighwayVelocity-v0")
+    # Full steering: every episode ends off the road (or in a collision on the way), never at the goal
+    result = evaluate_constraint(_ConstantPolicy(np.array([0.0, 1.0], dtype=np.float32)), env, n_episodes=3, seed=0)
+    assert set(result.outcomes) == {"collision", "off_road", "time_out", "goal_reached"}
+    flags = np.stack([result.outcomes[key] for key in ("collision", "off_road", "time_out", "goal_reached")])
+    assert flags.shape == (4, 3) and flags.any(axis=0).all()  # each episode ends one of the four ways
+    assert result.outcomes["off_road"].all() and not result.outcomes["goal_reached"].any()
+    assert result.summary()["off_road_rate"] == 1.0 and result.summary()["goal_reached_rate"] == 0.0
+    assert result.to_dict()["outcomes"]["off_road"] == [True, True, True]
+    # Envs without outcome flags report none
+    corridor = evaluate_constraint(FixedAction(1), ConstrainedCorridorEnv(), n_episodes=1)
+    assert corridor.outcomes == {} and "collision_rate" not in corridor.summary()

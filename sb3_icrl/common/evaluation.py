@@ -1,12 +1,15 @@
 """Evaluation against the true constraint (for reporting only: never for training or model selection)."""
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
+
+#: Episode outcomes that driving envs flag in the last step's info; their rates are reported when an env sets them
+OUTCOME_KEYS = ("collision", "off_road", "time_out", "goal_reached")
 
 
 @dataclass
@@ -19,6 +22,8 @@ class ConstraintEvaluation:
     :param feasible_rewards: Reward summed until (excluding) the first step that breaks the constraint
     :param violations: Whether each episode broke the constraint at least once
     :param episode_lengths: Steps per episode
+    :param outcomes: For envs that flag them (driving): ``{key: whether each episode ended that way}`` for the
+        :data:`OUTCOME_KEYS` present in every episode's last info
     """
 
     episode_rewards: np.ndarray
@@ -26,6 +31,7 @@ class ConstraintEvaluation:
     feasible_rewards: np.ndarray
     violations: np.ndarray
     episode_lengths: np.ndarray
+    outcomes: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def mean_reward(self) -> float:
@@ -43,6 +49,11 @@ class ConstraintEvaluation:
     def mean_cost(self) -> float:
         return float(np.mean(self.episode_costs))
 
+    @property
+    def outcome_rates(self) -> dict[str, float]:
+        """``{"<key>_rate": share of episodes}`` for each flagged outcome (empty for envs without outcome flags)."""
+        return {f"{key}_rate": float(np.mean(flags)) for key, flags in self.outcomes.items()}
+
     def summary(self) -> dict[str, float]:
         """The means, as plain floats (for JSON and loggers)."""
         return {
@@ -51,10 +62,21 @@ class ConstraintEvaluation:
             "violation_rate": self.violation_rate,
             "mean_cost": self.mean_cost,
             "n_episodes": float(len(self.violations)),
+            **self.outcome_rates,
         }
 
     def to_dict(self) -> dict[str, Any]:
-        return {key: np.asarray(value).tolist() for key, value in asdict(self).items()}
+        arrays = {
+            "episode_rewards": self.episode_rewards,
+            "episode_costs": self.episode_costs,
+            "feasible_rewards": self.feasible_rewards,
+            "violations": self.violations,
+            "episode_lengths": self.episode_lengths,
+        }
+        return {
+            **{key: np.asarray(value).tolist() for key, value in arrays.items()},
+            "outcomes": {key: np.asarray(flags).tolist() for key, flags in self.outcomes.items()},
+        }
 
 
 def evaluate_constraint(
@@ -101,6 +123,7 @@ def evaluate_constraint(
         "violations": [],
         "episode_lengths": [],
     }
+    outcomes: dict[str, list[bool]] = {key: [] for key in OUTCOME_KEYS}
 
     observations = vec_env.reset()
     states, episode_starts = None, np.ones(n_envs, dtype=bool)
@@ -130,10 +153,13 @@ def evaluate_constraint(
             if dones[idx]:
                 for key, value in zip(results, (rewards, costs, feasible, violated, lengths), strict=True):
                     results[key].append(value[idx])
+                for key, flags in outcomes.items():
+                    flags.append(bool(infos[idx][key]) if key in infos[idx] else None)  # type: ignore[arg-type]
                 counts[idx] += 1
                 rewards[idx] = costs[idx] = feasible[idx] = lengths[idx] = 0.0
                 violated[idx] = False
         episode_starts = dones
     if normalize is not None:
         normalize.training = was_training
-    return ConstraintEvaluation(**{key: np.array(value) for key, value in results.items()})
+    flagged = {key: np.array(flags, dtype=bool) for key, flags in outcomes.items() if None not in flags}
+    return ConstraintEvaluation(**{key: np.array(value) for key, value in results.items()}, outcomes=flagged)

@@ -69,7 +69,8 @@ class ConstraintEvalCallback(EvalCallback):
     """
     rl-zoo's evaluation callback with the ICRL metrics. Each evaluation logs under ``eval/``: ``mean_reward``,
     ``feasible_reward``, ``violation_rate`` and ``mean_cost`` (true constraint, reporting only), and for models with a
-    learned constraint ``learned_feasible_reward`` and ``mean_learned_cost``; all go to ``evaluations.npz``.
+    learned constraint ``learned_feasible_reward`` and ``mean_learned_cost``, for driving envs ``collision_rate``,
+    ``off_road_rate``, ``time_out_rate`` and ``goal_reached_rate``; all go to ``evaluations.npz`` (per episode).
 
     The best model (``best_model.zip``) is chosen on what the learner itself knows, never the true constraint:
     models with a learned constraint (``constraint_net``) by the reward summed until the learned cost first exceeds
@@ -128,6 +129,7 @@ class ConstraintEvalCallback(EvalCallback):
             "violation_rate": result.violation_rate,
             "mean_cost": result.mean_cost,
             "mean_ep_length": float(np.mean(result.episode_lengths)),
+            **result.outcome_rates,  # driving envs: collision, off-road, time-out and goal rates
         }
         if self.recorder is not None and constraint_net is not None and self.recorder.episodes:
             learned = np.array(self.recorder.episodes[: self.n_eval_episodes])
@@ -147,6 +149,8 @@ class ConstraintEvalCallback(EvalCallback):
         self.history.setdefault("feasible_rewards", []).append(result.feasible_rewards)
         self.history.setdefault("violations", []).append(result.violations)
         self.history.setdefault("episode_costs", []).append(result.episode_costs)
+        for key, flags in result.outcomes.items():
+            self.history.setdefault(key, []).append(flags)
         for key in ("learned_feasible_reward", "mean_learned_cost"):
             self.history.setdefault(key, []).append(metrics.get(key, np.nan))
         score = self._selection_score(metrics)
