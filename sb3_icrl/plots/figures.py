@@ -21,7 +21,7 @@ from matplotlib import patheffects
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import ListedColormap
 from matplotlib.figure import Figure
-from matplotlib.ticker import MaxNLocator
+from matplotlib.ticker import EngFormatter, MaxNLocator
 
 from sb3_icrl.common.utils import atomic_write_bytes
 from sb3_icrl.constraints.networks import BetaFeasibilityNet, _ConstraintNet
@@ -641,6 +641,7 @@ def training_curves_figure(
             )
             axis.fill_between(timesteps, mean - std, mean + std, color=line.get_color(), alpha=0.2)
         axis.set_xlabel("timesteps")
+        axis.xaxis.set_major_formatter(EngFormatter())  # 200k, 1M: long step counts do not overlap
         axis.set_ylabel(CURVE_METRICS[metric][1])
         if metric == "violation_rate":
             axis.set_ylim(-0.02, 1.02)
