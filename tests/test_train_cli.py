@@ -91,7 +91,7 @@ def test_violating_fraction_picks_the_shipped_variant(tmp_path: pathlib.Path) ->
     [
         (["--algo", "ppo", "--env", "GridWorldWal-v0"], "Did you mean 'GridWorldWall-v0'"),
         (["--algo", "ppo", "--env", "GridWorldWall-v0", "-params", "bogus:1"], "rejects the hyper-parameters"),
-        (["--algo", "mecl", "--env", "BlockedHalfCheetah-v0"], "--demonstrations"),
+        (["--algo", "mecl", "--env", "ConstrainedCorridor-v0"], "--demonstrations"),  # none shipped for it
         (["--algo", "ppo", "--env", "GridWorldWall-v0", "--demonstrations", "GridWorldWall-v0"], "ICRL algorithms"),
         (["--algo", "ppolag", "--env", "GridWorldWall-v0", "--violating-fraction", "0.2"], "ICRL algorithms"),
     ],

@@ -8,6 +8,8 @@ import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 
+#: The per-episode arrays of :class:`ConstraintEvaluation`, in order
+EPISODE_FIELDS = ("episode_rewards", "episode_costs", "feasible_rewards", "violations", "episode_lengths")
 #: Episode outcomes that driving envs flag in the last step's info; their rates are reported when an env sets them
 OUTCOME_KEYS = ("collision", "off_road", "time_out", "goal_reached")
 
@@ -66,15 +68,8 @@ class ConstraintEvaluation:
         }
 
     def to_dict(self) -> dict[str, Any]:
-        arrays = {
-            "episode_rewards": self.episode_rewards,
-            "episode_costs": self.episode_costs,
-            "feasible_rewards": self.feasible_rewards,
-            "violations": self.violations,
-            "episode_lengths": self.episode_lengths,
-        }
         return {
-            **{key: np.asarray(value).tolist() for key, value in arrays.items()},
+            **{key: np.asarray(getattr(self, key)).tolist() for key in EPISODE_FIELDS},
             "outcomes": {key: np.asarray(flags).tolist() for key, flags in self.outcomes.items()},
         }
 
@@ -116,13 +111,7 @@ def evaluate_constraint(
     counts = np.zeros(n_envs, dtype=int)
     rewards, costs, feasible, lengths = (np.zeros(n_envs) for _ in range(4))
     violated = np.zeros(n_envs, dtype=bool)
-    results: dict[str, list] = {
-        "episode_rewards": [],
-        "episode_costs": [],
-        "feasible_rewards": [],
-        "violations": [],
-        "episode_lengths": [],
-    }
+    results: dict[str, list] = {key: [] for key in EPISODE_FIELDS}
     outcomes: dict[str, list[bool]] = {key: [] for key in OUTCOME_KEYS}
 
     observations = vec_env.reset()

@@ -25,7 +25,7 @@ import yaml
 from gymnasium.envs.registration import load_env_creator
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
-from sb3_icrl.common.evaluation import ConstraintEvaluation
+from sb3_icrl.common.evaluation import EPISODE_FIELDS, ConstraintEvaluation
 from sb3_icrl.zoo.hyperparams import ALGOS, ICRL_ALGOS, HyperparameterError, env_name, preprocess_hyperparams, resolve_env_id
 from sb3_icrl.zoo.runs import CHECKPOINT_PATTERN, TrainedAgentError, check_trained_agent, find_vecnormalize
 from sb3_icrl.zoo.train import StoreDict, create_env, get_latest_run_id
@@ -228,7 +228,7 @@ def _run(
 ) -> ConstraintEvaluation:
     """Step the single env ``n_timesteps`` times; per episode the same metrics as :func:`evaluate_constraint`."""
     normalize = env if isinstance(env, VecNormalize) else None
-    results: dict[str, list[float]] = {key: [] for key in ConstraintEvaluation.__dataclass_fields__}
+    results: dict[str, list[float]] = {key: [] for key in EPISODE_FIELDS}
     reward = cost = feasible = length = 0.0
     violated = False
     obs = env.reset()
@@ -259,7 +259,7 @@ def _run(
             reward = cost = feasible = length = 0.0
             violated = False
         episode_start = dones
-    evaluation = ConstraintEvaluation(**{key: np.array(value) for key, value in results.items()})
+    evaluation = ConstraintEvaluation(**{key: np.array(value) for key, value in results.items()}, outcomes={})
     n_episodes = len(evaluation.violations)
     if n_episodes:
         print(
