@@ -154,6 +154,37 @@ def test_every_benchmark_env_has_an_entry() -> None:
             assert params["constraint_net_kwargs"] == {"hidden_sizes": [64, 64]} and params["normalize"]
 
 
+def test_hyperparameter_files_are_package_data() -> None:
+    """One copy, inside the package (so a wheel carries it); the root ``zoo_hyperparams`` (rl-zoo's place) links to it."""
+    import configparser
+
+    import sb3_icrl
+
+    package = pathlib.Path(sb3_icrl.__file__).resolve().parent
+    assert package / "zoo_hyperparams" == DEFAULT_HYPERPARAMS_DIR
+    assert (ROOT / "zoo_hyperparams").is_symlink() and (ROOT / "zoo_hyperparams").resolve() == DEFAULT_HYPERPARAMS_DIR
+    config = configparser.ConfigParser()
+    config.read(ROOT / "setup.cfg")
+    assert "zoo_hyperparams/*.yml" in [item.strip() for item in config["options.package_data"]["sb3_icrl"].split(",")]
+
+
+@pytest.mark.slow
+def test_wheel_ships_the_hyperparameter_files(tmp_path: pathlib.Path) -> None:
+    """A non-editable install finds the yml files: they are in the wheel, where DEFAULT_HYPERPARAMS_DIR points."""
+    import shutil
+    import zipfile
+
+    source = tmp_path / "src"
+    ignore = shutil.ignore_patterns(".git", ".venv", "logs", "runs", "build", "dist", "*.egg-info", "__pycache__", "tests")
+    shutil.copytree(ROOT, source, symlinks=True, ignore=ignore)
+    command = [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(tmp_path / "w"), "."]
+    result = subprocess.run(command, cwd=source, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-3000:]
+    (wheel,) = (tmp_path / "w").glob("*.whl")
+    names = set(zipfile.ZipFile(wheel).namelist())
+    assert {f"sb3_icrl/zoo_hyperparams/{algo}.yml" for algo in ALGOS} <= names
+
+
 def test_reference_table_values() -> None:
     """Spot checks against MISSION.md section 2 (HalfCheetah: 30 x 200k, lambda 1/0.1, constraint lr 5e-3, [20], 10, 0.5)."""
     entry, _ = load_hyperparams("mecl", "BlockedHalfCheetah-v0")

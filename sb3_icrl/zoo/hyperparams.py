@@ -35,8 +35,9 @@ ICRL_ALGOS = ("gacl", "bc2l", "mecl", "vicrl")
 ZOO_KEYS = ("n_timesteps", "n_envs", "normalize", "normalize_kwargs", "env_wrapper", "callback", "policy")
 #: Dict-valued arguments that may be written as strings
 EVAL_KEYS = ("policy_kwargs", "constraint_net_kwargs", "lagrange_kwargs", "trainer_kwargs", "normalize_kwargs")
-#: Where the shipped hyper-parameter files live (the repository root's ``zoo_hyperparams``)
-DEFAULT_HYPERPARAMS_DIR = pathlib.Path(__file__).resolve().parents[2] / "zoo_hyperparams"
+#: Where the shipped hyper-parameter files live: ``sb3_icrl/zoo_hyperparams`` (package data, so installed wheels have
+#: them too); the repository root's ``zoo_hyperparams`` is a link to it, where rl-zoo users look for them
+DEFAULT_HYPERPARAMS_DIR = pathlib.Path(__file__).resolve().parents[1] / "zoo_hyperparams"
 NAMESPACE = "sb3_icrl"
 
 
@@ -111,7 +112,7 @@ def read_hyperparams_file(algo: str, directory: str | os.PathLike | None = None,
     The whole ``<algo>.yml`` (or ``conf_file``) as a dict of entries.
 
     :param algo: Command-line algorithm name
-    :param directory: Folder of the yml files (default: the repository's ``zoo_hyperparams``)
+    :param directory: Folder of the yml files (default: :data:`DEFAULT_HYPERPARAMS_DIR`)
     :param conf_file: Explicit file, as rl-zoo's ``-conf``
     """
     path = pathlib.Path(conf_file) if conf_file else pathlib.Path(directory or DEFAULT_HYPERPARAMS_DIR) / f"{algo}.yml"
