@@ -41,7 +41,7 @@ from sb3_icrl.constraints import BetaFeasibilityNet, FeasibilityNet
 from sb3_icrl.data import load_demonstrations
 from sb3_icrl.envs.grid_world import GridWorldEnv
 from sb3_icrl.icrl import ICRLTrainer, LagrangianICRL
-from sb3_icrl.icrl.tabular import cost_table, tabular_icrl
+from sb3_icrl.icrl.tabular import cost_table, precision_recall, tabular_icrl
 from sb3_icrl.mecl import MECL, MECLTrainer
 from sb3_icrl.vicrl import VICRL, VICRLTrainer
 
@@ -155,16 +155,6 @@ def expert_cells(env_id: str, grid: GridWorldEnv) -> np.ndarray:
     visited = np.zeros(grid.n_states, dtype=bool)
     visited[np.concatenate([t.obs[:-1] for t in load_demonstrations(env_id)]).astype(int)] = True
     return visited.reshape(grid.n_rows, grid.n_cols)
-
-
-def precision_recall(recovered: np.ndarray, true_unsafe: np.ndarray) -> tuple[float, float]:
-    """
-    :param recovered: Boolean map of the cells recovered as unsafe
-    :param true_unsafe: Boolean map of the truly unsafe cells
-    :return: Precision (0 when nothing is recovered) and recall
-    """
-    hits = int(np.sum(recovered & true_unsafe))
-    return hits / max(int(recovered.sum()), 1), hits / int(true_unsafe.sum())
 
 
 def render(grid: GridWorldEnv, unsafe: np.ndarray) -> list[str]:

@@ -23,7 +23,7 @@ import torch as th
 from sb3_icrl.constraints import BetaFeasibilityNet, FeasibilityNet
 from sb3_icrl.data import load_demonstrations
 from sb3_icrl.icrl import ICRLTrainer
-from sb3_icrl.icrl.tabular import tabular_icrl
+from sb3_icrl.icrl.tabular import precision_recall, tabular_icrl
 from sb3_icrl.mecl import MECLTrainer
 from sb3_icrl.plots.figures import grid_constraint_figure, grid_cost_map, save_figure
 from sb3_icrl.vicrl import VICRLTrainer
@@ -33,16 +33,6 @@ ALGOS: dict[str, tuple[type[ICRLTrainer], type]] = {
     "mecl": (MECLTrainer, FeasibilityNet),
     "vicrl": (VICRLTrainer, BetaFeasibilityNet),
 }
-
-
-def precision_recall(recovered: np.ndarray, true_unsafe: np.ndarray) -> tuple[float, float]:
-    """
-    :param recovered: Boolean map of the cells recovered as unsafe
-    :param true_unsafe: Boolean map of the truly unsafe cells
-    :return: Precision (0 when nothing is recovered) and recall
-    """
-    hits = int(np.sum(recovered & true_unsafe))
-    return hits / max(int(recovered.sum()), 1), hits / int(true_unsafe.sum())
 
 
 def main() -> None:

@@ -16,7 +16,7 @@ from sb3_icrl.common.evaluation import evaluate_constraint
 from sb3_icrl.constraints import BetaFeasibilityNet, FeasibilityNet, GACLRewardWrapper, LearnedCostVecEnvWrapper
 from sb3_icrl.data import DemonstrationError, Demonstrations, Trajectory, load_demonstrations
 from sb3_icrl.icrl import NominalData, TrajectoryRecorderVecEnvWrapper
-from sb3_icrl.icrl.tabular import cost_table, tabular_icrl
+from sb3_icrl.icrl.tabular import cost_table, precision_recall, tabular_icrl
 from sb3_icrl.mecl import MECLTrainer
 from sb3_icrl.pi_lagrangian import PILagrangian
 from sb3_icrl.vicrl import VICRLTrainer
@@ -392,3 +392,9 @@ def test_grid_world_constraint_recovery(trainer_class, net_class):
     evaluation = evaluate_constraint(result.planner, gym.make("sb3_icrl/GridWorldWall-v0"), n_episodes=10)
     assert evaluation.violation_rate <= 0.1
     assert np.all(evaluation.episode_rewards > 0)  # every episode reaches the goal
+
+
+def test_precision_recall_of_a_recovered_map():
+    true_unsafe = np.array([[True, True], [False, False]])
+    assert precision_recall(np.array([[True, False], [True, True]]), true_unsafe) == (1 / 3, 1 / 2)
+    assert precision_recall(np.zeros((2, 2), dtype=bool), true_unsafe) == (0.0, 0.0)

@@ -117,16 +117,22 @@ def bc2l_loss(expert_feasibility: th.Tensor, nominal_feasibility: th.Tensor, eps
     return _expert_vs_nominal_bce(expert_feasibility, nominal_feasibility, eps)
 
 
+def _check_episode_lengths(lengths: Sequence[int] | np.ndarray, n_samples: int, what: str) -> np.ndarray:
+    """The lengths of the trajectories whose samples are stored one after the other, checked against their count."""
+    array = np.asarray(lengths)
+    if array.ndim != 1 or array.size == 0 or not np.issubdtype(array.dtype, np.integer) or np.any(array < 1):
+        raise ValueError(f"`episode_lengths` must be a non-empty list of positive integers, got {lengths!r}.")
+    if int(array.sum()) != n_samples:
+        raise ValueError(
+            f"`episode_lengths` sum to {int(array.sum())} but there are {n_samples} {what}; pass the length of every "
+            "trajectory, in the order the samples are stored."
+        )
+    return array
+
+
 def _trajectory_log_feasibility(feasibility: th.Tensor, lengths: Sequence[int] | np.ndarray, eps: float) -> th.Tensor:
     """``log prod_t phi_t`` of each trajectory, the pairs stored trajectory after trajectory."""
-    lengths = np.asarray(lengths)
-    if lengths.ndim != 1 or lengths.size == 0 or not np.issubdtype(lengths.dtype, np.integer) or np.any(lengths < 1):
-        raise ValueError(f"Episode lengths must be a non-empty list of positive integers, got {lengths!r}.")
-    if int(lengths.sum()) != feasibility.shape[0]:
-        raise ValueError(
-            f"The episode lengths sum to {int(lengths.sum())} but there are {feasibility.shape[0]} pairs; pass the length "
-            "of every trajectory, in the order the pairs are stored."
-        )
+    lengths = _check_episode_lengths(lengths, feasibility.shape[0], "pairs")
     index = th.repeat_interleave(
         th.arange(len(lengths), device=feasibility.device), th.as_tensor(lengths, device=feasibility.device)
     )
@@ -258,14 +264,7 @@ def mecl_importance_weights(
     _check_batch("old_feasibility", old_feasibility)
     _check_batch("new_feasibility", new_feasibility)
     _check_same_length("old_feasibility", old_feasibility, "new_feasibility", new_feasibility)
-    lengths = np.asarray(episode_lengths)
-    if lengths.ndim != 1 or lengths.size == 0 or not np.issubdtype(lengths.dtype, np.integer) or np.any(lengths < 1):
-        raise ValueError(f"`episode_lengths` must be a non-empty list of positive integers, got {episode_lengths!r}.")
-    if int(lengths.sum()) != old_feasibility.shape[0]:
-        raise ValueError(
-            f"`episode_lengths` sum to {int(lengths.sum())} but there are {old_feasibility.shape[0]} nominal samples; "
-            "pass the length of every nominal trajectory, in the order the samples are stored."
-        )
+    lengths = _check_episode_lengths(episode_lengths, old_feasibility.shape[0], "nominal samples")
     with th.no_grad():
         log_ratio = th.log(new_feasibility + eps) - th.log(old_feasibility + eps)
         trajectory_index = th.repeat_interleave(

@@ -35,6 +35,18 @@ class TabularICRLResult:
     history: list[dict[str, float]] = field(default_factory=list)
 
 
+def precision_recall(recovered: np.ndarray, true_unsafe: np.ndarray) -> tuple[float, float]:
+    """
+    How well a recovered set of unsafe cells matches the true one (evaluation only).
+
+    :param recovered: Boolean map of the cells recovered as unsafe
+    :param true_unsafe: Boolean map of the truly unsafe cells
+    :return: Precision (0 when nothing is recovered) and recall
+    """
+    hits = int(np.sum(recovered & true_unsafe))
+    return hits / max(int(recovered.sum()), 1), hits / int(true_unsafe.sum())
+
+
 def cost_table(constraint_net: _ConstraintNet, n_states: int, n_actions: int) -> np.ndarray:
     """
     The learned cost of every state-action pair (VICRL: of the Beta's mean, a planning table must be deterministic).
