@@ -74,6 +74,67 @@ class ConstraintEvaluation:
         }
 
 
+class EpisodeAccumulator:
+    """
+    Sums each sub-env's steps into the benchmark's per-episode metrics, in the order episodes finish: what
+    :func:`evaluate_constraint` and ``enjoy`` both measure.
+
+    :param n_envs: Number of sub-envs stepped together
+    :param cost_info_key: The info key of the true per-step cost
+    """
+
+    def __init__(self, n_envs: int, cost_info_key: str = "cost"):
+        self.cost_info_key = cost_info_key
+        self.results: dict[str, list] = {key: [] for key in EPISODE_FIELDS}
+        self._outcomes: dict[str, list[bool | None]] = {key: [] for key in OUTCOME_KEYS}
+        self._rewards, self._costs, self._feasible, self._lengths = (np.zeros(n_envs) for _ in range(4))
+        self._violated = np.zeros(n_envs, dtype=bool)
+
+    def add(self, idx: int, reward: float, info: dict[str, Any]) -> None:
+        """
+        :param idx: The sub-env
+        :param reward: Its raw reward for the step
+        :param info: Its info for the step (with the true cost)
+        """
+        if self.cost_info_key not in info:
+            raise KeyError(f"Evaluation needs the true cost in info[{self.cost_info_key!r}]; the env reports {sorted(info)}.")
+        step_cost = float(np.sum(info[self.cost_info_key]))
+        self._violated[idx] |= step_cost > 0
+        self._rewards[idx] += reward
+        self._costs[idx] += step_cost
+        self._lengths[idx] += 1
+        if not self._violated[idx]:
+            self._feasible[idx] += reward
+
+    def end_episode(self, idx: int, info: dict[str, Any]) -> tuple[float, float, float, bool, float]:
+        """
+        Record sub-env ``idx``'s finished episode and start its next one.
+
+        :param idx: The sub-env
+        :param info: Its last step's info (for the outcome flags)
+        :return: The episode's reward, cost, feasible reward, violation and length
+        """
+        episode = (
+            float(self._rewards[idx]),
+            float(self._costs[idx]),
+            float(self._feasible[idx]),
+            bool(self._violated[idx]),
+            float(self._lengths[idx]),
+        )
+        for key, value in zip(EPISODE_FIELDS, episode, strict=True):
+            self.results[key].append(value)
+        for key, flags in self._outcomes.items():
+            flags.append(bool(info[key]) if key in info else None)
+        self._rewards[idx] = self._costs[idx] = self._feasible[idx] = self._lengths[idx] = 0.0
+        self._violated[idx] = False
+        return episode
+
+    def evaluation(self) -> ConstraintEvaluation:
+        """The finished episodes; outcome flags where every episode's last info had them."""
+        flagged = {key: np.array(flags, dtype=bool) for key, flags in self._outcomes.items() if None not in flags}
+        return ConstraintEvaluation(**{key: np.array(value) for key, value in self.results.items()}, outcomes=flagged)
+
+
 def evaluate_constraint(
     model: BaseAlgorithm,
     env: gym.Env | VecEnv,
@@ -109,10 +170,7 @@ def evaluate_constraint(
     # Episodes per sub-env fixed upfront, as SB3's evaluate_policy does, so short episodes do not bias the sample
     targets = np.array([(n_episodes + i) // n_envs for i in range(n_envs)])
     counts = np.zeros(n_envs, dtype=int)
-    rewards, costs, feasible, lengths = (np.zeros(n_envs) for _ in range(4))
-    violated = np.zeros(n_envs, dtype=bool)
-    results: dict[str, list] = {key: [] for key in EPISODE_FIELDS}
-    outcomes: dict[str, list[bool]] = {key: [] for key in OUTCOME_KEYS}
+    episodes = EpisodeAccumulator(n_envs, cost_info_key)
 
     observations = vec_env.reset()
     states, episode_starts = None, np.ones(n_envs, dtype=bool)
@@ -128,27 +186,11 @@ def evaluate_constraint(
         for idx in range(n_envs):
             if counts[idx] >= targets[idx]:
                 continue
-            if cost_info_key not in infos[idx]:
-                raise KeyError(
-                    f"Evaluation needs the true cost in info[{cost_info_key!r}]; the env reports {sorted(infos[idx])}."
-                )
-            step_cost = float(np.sum(infos[idx][cost_info_key]))
-            violated[idx] |= step_cost > 0
-            rewards[idx] += raw_rewards[idx]
-            costs[idx] += step_cost
-            lengths[idx] += 1
-            if not violated[idx]:
-                feasible[idx] += raw_rewards[idx]
+            episodes.add(idx, float(raw_rewards[idx]), infos[idx])
             if dones[idx]:
-                for key, value in zip(results, (rewards, costs, feasible, violated, lengths), strict=True):
-                    results[key].append(value[idx])
-                for key, flags in outcomes.items():
-                    flags.append(bool(infos[idx][key]) if key in infos[idx] else None)  # type: ignore[arg-type]
+                episodes.end_episode(idx, infos[idx])
                 counts[idx] += 1
-                rewards[idx] = costs[idx] = feasible[idx] = lengths[idx] = 0.0
-                violated[idx] = False
         episode_starts = dones
     if normalize is not None:
         normalize.training = was_training
-    flagged = {key: np.array(flags, dtype=bool) for key, flags in outcomes.items() if None not in flags}
-    return ConstraintEvaluation(**{key: np.array(value) for key, value in results.items()}, outcomes=flagged)
+    return episodes.evaluation()

@@ -25,7 +25,7 @@ import yaml
 from gymnasium.envs.registration import load_env_creator
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
-from sb3_icrl.common.evaluation import EPISODE_FIELDS, ConstraintEvaluation
+from sb3_icrl.common.evaluation import ConstraintEvaluation, EpisodeAccumulator
 from sb3_icrl.zoo.hyperparams import ALGOS, ICRL_ALGOS, HyperparameterError, env_name, preprocess_hyperparams, resolve_env_id
 from sb3_icrl.zoo.runs import CHECKPOINT_PATTERN, TrainedAgentError, check_trained_agent, find_vecnormalize
 from sb3_icrl.zoo.train import StoreDict, create_env, get_latest_run_id
@@ -228,9 +228,7 @@ def _run(
 ) -> ConstraintEvaluation:
     """Step the single env ``n_timesteps`` times; per episode the same metrics as :func:`evaluate_constraint`."""
     normalize = env if isinstance(env, VecNormalize) else None
-    results: dict[str, list[float]] = {key: [] for key in EPISODE_FIELDS}
-    reward = cost = feasible = length = 0.0
-    violated = False
+    episodes = EpisodeAccumulator(1)
     obs = env.reset()
     if frames is not None:
         frames.append(env.render())  # type: ignore[arg-type]
@@ -240,26 +238,16 @@ def _run(
         obs, rewards, dones, infos = env.step(action)
         if frames is not None:
             frames.append(env.render())  # type: ignore[arg-type]
-        step_reward = float((normalize.get_original_reward() if normalize is not None else rewards)[0])
-        if "cost" not in infos[0]:
-            raise KeyError(f"The env reports no true cost in info['cost'] (keys: {sorted(infos[0])}).")
-        step_cost = float(np.sum(infos[0]["cost"]))
-        violated |= step_cost > 0
-        reward, cost, length = reward + step_reward, cost + step_cost, length + 1
-        if not violated:
-            feasible += step_reward
+        episodes.add(0, float((normalize.get_original_reward() if normalize is not None else rewards)[0]), infos[0])
         if dones[0]:
-            for key, value in zip(results, (reward, cost, feasible, violated, length), strict=True):
-                results[key].append(value)
+            reward, cost, feasible, violated, length = episodes.end_episode(0, infos[0])
             if verbose:
                 print(
-                    f"Episode {len(results['violations'])}: reward {reward:.2f}, true cost {cost:.2f}, "
+                    f"Episode {len(episodes.results['violations'])}: reward {reward:.2f}, true cost {cost:.2f}, "
                     f"violated {'yes' if violated else 'no'}, feasible reward {feasible:.2f} ({int(length)} steps)"
                 )
-            reward = cost = feasible = length = 0.0
-            violated = False
         episode_start = dones
-    evaluation = ConstraintEvaluation(**{key: np.array(value) for key, value in results.items()}, outcomes={})
+    evaluation = episodes.evaluation()
     n_episodes = len(evaluation.violations)
     if n_episodes:
         print(
