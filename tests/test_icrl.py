@@ -297,6 +297,45 @@ def test_bad_arguments_are_refused():
         model.learn(32)
 
 
+@pytest.mark.parametrize("cls", (MECL, VICRL))
+def test_expert_budget_follows_the_experts_learned_cost(cls):
+    writer = CapturingWriter()
+    model = make_model(cls, n_steps=64, batch_size=64, cost_budget="expert", constraint_net_kwargs={"hidden_sizes": [8]})
+    model.set_logger(Logger(folder=None, output_formats=[writer]))
+    model.learn(192)
+    assert model.icrl_trainer.n_updates == 3
+    expected = 1.0 - model.constraint_net.predict_feasibility(model.expert_obs, model.expert_acts, **_mean_mode(model))
+    # VICRL's default cost is a Beta sample: its expert mean is within sampling noise of the mean cost
+    tolerance = 0.05 if cls is VICRL else 1e-6
+    assert model.cost_budget[0] == pytest.approx(expected.mean(), abs=tolerance)
+    assert model.lagrange_multiplier.cost_budget[0] == model.cost_budget[0]
+    assert writer.values["constraint/cost_budget"][-1] == pytest.approx(model.cost_budget[0])
+    # Budgets change with the constraint model: not stuck at their first value
+    assert len(set(writer.values["constraint/cost_budget"])) == 3
+
+
+def _mean_mode(model):
+    return {"cost_mode": "mean"} if isinstance(model.constraint_net, BetaFeasibilityNet) else {}
+
+
+def test_multiplier_falls_when_the_learner_is_below_the_expert_budget():
+    model = make_model(MECL, cost_budget="expert", lagrange_kwargs={"init": 1.0, "lr": 0.5, "optimizer": "sgd"})
+    model.set_cost_budget(0.6)
+    assert model.lagrange_multiplier.update(np.array([0.2]))[0] == pytest.approx(1.0 - 0.5 * 0.4)
+    with pytest.raises(ValueError, match="finite budget"):
+        model.set_cost_budget([0.1, 0.2])
+
+
+def test_expert_budget_needs_a_per_step_budget():
+    with pytest.raises(ValueError, match="budget_statistic='step'"):
+        make_model(MECL, cost_budget="expert", budget_statistic="episode")
+    with pytest.raises(ValueError, match="a float or 'expert'"):
+        make_model(MECL, cost_budget="experts")
+    model = make_model(GACL, trainer_kwargs={"budget_from_expert": True})
+    with pytest.raises(ValueError, match="must be a PPOLagrangian"):
+        model.learn(32)
+
+
 def test_env_already_wrapped():
     # A model's own env can be given back to it, or to another model of the same kind
     model = make_model(BC2L)

@@ -352,7 +352,9 @@ class LagrangianICRL(ICRLAlgorithmMixin, PPOLagrangian):
     :param n_nominal_trajectories: Most recent learner trajectories per update (default: the number of expert ones)
     :param trainer_class: The :class:`~sb3_icrl.icrl.ICRLTrainer` subclass (default: the algorithm's)
     :param trainer_kwargs: Further arguments of the trainer
-    :param cost_budget: Budget on the learned cost (reference: 0)
+    :param cost_budget: Budget on the learned cost (reference: 0), or ``"expert"``: the expert's mean learned cost per
+        step, re-set after each constraint update (see ``budget_from_expert`` of :class:`~sb3_icrl.icrl.ICRLTrainer`;
+        needs ``budget_statistic="step"``)
     :param budget_statistic: ``"step"`` (mean per-step cost of the rollout, as the reference) or ``"episode"``
     :param lagrange_kwargs: Multiplier arguments (default :data:`DEFAULT_LAGRANGE_KWARGS`)
     :param kwargs: The other arguments of :class:`~sb3_icrl.PPOLagrangian` (``n_steps``, ``learning_rate``,
@@ -373,7 +375,7 @@ class LagrangianICRL(ICRLAlgorithmMixin, PPOLagrangian):
         n_nominal_trajectories: int | None = None,
         trainer_class: type[ICRLTrainer] | None = None,
         trainer_kwargs: dict[str, Any] | None = None,
-        cost_budget: float = 0.0,
+        cost_budget: float | str = 0.0,
         budget_statistic: str = "step",
         lagrange_kwargs: dict[str, Any] | None = None,
         _init_setup_model: bool = True,
@@ -382,6 +384,15 @@ class LagrangianICRL(ICRLAlgorithmMixin, PPOLagrangian):
         if kwargs.get("cost_fn") is not None:
             raise ValueError(f"{type(self).__name__} learns its cost: do not pass `cost_fn`.")
         kwargs.pop("cost_fn", None)
+        if isinstance(cost_budget, str):
+            if cost_budget != "expert":
+                raise ValueError(f"`cost_budget` must be a float or 'expert', got {cost_budget!r}.")
+            if budget_statistic != "step":
+                raise ValueError(
+                    f"cost_budget='expert' is a per-step budget: it needs budget_statistic='step', got {budget_statistic!r}."
+                )
+            trainer_kwargs = {"budget_from_expert": True, **(trainer_kwargs or {})}
+            cost_budget = 0.0  # until the first install sets the expert's cost
         self._init_icrl(
             demonstrations,
             constraint_net,

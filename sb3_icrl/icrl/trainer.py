@@ -74,6 +74,11 @@ class ICRLTrainer(BaseCallback):
     :param batch_size: Nominal pairs per minibatch (``None``: all, one gradient step per pass)
     :param n_nominal_trajectories: Most recent trajectories used per update (the reference uses the expert count)
     :param seed: Seed of the minibatch sampling (the model's seed, when it has one, replaces it before the first update)
+    :param budget_from_expert: Set the learner's cost budget to the expert's mean learned cost per step after each
+        update (and before the first), logged as ``constraint/cost_budget``: the learner is asked to be as feasible
+        as the expert under the current model, not more. With a budget of 0 on a cost ``1 - phi`` that never reaches
+        0, the multiplier grows without end and the reward fades out of the policy loss. Needs a PPO-Lagrangian
+        learner with ``budget_statistic="step"``
     :param verbose: Verbosity level
     """
 
@@ -93,6 +98,7 @@ class ICRLTrainer(BaseCallback):
         batch_size: int | None = None,
         n_nominal_trajectories: int = 50,
         seed: int | None = None,
+        budget_from_expert: bool = False,
         verbose: int = 0,
     ):
         super().__init__(verbose)
@@ -121,6 +127,7 @@ class ICRLTrainer(BaseCallback):
         self.constraint_steps = int(constraint_steps)
         self.batch_size = batch_size
         self.n_nominal_trajectories = int(n_nominal_trajectories)
+        self.budget_from_expert = budget_from_expert
         self.n_updates = 0
         self._last_update = 0
         self._rng = np.random.default_rng(seed)
@@ -128,6 +135,12 @@ class ICRLTrainer(BaseCallback):
     # ------------------------------------------------------------------ callback hooks
 
     def _init_callback(self) -> None:
+        if self.budget_from_expert and getattr(self.model, "budget_statistic", None) != "step":
+            raise ValueError(
+                "`budget_from_expert` sets a per-step budget: the learner must be a PPOLagrangian with "
+                f"budget_statistic='step', got {type(self.model).__name__} with "
+                f"budget_statistic={getattr(self.model, 'budget_statistic', None)!r}."
+            )
         self._last_update = self.num_timesteps
         if self.model.seed is not None and self.n_updates == 0:
             # Seeded once: a later learn() call continues the sequence
@@ -150,16 +163,24 @@ class ICRLTrainer(BaseCallback):
             return
         self._last_update = self.num_timesteps
         stats = self.update(NominalData.from_trajectories(trajectories))
+        self.install()
+        if self.budget_from_expert:
+            stats["cost_budget"] = float(self.model.cost_budget[0])  # type: ignore[attr-defined]
         for key, value in stats.items():
             self.logger.record(f"constraint/{key}", value)
-        self.install()
 
     # ------------------------------------------------------------------ the update
 
     def install(self) -> None:
-        """Feed the (updated) constraint model to the learner's wrapper."""
+        """Feed the (updated) constraint model to the learner's wrapper, and the expert's cost to its budget if asked."""
         if self.wrapper is not None:
             install_constraint(self.wrapper, self.constraint_net)
+        if self.budget_from_expert and getattr(self, "model", None) is not None:
+            self.model.set_cost_budget(self.expert_mean_cost())  # type: ignore[attr-defined]
+
+    def expert_mean_cost(self) -> float:
+        """The expert's mean learned cost per step (``1 - phi`` as the learner's wrapper computes it)."""
+        return float(np.mean(self.constraint_net.cost(self.expert_obs, self.expert_acts)))
 
     @abstractmethod
     def loss(self, batch: Minibatch) -> tuple[th.Tensor, dict[str, float]]:

@@ -214,6 +214,20 @@ class PPOLagrangian(PPO):
                 self.lagrange_update, self.cost_budget.tolist(), self.n_costs, **self.lagrange_kwargs
             )
 
+    def set_cost_budget(self, cost_budget: float | Sequence[float]) -> None:
+        """
+        Use a new budget from the next multiplier update on (e.g. the expert's learned cost in ICRL); the multipliers
+        keep their values.
+
+        :param cost_budget: Budget per constraint, in the units of ``budget_statistic``
+        """
+        budget = np.atleast_1d(np.asarray(cost_budget, dtype=np.float64))
+        if budget.shape != (self.n_costs,) or not np.all(np.isfinite(budget)):
+            raise ValueError(f"Expected {self.n_costs} finite budget(s), one per constraint, got {cost_budget!r}.")
+        self.cost_budget = budget
+        if self.lagrange_multiplier is not None:
+            self.lagrange_multiplier.cost_budget = budget.copy()
+
     def set_cost_fn(self, cost_fn: CostFn | None) -> None:
         """
         Use ``cost_fn(observations, actions) -> costs`` for the per-step costs from now on (``None``: read
