@@ -370,6 +370,36 @@ def test_custom_constraint_net_and_trainer():
     assert calls == [32, 32]  # 4 finished 8-step episodes per 32-step rollout
 
 
+def test_nominal_memory_adds_earlier_trajectories_to_each_update():
+    seen = []
+
+    class RecordingTrainer(BC2LTrainer):
+        def update(self, nominal):
+            seen.append(nominal)
+            return super().update(nominal)
+
+    writer = CapturingWriter()
+    model = make_model(BC2L, n_nominal_trajectories=2, trainer_class=RecordingTrainer, trainer_kwargs={"nominal_memory": 3})
+    model.set_logger(Logger(folder=None, output_formats=[writer]))
+    model.learn(128)  # 4 updates, each with the 2 latest of the rollout's 4 finished episodes
+    assert [len(nominal.episode_lengths) for nominal in seen] == [2, 4, 5, 5]
+    assert writer.values["constraint/n_remembered_trajectories"] == [0, 2, 3, 3]
+    # Remembered pairs are earlier updates' own, appended before the new ones
+    earlier = np.concatenate([nominal.obs[-2 * EPISODE :] for nominal in seen[:3]])
+    remembered = seen[3].obs[: 3 * EPISODE].reshape(3, EPISODE, -1)
+    for trajectory in remembered:
+        assert any(np.array_equal(trajectory, earlier[i : i + EPISODE]) for i in range(0, len(earlier), EPISODE))
+    assert len(model.icrl_trainer.remembered) == 3
+
+
+def test_without_nominal_memory_each_update_sees_only_its_own_trajectories():
+    model = make_model(BC2L, n_nominal_trajectories=2)
+    model.learn(96)
+    assert model.icrl_trainer.remembered == []
+    with pytest.raises(ValueError, match="`nominal_memory` must be >= 0"):
+        make_model(BC2L, trainer_kwargs={"nominal_memory": -1}).learn(32)
+
+
 def test_recorder_groups_raw_pairs_by_trajectory():
     venv = TrajectoryRecorderVecEnvWrapper(make_env(n_envs=2))
     obs = venv.reset()

@@ -12,7 +12,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_icrl.constraints.networks import _ConstraintNet
 from sb3_icrl.constraints.wrappers import GACLRewardWrapper, LearnedCostVecEnvWrapper
-from sb3_icrl.icrl.recorder import NominalData, TrajectoryRecorderVecEnvWrapper
+from sb3_icrl.icrl.recorder import NominalData, NominalTrajectory, TrajectoryRecorderVecEnvWrapper
 
 
 class Minibatch(NamedTuple):
@@ -55,8 +55,9 @@ class ICRLTrainer(BaseCallback):
 
     At the end of a rollout, once ``update_every`` timesteps have passed since the last update, it takes up to
     ``n_nominal_trajectories`` of the trajectories the learner finished since then (raw observations and actions,
-    from the :class:`TrajectoryRecorderVecEnvWrapper`), makes ``constraint_steps`` passes over them in minibatches
-    of ``batch_size`` nominal pairs (each with as many random expert pairs), and logs under ``constraint/``.
+    from the :class:`TrajectoryRecorderVecEnvWrapper`), adds those remembered from earlier updates (``nominal_memory``),
+    makes ``constraint_steps`` passes over them in minibatches of ``batch_size`` nominal pairs (each with as many
+    random expert pairs), and logs under ``constraint/``.
     The update happens before the policy update, so the rollout just collected keeps the costs it was judged with.
 
     Subclasses implement :meth:`loss` and may override :meth:`_before_update`, :meth:`_should_stop` and
@@ -73,6 +74,11 @@ class ICRLTrainer(BaseCallback):
     :param constraint_steps: Passes over the nominal data per update (the reference's ``backward_iterations``)
     :param batch_size: Nominal pairs per minibatch (``None``: all, one gradient step per pass)
     :param n_nominal_trajectories: Most recent trajectories used per update (the reference uses the expert count)
+    :param nominal_memory: Trajectories of earlier updates kept and added to each update's nominal data (0: none, as
+        the reference's MuJoCo runs). Once full, a random one makes room for each new one, as in the reference code's
+        ``IRLDataQueue``, so old behaviour thins out instead of vanishing. Without it, a model fitted only to the
+        learner's latest trajectories can forget a region the learner stopped visiting, and the learner comes back
+        to it (seen on BlockedHalfCheetah, ``benchmarks/RESULTS.md``). Kept in memory only: not saved with the model
     :param seed: Seed of the minibatch sampling (the model's seed, when it has one, replaces it before the first update)
     :param budget_from_expert: Set the learner's cost budget to the expert's mean learned cost per step after each
         update (and before the first), logged as ``constraint/cost_budget``: the learner is asked to be as feasible
@@ -97,6 +103,7 @@ class ICRLTrainer(BaseCallback):
         constraint_steps: int = 5,
         batch_size: int | None = None,
         n_nominal_trajectories: int = 50,
+        nominal_memory: int = 0,
         seed: int | None = None,
         budget_from_expert: bool = False,
         verbose: int = 0,
@@ -109,6 +116,8 @@ class ICRLTrainer(BaseCallback):
             )
         if batch_size is not None and batch_size < 1:
             raise ValueError(f"`batch_size` must be >= 1 or None, got {batch_size}.")
+        if nominal_memory < 0:
+            raise ValueError(f"`nominal_memory` must be >= 0 (0: no memory), got {nominal_memory}.")
         if len(expert_obs) == 0 or len(expert_obs) != len(expert_acts):
             raise ValueError(
                 f"Need as many expert observations as actions (> 0), got {len(expert_obs)} and {len(expert_acts)}."
@@ -127,6 +136,8 @@ class ICRLTrainer(BaseCallback):
         self.constraint_steps = int(constraint_steps)
         self.batch_size = batch_size
         self.n_nominal_trajectories = int(n_nominal_trajectories)
+        self.nominal_memory = int(nominal_memory)
+        self.remembered: list[NominalTrajectory] = []
         self.budget_from_expert = budget_from_expert
         self.n_updates = 0
         self._last_update = 0
@@ -162,12 +173,31 @@ class ICRLTrainer(BaseCallback):
                 print("ICRL: no finished nominal trajectory yet, constraint update postponed")
             return
         self._last_update = self.num_timesteps
-        stats = self.update(NominalData.from_trajectories(trajectories))
+        recalled = list(self.remembered)
+        stats = self.update(NominalData.from_trajectories(recalled + trajectories))
+        self.remember(trajectories)
+        if self.nominal_memory > 0:
+            stats["n_remembered_trajectories"] = float(len(recalled))
         self.install()
         if self.budget_from_expert:
             stats["cost_budget"] = float(self.model.cost_budget[0])  # type: ignore[attr-defined]
         for key, value in stats.items():
             self.logger.record(f"constraint/{key}", value)
+
+    def remember(self, trajectories: list[NominalTrajectory]) -> None:
+        """
+        Keep ``trajectories`` for later updates, up to ``nominal_memory`` in all; once full, each new one replaces a
+        random kept one.
+
+        :param trajectories: The nominal trajectories of the update just made
+        """
+        if self.nominal_memory == 0:
+            return
+        for trajectory in trajectories:
+            if len(self.remembered) < self.nominal_memory:
+                self.remembered.append(trajectory)
+            else:
+                self.remembered[int(self._rng.integers(self.nominal_memory))] = trajectory
 
     # ------------------------------------------------------------------ the update
 
