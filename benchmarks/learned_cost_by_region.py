@@ -32,11 +32,13 @@ from sb3_icrl.zoo.runs import find_vecnormalize
 DEFAULT_EDGES = (-10.0, -3.0, 0.0, 5.0, 20.0)
 
 
-def learned_cost(model, obs: np.ndarray, acts: np.ndarray, cost_mode: str | None) -> np.ndarray:
-    """The learned cost per pair (``1 - phi``; for a Beta model, ``cost_mode`` overrides its own mode)."""
+def learned_cost(
+    model, obs: np.ndarray, acts: np.ndarray, cost_mode: str | None, confidence: float | None = None
+) -> np.ndarray:
+    """The learned cost per pair (``1 - phi``; for a Beta model, ``cost_mode`` and ``confidence`` override its own)."""
     net = model.constraint_net
-    if isinstance(net, BetaFeasibilityNet) and cost_mode is not None:
-        return 1.0 - net.predict_feasibility(obs, acts, cost_mode=cost_mode)
+    if isinstance(net, BetaFeasibilityNet) and (cost_mode is not None or confidence is not None):
+        return 1.0 - net.predict_feasibility(obs, acts, cost_mode=cost_mode, confidence=confidence)
     return net.cost(obs, acts)
 
 
@@ -90,6 +92,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=200)
     parser.add_argument("--stochastic", action="store_true", help="Sample the policy's actions")
     parser.add_argument("--cost-mode", help="VICRL: cost mode to read (default: the model's own)")
+    parser.add_argument("--confidence", type=float, help="VICRL: level of the var and cvar cost modes (default: the model's)")
     parser.add_argument("--edges", type=float, nargs="+", default=list(DEFAULT_EDGES), help="Band edges")
     args = parser.parse_args()
     th.set_num_threads(1)
@@ -108,14 +111,14 @@ def main() -> None:
     expert_acts = np.concatenate([t.acts for t in demonstrations.trajectories])
     # The quantity after each expert step is in the next observation
     expert_values = np.concatenate([t.obs[1:, index] for t in demonstrations.trajectories])
-    expert_costs = learned_cost(model, expert_obs, expert_acts, args.cost_mode)
+    expert_costs = learned_cost(model, expert_obs, expert_acts, args.cost_mode, args.confidence)
     print(f"Constraint of {args.constraint}")
     print(f"Expert demonstrations: {len(expert_obs)} pairs, learned cost {expert_costs.mean():.3f}")
     print("\n".join(band_rows(expert_values, expert_costs, edges, args.env)))
 
     stats_path = find_vecnormalize(policy_path, args.env)
     obs, acts, values = rollouts(policy, args.env, stats_path, args.episodes, args.seed, not args.stochastic)
-    costs = learned_cost(model, obs, acts, args.cost_mode)
+    costs = learned_cost(model, obs, acts, args.cost_mode, args.confidence)
     mode = "stochastic" if args.stochastic else "deterministic"
     print(f"Policy of {policy_path} ({args.episodes} {mode} episodes): {len(obs)} pairs, learned cost {costs.mean():.3f}")
     print("\n".join(band_rows(values, costs, edges, args.env)))
