@@ -24,7 +24,8 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 import sb3_icrl.envs  # noqa: F401  (registers the environments)
 from sb3_icrl.constraints import BetaFeasibilityNet
-from sb3_icrl.data import load_demonstrations
+from sb3_icrl.data import NormalizedExpert, load_demonstrations
+from sb3_icrl.data.generate import rollout_trajectory
 from sb3_icrl.envs import CONSTRAINED_FEATURE
 from sb3_icrl.zoo.hyperparams import ALGOS
 from sb3_icrl.zoo.runs import find_vecnormalize
@@ -45,24 +46,23 @@ def learned_cost(
 def rollouts(policy, env_id: str, stats_path: str | None, n_episodes: int, seed: int, deterministic: bool):
     """Raw observations, actions and the constrained quantity after each step, over ``n_episodes`` episodes."""
     env = gym.make(f"sb3_icrl/{env_id}")
-    normalize = None
     if stats_path is not None:
-        normalize = VecNormalize.load(stats_path, DummyVecEnv([lambda: gym.make(f"sb3_icrl/{env_id}")]))
-    feature = CONSTRAINED_FEATURE[env_id].name
-    observations, actions, values = [], [], []
-    for episode in range(n_episodes):
-        obs, _ = env.reset(seed=seed + episode)
-        done = False
-        while not done:
-            policy_obs = normalize.normalize_obs(obs[None]) if normalize is not None else obs[None]
-            action = policy.predict(policy_obs, deterministic=deterministic)[0][0]
-            observations.append(obs)
-            actions.append(action)
-            obs, _, terminated, truncated, info = env.step(action)
-            values.append(info[feature])
-            done = terminated or truncated
+        policy = NormalizedExpert(policy, VecNormalize.load(stats_path, DummyVecEnv([lambda: gym.make(f"sb3_icrl/{env_id}")])))
+    trajectories = [
+        rollout_trajectory(lambda obs: policy.predict(obs, deterministic=deterministic)[0], env, seed=seed + episode)
+        for episode in range(n_episodes)
+    ]
     env.close()
-    return np.array(observations), np.array(actions), np.array(values)
+    return pairs_and_values(trajectories, CONSTRAINED_FEATURE[env_id].obs_index)
+
+
+def pairs_and_values(trajectories, obs_index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Observations and actions of all steps, and the constrained quantity after each (in the next observation)."""
+    return (
+        np.concatenate([t.obs[:-1] for t in trajectories]),
+        np.concatenate([t.acts for t in trajectories]),
+        np.concatenate([t.obs[1:, obs_index] for t in trajectories]),
+    )
 
 
 def band_rows(values: np.ndarray, costs: np.ndarray, edges: np.ndarray, env_id: str) -> list[str]:
@@ -104,13 +104,11 @@ def main() -> None:
     policy_path = args.policy or args.constraint
     policy = ALGOS[args.policy_algo or args.algo].load(policy_path, device="cpu")
     edges = np.sort(np.array(args.edges))
-    index = CONSTRAINED_FEATURE[args.env].obs_index
 
     demonstrations = load_demonstrations(args.env)
-    expert_obs = np.concatenate([t.obs[:-1] for t in demonstrations.trajectories])
-    expert_acts = np.concatenate([t.acts for t in demonstrations.trajectories])
-    # The quantity after each expert step is in the next observation
-    expert_values = np.concatenate([t.obs[1:, index] for t in demonstrations.trajectories])
+    expert_obs, expert_acts, expert_values = pairs_and_values(
+        demonstrations.trajectories, CONSTRAINED_FEATURE[args.env].obs_index
+    )
     expert_costs = learned_cost(model, expert_obs, expert_acts, args.cost_mode, args.confidence)
     print(f"Constraint of {args.constraint}")
     print(f"Expert demonstrations: {len(expert_obs)} pairs, learned cost {expert_costs.mean():.3f}")
