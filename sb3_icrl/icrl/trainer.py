@@ -173,11 +173,11 @@ class ICRLTrainer(BaseCallback):
                 print("ICRL: no finished nominal trajectory yet, constraint update postponed")
             return
         self._last_update = self.num_timesteps
-        recalled = list(self.remembered)
-        stats = self.update(NominalData.from_trajectories(recalled + trajectories))
+        n_recalled = len(self.remembered)
+        stats = self.update(NominalData.from_trajectories(self.remembered + trajectories))
         self.remember(trajectories)
         if self.nominal_memory > 0:
-            stats["n_remembered_trajectories"] = float(len(recalled))
+            stats["n_remembered_trajectories"] = float(n_recalled)
         self.install()
         if self.budget_from_expert:
             stats["cost_budget"] = float(self.model.cost_budget[0])  # type: ignore[attr-defined]
