@@ -24,7 +24,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 import sb3_icrl.envs  # noqa: F401  (registers the environments)
 from sb3_icrl.constraints import BetaFeasibilityNet
-from sb3_icrl.data import NormalizedExpert, load_demonstrations
+from sb3_icrl.data import NormalizedExpert, Trajectory, load_demonstrations
 from sb3_icrl.data.generate import rollout_trajectory
 from sb3_icrl.envs import CONSTRAINED_FEATURE
 from sb3_icrl.zoo.hyperparams import ALGOS
@@ -43,8 +43,8 @@ def learned_cost(
     return net.cost(obs, acts)
 
 
-def rollouts(policy, env_id: str, stats_path: str | None, n_episodes: int, seed: int, deterministic: bool):
-    """Raw observations, actions and the constrained quantity after each step, over ``n_episodes`` episodes."""
+def episodes(policy, env_id: str, stats_path: str | None, n_episodes: int, seed: int, deterministic: bool) -> list[Trajectory]:
+    """``n_episodes`` episodes of ``policy`` with raw observations (env seeds from ``seed`` on)."""
     env = gym.make(f"sb3_icrl/{env_id}")
     if stats_path is not None:
         policy = NormalizedExpert(policy, VecNormalize.load(stats_path, DummyVecEnv([lambda: gym.make(f"sb3_icrl/{env_id}")])))
@@ -53,6 +53,12 @@ def rollouts(policy, env_id: str, stats_path: str | None, n_episodes: int, seed:
         for episode in range(n_episodes)
     ]
     env.close()
+    return trajectories
+
+
+def rollouts(policy, env_id: str, stats_path: str | None, n_episodes: int, seed: int, deterministic: bool):
+    """Raw observations, actions and the constrained quantity after each step, over ``n_episodes`` episodes."""
+    trajectories = episodes(policy, env_id, stats_path, n_episodes, seed, deterministic)
     return pairs_and_values(trajectories, CONSTRAINED_FEATURE[env_id].obs_index)
 
 
