@@ -53,6 +53,11 @@ def test_train_subprocess_writes_zoo_run_folder(algo: str, tmp_path: pathlib.Pat
         assert evaluations[key].shape == (2, 2), key
     learned = evaluations["learned_feasible_reward"]
     assert np.isfinite(learned).all() == (algo in ICRL_ALGOS)  # NaN for the algos without a learned constraint
+    penalised = evaluations["learned_penalised_reward"]  # only the Lagrangian learners price their learned cost
+    assert np.isfinite(penalised).all() == (algo in ("bc2l", "mecl", "vicrl"))
+    expected_score = penalised if algo in ("bc2l", "mecl", "vicrl") else learned if algo == "gacl" else None
+    if expected_score is not None:
+        np.testing.assert_allclose(evaluations["selection_score"], expected_score)
     events = list(tmp_path.glob("tb/GridWorldWall-v0/*/events.out.tfevents.*"))
     assert events
     # ICRL runs draw the recovered constraint map into TensorBoard at each evaluation
@@ -234,15 +239,33 @@ class _Model:
 
 
 def test_best_model_selection_never_reads_the_true_constraint() -> None:
-    """Learned-constraint models are ranked by their learned feasible reward; only PPO-Lag (trained on it) uses the cost."""
+    """Learned-constraint models are ranked by learned scores; only PPO-Lag (trained on it) uses the true cost."""
     metrics = {"mean_reward": 10.0, "feasible_reward": 1.0, "violation_rate": 1.0, "learned_feasible_reward": 7.0}
     callback = ConstraintEvalCallback.__new__(ConstraintEvalCallback)
     callback.model = _Model(constraint_net=object(), cost_fn=None)
     assert callback._selection_score(metrics) == 7.0
+    assert callback._selection_score({**metrics, "learned_penalised_reward": 4.0}) == 4.0
     callback.model = _Model(cost_fn=None)
     assert callback._selection_score({k: v for k, v in metrics.items() if k != "learned_feasible_reward"}) == 1.0
     callback.model = _Model()
     assert callback._selection_score({"mean_reward": 10.0, "feasible_reward": 1.0}) == 10.0
+
+
+class _Multiplier:
+    value = np.array([2.0])
+
+
+@pytest.mark.parametrize("statistic", ["step", "episode"])
+def test_learned_penalised_reward_prices_only_the_cost_beyond_the_budget(statistic: str) -> None:
+    """reward - lambda * max(0, learned cost - budget), the budget per step scaled by the episode length."""
+    callback = ConstraintEvalCallback.__new__(ConstraintEvalCallback)
+    callback.model = _Model(lagrange_multiplier=_Multiplier(), cost_budget=np.array([0.1]), budget_statistic=statistic)
+    # rows: (reward, learned feasible reward, learned cost, length)
+    episodes = np.array([[100.0, 0.0, 30.0, 200.0], [50.0, 50.0, 5.0, 100.0]])
+    expected = [100.0 - 2.0 * (30.0 - 20.0), 50.0] if statistic == "step" else [100.0 - 2.0 * 29.9, 50.0 - 2.0 * 4.9]
+    np.testing.assert_allclose(callback._learned_penalised_rewards(episodes), expected)
+    callback.model = _Model(cost_budget=np.array([0.1]), budget_statistic=statistic)  # GACL: no multiplier
+    assert callback._learned_penalised_rewards(episodes) is None
 
 
 def test_console_entry_point() -> None:

@@ -16,8 +16,9 @@ from sb3_icrl.common.evaluation import evaluate_constraint
 
 class LearnedCostRecorder(VecEnvWrapper):
     """
-    Records, per finished episode, the reward and the reward summed until the learned cost first exceeds
-    ``threshold`` (the "learned feasible reward"). Goes below any ``VecNormalize``: it sees raw observations.
+    Records, per finished episode, the reward, the reward summed until the learned cost first exceeds ``threshold``
+    (the "learned feasible reward"), the summed learned cost and the length. Goes below any ``VecNormalize``: it sees
+    raw observations.
 
     :param venv: The evaluation env
     :param threshold: A step counts as infeasible when its learned cost ``1 - phi`` exceeds this
@@ -27,7 +28,8 @@ class LearnedCostRecorder(VecEnvWrapper):
         super().__init__(venv)
         self.threshold = threshold
         self.cost_fn: Any = None
-        self.episodes: list[tuple[float, float, float]] = []  # (reward, learned feasible reward, learned cost)
+        # (reward, learned feasible reward, learned cost, length) per finished episode
+        self.episodes: list[tuple[float, float, float, int]] = []
         self._obs: Any = None  # VecEnvObs
         self._actions: np.ndarray | None = None
         self._reset_stats()
@@ -35,6 +37,7 @@ class LearnedCostRecorder(VecEnvWrapper):
     def _reset_stats(self) -> None:
         n = self.num_envs
         self._reward, self._feasible, self._cost = np.zeros(n), np.zeros(n), np.zeros(n)
+        self._length = np.zeros(n, dtype=int)
         self._broken = np.zeros(n, dtype=bool)
 
     def reset(self) -> Any:
@@ -56,10 +59,12 @@ class LearnedCostRecorder(VecEnvWrapper):
             self._broken |= costs > self.threshold
             self._reward += rewards
             self._cost += costs
+            self._length += 1
             self._feasible += np.where(self._broken, 0.0, rewards)
             for idx in np.flatnonzero(dones):
-                self.episodes.append((self._reward[idx], self._feasible[idx], self._cost[idx]))
+                self.episodes.append((self._reward[idx], self._feasible[idx], self._cost[idx], int(self._length[idx])))
                 self._reward[idx] = self._feasible[idx] = self._cost[idx] = 0.0
+                self._length[idx] = 0
                 self._broken[idx] = False
         self._obs = obs
         return obs, rewards, dones, infos
@@ -69,12 +74,21 @@ class ConstraintEvalCallback(EvalCallback):
     """
     rl-zoo's evaluation callback with the ICRL metrics. Each evaluation logs under ``eval/``: ``mean_reward``,
     ``feasible_reward``, ``violation_rate`` and ``mean_cost`` (true constraint, reporting only), and for models with a
-    learned constraint ``learned_feasible_reward`` and ``mean_learned_cost``, for driving envs ``collision_rate``,
-    ``off_road_rate``, ``time_out_rate`` and ``goal_reached_rate``; all go to ``evaluations.npz`` (per episode).
+    learned constraint ``learned_feasible_reward`` and ``mean_learned_cost`` (plus ``learned_penalised_reward`` when
+    a Lagrangian learner holds that cost to a budget), for driving envs ``collision_rate``, ``off_road_rate``,
+    ``time_out_rate`` and ``goal_reached_rate``; all go to ``evaluations.npz`` (per episode).
 
     The best model (``best_model.zip``) is chosen on what the learner itself knows, never the true constraint:
-    models with a learned constraint (``constraint_net``) by the reward summed until the learned cost first exceeds
-    0.5; PPO-Lagrangian (trained on the env's cost) by its feasible reward; PPO by its mean reward.
+
+    - BC2L, MECL, VICRL: the learned penalised reward, each episode's reward less ``lambda`` times the learned cost
+      it spent beyond the learner's own budget (``lambda`` and budget as they stand at the evaluation). The learner
+      prices its learned cost this way; a cost within budget costs nothing.
+    - GACL and other learned-constraint models without a multiplier: the reward summed until the learned cost first
+      exceeds 0.5.
+    - PPO-Lagrangian (trained on the env's cost): its feasible reward; PPO: its mean reward.
+
+    The constraint changes during training, so each score uses the constraint of its own evaluation: a model saved
+    before the constraint knew better may stay "best". Evaluate final models for results.
 
     :param eval_env: The evaluation env; wrap its bottom in :class:`LearnedCostRecorder` for the learned metrics
     :param kwargs: :class:`~stable_baselines3.common.callbacks.EvalCallback`'s arguments
@@ -104,9 +118,27 @@ class ConstraintEvalCallback(EvalCallback):
         eval_normalize.obs_rms = deepcopy(train_normalize.obs_rms)
         eval_normalize.ret_rms = deepcopy(train_normalize.ret_rms)
 
+    def _learned_penalised_rewards(self, episodes: np.ndarray) -> np.ndarray | None:
+        """
+        Each episode's reward less ``lambda * max(0, learned cost - budget)``, in the learner's budget units
+        (per step: the budget times the episode length); ``None`` for models without a multiplier.
+
+        :param episodes: The recorder's rows ``(reward, learned feasible reward, learned cost, length)``
+        """
+        multiplier = getattr(self.model, "lagrange_multiplier", None)
+        if multiplier is None:
+            return None
+        learner: Any = self.model  # a PPOLagrangian: it has a multiplier
+        budget = float(np.asarray(learner.cost_budget).reshape(-1)[0])
+        multiplier_value = float(np.asarray(multiplier.value).reshape(-1)[0])
+        rewards, costs, lengths = episodes[:, 0], episodes[:, 2], episodes[:, 3]
+        allowance = budget * lengths if learner.budget_statistic == "step" else np.full_like(costs, budget)
+        return rewards - multiplier_value * np.maximum(costs - allowance, 0.0)
+
     def _selection_score(self, metrics: dict[str, float]) -> float:
-        if "learned_feasible_reward" in metrics:
-            return metrics["learned_feasible_reward"]
+        for learned_score in ("learned_penalised_reward", "learned_feasible_reward"):
+            if learned_score in metrics:
+                return metrics[learned_score]
         if getattr(self.model, "cost_fn", "absent") is None:  # PPO-Lagrangian on the env's own cost
             return metrics["feasible_reward"]
         return metrics["mean_reward"]
@@ -132,9 +164,12 @@ class ConstraintEvalCallback(EvalCallback):
             **result.outcome_rates,  # driving envs: collision, off-road, time-out and goal rates
         }
         if self.recorder is not None and constraint_net is not None and self.recorder.episodes:
-            learned = np.array(self.recorder.episodes[: self.n_eval_episodes])
+            learned = np.array(self.recorder.episodes[: self.n_eval_episodes], dtype=float)
             metrics["learned_feasible_reward"] = float(learned[:, 1].mean())
             metrics["mean_learned_cost"] = float(learned[:, 2].mean())
+            penalised = self._learned_penalised_rewards(learned)
+            if penalised is not None:
+                metrics["learned_penalised_reward"] = float(penalised.mean())
         self.last_mean_reward = metrics["mean_reward"]
         for key, value in metrics.items():
             self.logger.record(f"eval/{key}", value)
@@ -151,7 +186,7 @@ class ConstraintEvalCallback(EvalCallback):
         self.history.setdefault("episode_costs", []).append(result.episode_costs)
         for key, flags in result.outcomes.items():
             self.history.setdefault(key, []).append(flags)
-        for key in ("learned_feasible_reward", "mean_learned_cost"):
+        for key in ("learned_feasible_reward", "mean_learned_cost", "learned_penalised_reward"):
             self.history.setdefault(key, []).append(metrics.get(key, np.nan))
         score = self._selection_score(metrics)
         self.history.setdefault("selection_score", []).append(score)
