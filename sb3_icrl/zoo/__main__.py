@@ -1,4 +1,4 @@
-"""``python -m sb3_icrl.zoo train|enjoy --algo ALGO --env ENV ...`` (the same as ``sb3-icrl train|enjoy``)."""
+"""``python -m sb3_icrl.zoo train|enjoy|compare ...`` (the same as ``sb3-icrl train|enjoy|compare``)."""
 
 import sys
 

@@ -419,7 +419,8 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
 
 def cli(argv: list[str] | None = None) -> int:
     """
-    ``sb3-icrl <command>``: ``train`` (this module) or ``enjoy`` (:mod:`sb3_icrl.zoo.enjoy`).
+    ``sb3-icrl <command>``: ``train`` (this module), ``enjoy`` (:mod:`sb3_icrl.zoo.enjoy`) or ``compare``
+    (:mod:`sb3_icrl.zoo.compare`).
 
     :param argv: Arguments, the command first (default: ``sys.argv[1:]``)
     :return: Exit status
@@ -431,9 +432,14 @@ def cli(argv: list[str] | None = None) -> int:
         from sb3_icrl.zoo import enjoy  # imports this module
 
         return enjoy.main(argv[1:], prog="sb3-icrl enjoy")
+    if argv and argv[0] == "compare":
+        from sb3_icrl.zoo import compare  # imports this module
+
+        return compare.main(argv[1:], prog="sb3-icrl compare")
     print(
         "usage: sb3-icrl train --algo ALGO --env ENV [options] (see sb3-icrl train --help)\n"
-        "       sb3-icrl enjoy --algo ALGO --env ENV [options] (see sb3-icrl enjoy --help)",
+        "       sb3-icrl enjoy --algo ALGO --env ENV [options] (see sb3-icrl enjoy --help)\n"
+        "       sb3-icrl compare RUN [RUN ...] [options] (see sb3-icrl compare --help)",
         file=sys.stderr,
     )
     return 2

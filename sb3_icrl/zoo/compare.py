@@ -1,0 +1,295 @@
+"""
+Compare finished zoo runs over seeds, as the benchmark reports them::
+
+    sb3-icrl compare logs/s6/mecl*/mecl/BlockedHalfCheetah-v0_1 logs/s6/vicrl*/vicrl/BlockedHalfCheetah-v0_1 -n 20000
+    python -m sb3_icrl.zoo compare RUN [RUN ...] --reference vicrl --json results.json
+
+Each ``RUN`` is a run folder ``<folder>/<algo>/<EnvName>_<N>`` of ``train.py``. Its final model (or ``--model best``)
+is run on held-out env seeds, deterministically, as ``enjoy.py`` does; the table gives per run the training seed, the
+steps trained, the training wall time (the monitor's clock), the true violation rate and the feasible reward. Per
+algorithm it then gives the mean and std (``ddof=0``) over seeds and, against ``--reference``, the Wilcoxon
+signed-rank test of the per-seed feasible rewards (pairs: runs with the same training seed). The true constraint is
+read here only to report.
+"""
+
+import argparse
+import csv
+import os
+import sys
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+import scipy.stats
+import yaml
+from stable_baselines3.common.save_util import load_from_zip_file
+
+from sb3_icrl.common.utils import atomic_write_json
+from sb3_icrl.zoo import enjoy
+from sb3_icrl.zoo.hyperparams import ALGOS, env_name
+
+
+class RunFolderError(ValueError):
+    """A path that is not a finished ``train.py`` run folder, or runs that cannot be compared as asked."""
+
+
+@dataclass
+class RunResult:
+    """
+    One run's held-out evaluation.
+
+    :param run: The run folder
+    :param algo: Command-line algorithm name
+    :param env: Env id the run trained on
+    :param seed: Training seed
+    :param timesteps: Steps the evaluated model had trained
+    :param wall_time_min: Training wall time in minutes (the training monitor's last episode end), ``nan`` if unknown
+    :param violation_rate: Share of held-out episodes with a true violation
+    :param feasible_reward: Mean reward summed until the first true violation
+    :param reward: Mean episode reward
+    :param n_episodes: Held-out episodes run
+    """
+
+    run: str
+    algo: str
+    env: str
+    seed: int
+    timesteps: int
+    wall_time_min: float
+    violation_rate: float
+    feasible_reward: float
+    reward: float
+    n_episodes: int
+
+
+def describe_run(run: str) -> tuple[str, str, int, str]:
+    """
+    Algorithm, env id, training seed and exp id of a run folder ``<folder>/<algo>/<EnvName>_<N>``.
+
+    :param run: The run folder
+    :return: ``(algo, env_id, seed, folder)`` where ``folder`` is train.py's ``-f``
+    """
+    run = os.path.normpath(run)
+    base, exp = os.path.split(run)
+    folder, algo = os.path.split(base)
+    name, _, exp_id = exp.rpartition("_")
+    args_path = os.path.join(run, name, "args.yml")
+    if algo not in ALGOS or not exp_id.isdigit() or not os.path.isfile(args_path):
+        raise RunFolderError(
+            f"{run} is not a train.py run folder: expected <folder>/<algo>/<EnvName>_<N> with <EnvName>/args.yml inside "
+            f"(algo one of {sorted(ALGOS)})."
+        )
+    with open(args_path) as file:
+        args = yaml.safe_load(file) or {}
+    if env_name(args["env"]) != name:
+        raise RunFolderError(f"{run}: args.yml names env {args['env']!r}, but the folder is named after {name!r}.")
+    if args.get("seed") is None:
+        raise RunFolderError(f"{run} trained without a fixed --seed: it cannot be paired or reported per seed.")
+    return algo, args["env"], int(args["seed"]), folder
+
+
+def training_wall_time(run: str) -> float:
+    """Minutes from the training monitor's start to its last finished episode (``nan`` without a monitor file)."""
+    path = os.path.join(run, "0.monitor.csv")
+    if not os.path.isfile(path):
+        return float("nan")
+    with open(path) as file:
+        rows = list(csv.DictReader(line for line in file if not line.startswith("#")))
+    return float(rows[-1]["t"]) / 60.0 if rows else float("nan")
+
+
+def evaluate_run(run: str, n_timesteps: int, eval_seed: int, load_best: bool = False) -> RunResult:
+    """
+    Run a run's final (or best) model on held-out env seeds, as ``enjoy.py --no-render --verbose 0`` does.
+
+    :param run: The run folder
+    :param n_timesteps: Evaluation steps (episodes = steps / episode length)
+    :param eval_seed: Seed of the evaluation env and policy (pick one the run did not train on)
+    :param load_best: Evaluate ``best_model.zip`` instead of the final model
+    """
+    algo, env_id, seed, folder = describe_run(run)
+    exp_id = os.path.normpath(run).rpartition("_")[2]
+    argv = ["--algo", algo, "--env", env_id, "-f", folder, "--exp-id", exp_id, "-n", str(n_timesteps)]
+    argv += ["--no-render", "--seed", str(eval_seed), "--verbose", "0", *(["--load-best"] if load_best else [])]
+    args = enjoy.get_parser().parse_args(argv)
+    evaluation = enjoy.enjoy(args)
+    if len(evaluation.violations) == 0:
+        raise RunFolderError(f"No evaluation episode of {run} finished in {n_timesteps} steps: raise -n.")
+    name = env_name(env_id)
+    model_path = enjoy.model_path(run, name, load_best, None, False)
+    data, _, _ = load_from_zip_file(model_path, load_data=True, device="cpu")
+    return RunResult(
+        run=run,
+        algo=algo,
+        env=env_id,
+        seed=seed,
+        timesteps=int((data or {}).get("num_timesteps", 0)),
+        wall_time_min=training_wall_time(run),
+        violation_rate=evaluation.violation_rate,
+        feasible_reward=evaluation.mean_feasible_reward,
+        reward=evaluation.mean_reward,
+        n_episodes=len(evaluation.violations),
+    )
+
+
+def summarise(results: list[RunResult], reference: str | None = None) -> dict[str, dict[str, Any]]:
+    """
+    Per algorithm: the seeds, mean and std (``ddof=0``) of violation rate and feasible reward over its runs, and the
+    Wilcoxon signed-rank test of its per-seed feasible rewards against ``reference`` on the seeds both ran.
+
+    :param results: One entry per run; at most one run per (algorithm, seed)
+    :param reference: Algorithm to test the others against (``None``: no test)
+    """
+    by_algo: dict[str, dict[int, RunResult]] = {}
+    for result in results:
+        runs = by_algo.setdefault(result.algo, {})
+        if result.seed in runs:
+            raise _same_seed_error(result.algo, result.seed, runs[result.seed].run, result.run)
+        runs[result.seed] = result
+    if reference is not None and reference not in by_algo:
+        raise RunFolderError(f"--reference {reference!r} has no run among the runs given ({sorted(by_algo)}).")
+    summary: dict[str, dict[str, Any]] = {}
+    for algo, runs in by_algo.items():
+        violations = np.array([run.violation_rate for run in runs.values()])
+        feasible = np.array([run.feasible_reward for run in runs.values()])
+        entry: dict[str, Any] = {
+            "seeds": sorted(runs),
+            "violation_rate_mean": float(violations.mean()),
+            "violation_rate_std": float(violations.std()),
+            "feasible_reward_mean": float(feasible.mean()),
+            "feasible_reward_std": float(feasible.std()),
+        }
+        if reference is not None and algo != reference:
+            paired = sorted(set(runs) & set(by_algo[reference]))
+            differences = [runs[s].feasible_reward - by_algo[reference][s].feasible_reward for s in paired]
+            entry["wilcoxon_pairs"] = len(paired)
+            entry["wilcoxon_p"] = _wilcoxon_p(differences)
+        summary[algo] = entry
+    return summary
+
+
+def check_runs(runs: list[str]) -> None:
+    """
+    Fail before any evaluation unless the runs trained on one env, with at most one run per algorithm and seed.
+
+    :param runs: Run folders
+    """
+    described = [(run, *describe_run(run)[:3]) for run in runs]
+    envs = {env_id for _, _, env_id, _ in described}
+    if len(envs) > 1:
+        raise RunFolderError(f"The runs trained on different envs ({sorted(envs)}): compare one env at a time.")
+    seen: dict[tuple[str, int], str] = {}
+    for run, algo, _, seed in described:
+        if (algo, seed) in seen:
+            raise _same_seed_error(algo, seed, seen[algo, seed], run)
+        seen[algo, seed] = run
+
+
+def _same_seed_error(algo: str, seed: int, first: str, second: str) -> RunFolderError:
+    return RunFolderError(f"Two {algo} runs trained with seed {seed} ({first} and {second}): pass one per algorithm and seed.")
+
+
+def recipe_differences(runs: list[str]) -> dict[str, dict[str, list[str]]]:
+    """
+    Per algorithm, the hyper-parameters (``config.yml``, ``n_timesteps`` aside) on which its runs disagree: runs of one
+    algorithm summarised together should share a recipe.
+
+    :param runs: Run folders
+    :return: ``{algo: {key: [value of each run, as text]}}``, only for keys that differ
+    """
+    configs: dict[str, list[dict[str, Any]]] = {}
+    for run in runs:
+        algo, env_id, _, _ = describe_run(run)
+        with open(os.path.join(run, env_name(env_id), "config.yml")) as file:
+            config = yaml.safe_load(file) or {}
+        config.pop("n_timesteps", None)
+        configs.setdefault(algo, []).append(config)
+    differences: dict[str, dict[str, list[str]]] = {}
+    for algo, entries in configs.items():
+        keys = sorted(set().union(*entries))
+        values = {key: [repr(entry.get(key)) for entry in entries] for key in keys}
+        differing = {key: listed for key, listed in values.items() if len(set(listed)) > 1}
+        if differing:
+            differences[algo] = differing
+    return differences
+
+
+def _wilcoxon_p(differences: list[float]) -> float:
+    """Two-sided Wilcoxon signed-rank p-value of paired differences (``nan`` with no pair or all differences zero)."""
+    if not differences or not np.any(np.asarray(differences) != 0):
+        return float("nan")
+    return float(scipy.stats.wilcoxon(differences).pvalue)
+
+
+def format_table(results: list[RunResult], summary: dict[str, dict[str, Any]], reference: str | None) -> str:
+    """The per-run and per-algorithm tables, in Markdown."""
+    lines = [
+        "| algo | seed | steps | wall time (min) | violation rate | feasible reward | reward | episodes | run |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in sorted(results, key=lambda result: (result.algo, result.seed)):
+        lines.append(
+            f"| {r.algo} | {r.seed} | {r.timesteps} | {r.wall_time_min:.1f} | {r.violation_rate:.0%} | "
+            f"{r.feasible_reward:.0f} | {r.reward:.0f} | {r.n_episodes} | {r.run} |"
+        )
+    test_column = f" Wilcoxon p vs {reference} (pairs) |" if reference else ""
+    lines += ["", "| algo | seeds | violation rate, mean +- std | feasible reward, mean +- std |" + test_column]
+    lines.append("|---|---|---|---|" + ("---|" if reference else ""))
+    for algo, entry in sorted(summary.items()):
+        row = (
+            f"| {algo} | {', '.join(map(str, entry['seeds']))} | {entry['violation_rate_mean']:.0%} +- "
+            f"{entry['violation_rate_std']:.0%} | {entry['feasible_reward_mean']:.0f} +- {entry['feasible_reward_std']:.0f} |"
+        )
+        if reference:
+            row += f" {entry['wilcoxon_p']:.3g} ({entry['wilcoxon_pairs']}) |" if "wilcoxon_p" in entry else " |"
+        lines.append(row)
+    return "\n".join(lines)
+
+
+def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
+    """
+    The command-line parser.
+
+    :param prog: Program name in the usage line
+    """
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("runs", nargs="+", help="Run folders <folder>/<algo>/<EnvName>_<N>")
+    parser.add_argument("-n", "--n-timesteps", type=int, default=20000, help="Evaluation steps per run")
+    parser.add_argument("--seed", type=int, default=100, help="Seed of the held-out evaluation episodes")
+    parser.add_argument("--model", choices=["final", "best"], default="final", help="Model to evaluate")
+    parser.add_argument("--reference", type=str, default=None, help="Algorithm to test the others against (Wilcoxon)")
+    parser.add_argument("--json", type=str, default=None, help="Also write the runs and the summary to this JSON file")
+    return parser
+
+
+def main(argv: list[str] | None = None, prog: str | None = None) -> int:
+    """
+    Command-line entry point (``sb3-icrl compare``).
+
+    :param argv: Arguments (default: ``sys.argv[1:]``)
+    :param prog: Program name in the usage line
+    :return: Exit status: 0, or 2 after a clear error
+    """
+    args = get_parser(prog).parse_args(list(sys.argv[1:] if argv is None else argv))
+    try:
+        check_runs(args.runs)
+        for algo, differing in recipe_differences(args.runs).items():
+            listed = "; ".join(f"{key}: {', '.join(values)}" for key, values in differing.items())
+            print(f"warning: the {algo} runs do not share one recipe ({listed})", file=sys.stderr)
+        results = []
+        for run in args.runs:
+            print(f"Evaluating {run}")
+            results.append(evaluate_run(run, args.n_timesteps, args.seed, args.model == "best"))
+        summary = summarise(results, args.reference)
+    except (FileNotFoundError, RunFolderError, ValueError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    print(format_table(results, summary, args.reference))
+    if args.json:
+        payload = {"runs": [asdict(result) for result in results], "summary": summary, "eval_seed": args.seed}
+        atomic_write_json(args.json, payload, indent=2)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

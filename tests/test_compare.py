@@ -1,0 +1,109 @@
+"""sb3-icrl compare: held-out evaluation of finished runs, summaries over seeds, and clear errors."""
+
+import json
+import pathlib
+
+import numpy as np
+import pytest
+import yaml
+
+from sb3_icrl.zoo import enjoy
+from sb3_icrl.zoo import main as train_main
+from sb3_icrl.zoo.compare import RunFolderError, RunResult, check_runs, main, recipe_differences, summarise
+from sb3_icrl.zoo.train import cli
+
+TINY = ["-n", "128", "-params", "n_steps:64", "batch_size:32", "--eval-freq", "-1", "--verbose", "0"]
+
+
+def _result(algo: str, seed: int, feasible: float, violation: float = 0.0) -> RunResult:
+    return RunResult(f"logs/{algo}/Env_{seed}", algo, "Env-v0", seed, 100, 1.0, violation, feasible, feasible, 10)
+
+
+def test_summary_means_stds_and_wilcoxon_by_seed() -> None:
+    results = [_result("vicrl", seed, 10.0) for seed in (1, 2, 3, 4, 5)]
+    results += [
+        _result("mecl", seed, 10.0 + gap, violation)
+        for seed, gap, violation in [(1, 1, 0), (2, 2, 0.5), (3, 3, 0), (4, 4, 0), (5, 5, 0)]
+    ]
+    results.append(_result("mecl", 6, 100.0))  # no vicrl run with seed 6: not a pair
+    summary = summarise(results, reference="vicrl")
+    mecl = summary["mecl"]
+    assert mecl["seeds"] == [1, 2, 3, 4, 5, 6]
+    feasible = np.array([11.0, 12.0, 13.0, 14.0, 15.0, 100.0])
+    assert mecl["feasible_reward_mean"] == pytest.approx(feasible.mean())
+    assert mecl["feasible_reward_std"] == pytest.approx(np.sqrt(np.mean((feasible - feasible.mean()) ** 2)))  # ddof 0
+    assert mecl["violation_rate_mean"] == pytest.approx(0.5 / 6)
+    # five positive paired differences: the exact two-sided p is 2 / 2**5
+    assert mecl["wilcoxon_pairs"] == 5 and mecl["wilcoxon_p"] == pytest.approx(2 / 32)
+    assert "wilcoxon_p" not in summary["vicrl"] and summary["vicrl"]["feasible_reward_std"] == 0.0
+    assert np.isnan(summarise([*results[:5], _result("mecl", 1, 10.0)], "vicrl")["mecl"]["wilcoxon_p"])  # no difference
+
+
+def test_summary_rejects_two_runs_of_one_seed_and_an_absent_reference() -> None:
+    with pytest.raises(RunFolderError, match="Two mecl runs trained with seed 1"):
+        summarise([_result("mecl", 1, 1.0), _result("mecl", 1, 2.0)])
+    with pytest.raises(RunFolderError, match="--reference 'vicrl' has no run"):
+        summarise([_result("mecl", 1, 1.0)], reference="vicrl")
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory: pytest.TempPathFactory) -> pathlib.Path:
+    """Tiny PPO-Lagrangian and PPO runs on the corridor, seeds 1 and 2, and one more PPO-Lag run with other settings."""
+    folder = tmp_path_factory.mktemp("runs")
+    for algo in ("ppolag", "ppo"):
+        for seed in (1, 2):
+            assert (
+                train_main(["--algo", algo, "--env", "ConstrainedCorridor-v0", *TINY, "--seed", str(seed), "-f", str(folder)])
+                == 0
+            )
+    other = [*TINY[:3], "n_steps:32", *TINY[4:]]
+    assert train_main(["--algo", "ppolag", "--env", "ConstrainedCorridor-v0", *other, "--seed", "3", "-f", str(folder)]) == 0
+    return folder
+
+
+def test_compare_evaluates_final_models_as_enjoy_does(runs: pathlib.Path, tmp_path: pathlib.Path, capsys) -> None:
+    paths = [str(runs / algo / f"ConstrainedCorridor-v0_{n}") for algo in ("ppolag", "ppo") for n in (1, 2)]
+    output = tmp_path / "compare.json"
+    assert main([*paths, "-n", "300", "--seed", "7", "--reference", "ppolag", "--json", str(output)]) == 0
+    table = capsys.readouterr().out
+    assert "| ppo | 1, 2 |" in table and "Wilcoxon p vs ppolag" in table
+    payload = json.loads(output.read_text())
+    assert [(run["algo"], run["seed"]) for run in payload["runs"]] == [("ppolag", 1), ("ppolag", 2), ("ppo", 1), ("ppo", 2)]
+    first = payload["runs"][0]
+    assert first["timesteps"] == 128 and np.isfinite(first["wall_time_min"]) and first["wall_time_min"] >= 0
+    enjoy_args = ["--algo", "ppolag", "--env", "ConstrainedCorridor-v0", "-f", str(runs), "--exp-id", "1", "-n", "300"]
+    args = enjoy.get_parser().parse_args([*enjoy_args, "--no-render", "--seed", "7", "--verbose", "0"])
+    evaluation = enjoy.enjoy(args)
+    assert first["n_episodes"] == len(evaluation.violations)
+    assert first["feasible_reward"] == pytest.approx(evaluation.mean_feasible_reward)
+    assert first["violation_rate"] == pytest.approx(evaluation.violation_rate)
+    assert payload["summary"]["ppo"]["wilcoxon_pairs"] == 2
+
+
+def test_compare_warns_when_runs_of_one_algorithm_differ_in_recipe(runs: pathlib.Path) -> None:
+    paths = [str(runs / "ppolag" / f"ConstrainedCorridor-v0_{n}") for n in (1, 2, 3)]
+    differences = recipe_differences(paths)
+    assert differences == {"ppolag": {"n_steps": ["64", "64", "32"]}}
+    assert recipe_differences(paths[:2]) == {}  # n_timesteps aside, seeds 1 and 2 share their recipe
+    config = yaml.safe_load(
+        (runs / "ppolag" / "ConstrainedCorridor-v0_3" / "ConstrainedCorridor-v0" / "config.yml").read_text()
+    )
+    assert config["n_steps"] == 32
+
+
+def test_compare_errors_before_evaluating(runs: pathlib.Path, tmp_path: pathlib.Path, capsys) -> None:
+    first = str(runs / "ppolag" / "ConstrainedCorridor-v0_1")
+    with pytest.raises(RunFolderError, match="Two ppolag runs trained with seed 1"):
+        check_runs([first, first])
+    assert main([str(runs)]) == 2
+    assert "is not a train.py run folder" in capsys.readouterr().err
+    assert cli(["compare", str(runs)]) == 2  # sb3-icrl compare
+    assert "is not a train.py run folder" in capsys.readouterr().err
+    copy = tmp_path / "ppolag" / "GridWorldWall-v0_1" / "GridWorldWall-v0"
+    copy.mkdir(parents=True)
+    (copy / "args.yml").write_text("env: sb3_icrl/GridWorldWall-v0\nseed: 4\n")
+    with pytest.raises(RunFolderError, match="different envs"):
+        check_runs([first, str(copy.parent)])
+    (copy / "args.yml").write_text("env: sb3_icrl/GridWorldWall-v0\nseed: null\n")
+    with pytest.raises(RunFolderError, match="without a fixed --seed"):
+        check_runs([str(copy.parent)])
