@@ -12,7 +12,7 @@ import yaml
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from sb3_icrl.zoo import ALGOS, ICRL_ALGOS, main, resolve_env_id
-from sb3_icrl.zoo.callbacks import ConstraintEvalCallback
+from sb3_icrl.zoo.callbacks import ConstraintEvalCallback, RecordedEpisode, learned_episode_stats
 from sb3_icrl.zoo.hyperparams import (
     DEFAULT_HYPERPARAMS_DIR,
     HyperparameterError,
@@ -58,6 +58,9 @@ def test_train_subprocess_writes_zoo_run_folder(algo: str, tmp_path: pathlib.Pat
     expected_score = penalised if algo in ("bc2l", "mecl", "vicrl") else learned if algo == "gacl" else None
     if expected_score is not None:
         np.testing.assert_allclose(evaluations["selection_score"], expected_score)
+    # from the second evaluation on, the best model so far is priced again under the current constraint
+    rescored = evaluations["best_model_rescored"]
+    assert np.isnan(rescored[0]) and np.isfinite(rescored[1]) == (algo in ICRL_ALGOS)
     events = list(tmp_path.glob("tb/GridWorldWall-v0/*/events.out.tfevents.*"))
     assert events
     # ICRL runs draw the recovered constraint map into TensorBoard at each evaluation
@@ -266,6 +269,33 @@ def test_learned_penalised_reward_prices_only_the_cost_beyond_the_budget(statist
     np.testing.assert_allclose(callback._learned_penalised_rewards(episodes), expected)
     callback.model = _Model(cost_budget=np.array([0.1]), budget_statistic=statistic)  # GACL: no multiplier
     assert callback._learned_penalised_rewards(episodes) is None
+
+
+def test_learned_episode_stats_price_recorded_episodes() -> None:
+    """(reward, reward before the first step whose learned cost exceeds 0.5, summed learned cost, length) per episode."""
+    episodes = [
+        RecordedEpisode(np.arange(4.0).reshape(4, 1), np.zeros((4, 1)), np.array([1.0, 2.0, 3.0, 4.0])),
+        RecordedEpisode(np.zeros((2, 1)), np.zeros((2, 1)), np.array([5.0, 6.0])),
+    ]
+
+    def cost_fn(observations: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        return 0.3 * observations[:, 0]  # 0, 0.3, 0.6, 0.9: the third step is the first infeasible one
+
+    np.testing.assert_allclose(learned_episode_stats(episodes, cost_fn), [[10.0, 3.0, 1.8, 4.0], [11.0, 11.0, 0.0, 2.0]])
+    with pytest.raises(ValueError):  # a cost per pair, not per episode
+        learned_episode_stats(episodes, lambda observations, actions: np.zeros(1))
+
+
+def test_best_model_is_priced_again_with_the_current_constraint() -> None:
+    """A best model whose episodes a later constraint finds costly loses its score (and its place) under that constraint."""
+    callback = ConstraintEvalCallback.__new__(ConstraintEvalCallback)
+    callback.model = _Model(lagrange_multiplier=_Multiplier(), cost_budget=np.array([0.1]), budget_statistic="step")
+    callback.best_episodes = []
+    assert callback._rescore_best(lambda observations, actions: np.zeros(len(observations))) is None
+    callback.best_episodes = [RecordedEpisode(np.zeros((10, 1)), np.zeros((10, 1)), np.full(10, 3.0))]
+    assert callback._rescore_best(lambda observations, actions: np.zeros(len(observations))) == 30.0
+    # a cost of 0.6 per step: 6 in all against a budget of 0.1 * 10, priced at lambda = 2
+    assert callback._rescore_best(lambda observations, actions: np.full(len(observations), 0.6)) == 30.0 - 2.0 * 5.0
 
 
 def test_console_entry_point() -> None:

@@ -2,7 +2,9 @@
 
 import os
 import warnings
+from collections.abc import Callable, Sequence
 from copy import deepcopy
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -14,35 +16,62 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 from sb3_icrl.common.evaluation import evaluate_constraint
 
 
+@dataclass
+class RecordedEpisode:
+    """
+    One evaluation episode as the constraint sees it, kept so that it can be priced again by a later constraint.
+
+    :param observations: Raw observations, one per step, ``(T, *obs_shape)``
+    :param actions: Actions as the env applied them (clipped to a Box), ``(T, *action_shape)``
+    :param rewards: Per-step rewards, ``(T,)``
+    """
+
+    observations: np.ndarray
+    actions: np.ndarray
+    rewards: np.ndarray
+
+
+def learned_episode_stats(
+    episodes: Sequence[RecordedEpisode], cost_fn: Callable[[np.ndarray, np.ndarray], Any], threshold: float = 0.5
+) -> np.ndarray:
+    """
+    Price recorded episodes with a learned cost.
+
+    :param episodes: The episodes
+    :param cost_fn: Learned cost per step, ``cost_fn(observations, actions) -> (T,)``
+    :param threshold: A step counts as infeasible when its learned cost exceeds this
+    :return: One row per episode: ``(reward, learned feasible reward, learned cost, length)``; the learned feasible
+        reward sums the rewards before the first infeasible step
+    """
+    rows = np.zeros((len(episodes), 4))
+    for row, episode in zip(rows, episodes, strict=True):
+        costs = np.asarray(cost_fn(episode.observations, episode.actions), dtype=float).reshape(len(episode.rewards))
+        broken = np.flatnonzero(costs > threshold)
+        feasible_steps = broken[0] if len(broken) else len(costs)
+        row[:] = episode.rewards.sum(), episode.rewards[:feasible_steps].sum(), costs.sum(), len(costs)
+    return rows
+
+
 class LearnedCostRecorder(VecEnvWrapper):
     """
-    Records, per finished episode, the reward, the reward summed until the learned cost first exceeds ``threshold``
-    (the "learned feasible reward"), the summed learned cost and the length. Goes below any ``VecNormalize``: it sees
-    raw observations.
+    Records each finished episode's raw observations, actions and rewards while ``recording`` is on, so that the
+    evaluation can price them with the learned cost (:func:`learned_episode_stats`), now and after later constraint
+    updates. Goes below any ``VecNormalize``: it sees raw observations.
 
     :param venv: The evaluation env
-    :param threshold: A step counts as infeasible when its learned cost ``1 - phi`` exceeds this
     """
 
-    def __init__(self, venv: VecEnv, threshold: float = 0.5):
+    def __init__(self, venv: VecEnv):
         super().__init__(venv)
-        self.threshold = threshold
-        self.cost_fn: Any = None
-        # (reward, learned feasible reward, learned cost, length) per finished episode
-        self.episodes: list[tuple[float, float, float, int]] = []
+        self.recording = False
+        self.episodes: list[RecordedEpisode] = []
         self._obs: Any = None  # VecEnvObs
         self._actions: np.ndarray | None = None
-        self._reset_stats()
-
-    def _reset_stats(self) -> None:
-        n = self.num_envs
-        self._reward, self._feasible, self._cost = np.zeros(n), np.zeros(n), np.zeros(n)
-        self._length = np.zeros(n, dtype=int)
-        self._broken = np.zeros(n, dtype=bool)
+        self._steps: list[list[tuple[Any, np.ndarray, float]]] = [[] for _ in range(self.num_envs)]
 
     def reset(self) -> Any:
         self._obs = self.venv.reset()
-        self._reset_stats()
+        self._steps = [[] for _ in range(self.num_envs)]
         return self._obs
 
     def step_async(self, actions: np.ndarray) -> None:
@@ -51,21 +80,17 @@ class LearnedCostRecorder(VecEnvWrapper):
 
     def step_wait(self) -> VecEnvStepReturn:
         obs, rewards, dones, infos = self.venv.step_wait()
-        if self.cost_fn is not None and self._obs is not None and self._actions is not None:
-            actions = self._actions
+        if self.recording and self._obs is not None and self._actions is not None:
+            actions = np.asarray(self._actions)
             if isinstance(self.action_space, spaces.Box):
                 actions = np.clip(actions, self.action_space.low, self.action_space.high)
-            costs = np.asarray(self.cost_fn(self._obs, actions), dtype=float).reshape(self.num_envs)
-            self._broken |= costs > self.threshold
-            self._reward += rewards
-            self._cost += costs
-            self._length += 1
-            self._feasible += np.where(self._broken, 0.0, rewards)
-            for idx in np.flatnonzero(dones):
-                self.episodes.append((self._reward[idx], self._feasible[idx], self._cost[idx], int(self._length[idx])))
-                self._reward[idx] = self._feasible[idx] = self._cost[idx] = 0.0
-                self._length[idx] = 0
-                self._broken[idx] = False
+            for idx in range(self.num_envs):
+                self._steps[idx].append((np.array(self._obs[idx]), np.array(actions[idx]), float(rewards[idx])))
+                if dones[idx]:
+                    steps = self._steps[idx]
+                    observations, episode_actions, episode_rewards = (np.array(part) for part in zip(*steps, strict=True))
+                    self.episodes.append(RecordedEpisode(observations, episode_actions, episode_rewards))
+                    self._steps[idx] = []
         self._obs = obs
         return obs, rewards, dones, infos
 
@@ -87,8 +112,10 @@ class ConstraintEvalCallback(EvalCallback):
       exceeds 0.5.
     - PPO-Lagrangian (trained on the env's cost): its feasible reward; PPO: its mean reward.
 
-    The constraint changes during training, so each score uses the constraint of its own evaluation: a model saved
-    before the constraint knew better may stay "best". Evaluate final models for results.
+    The constraint changes during training, so at each evaluation the best model so far is priced again: its recorded
+    episodes with the current learned cost, ``lambda`` and budget (logged as ``best_model_rescored``). A new model
+    replaces it when it scores higher under the same constraint. A model that went where the constraint of its day
+    did not yet forbid thus loses its place once the constraint learns better.
 
     :param eval_env: The evaluation env; wrap its bottom in :class:`LearnedCostRecorder` for the learned metrics
     :param kwargs: :class:`~stable_baselines3.common.callbacks.EvalCallback`'s arguments
@@ -99,6 +126,7 @@ class ConstraintEvalCallback(EvalCallback):
         self.recorder = recorder
         self.history: dict[str, list] = {}
         self.best_score = -np.inf
+        self.best_episodes: list[RecordedEpisode] = []  # the best model's recorded episodes, priced again later
 
     def _init_callback(self) -> None:
         # The eval env is built like the training one, but the ICRL models add their own wrappers to theirs
@@ -135,6 +163,17 @@ class ConstraintEvalCallback(EvalCallback):
         allowance = budget * lengths if learner.budget_statistic == "step" else np.full_like(costs, budget)
         return rewards - multiplier_value * np.maximum(costs - allowance, 0.0)
 
+    def _learned_score(self, stats: np.ndarray) -> float:
+        """The learned selection score of priced episodes (rows of :func:`learned_episode_stats`)."""
+        penalised = self._learned_penalised_rewards(stats)
+        return float((penalised if penalised is not None else stats[:, 1]).mean())
+
+    def _rescore_best(self, cost_fn: Callable[[np.ndarray, np.ndarray], Any]) -> float | None:
+        """The best model's recorded episodes priced with ``cost_fn`` and today's multiplier and budget (``None``: no best)."""
+        if not self.best_episodes:
+            return None
+        return self._learned_score(learned_episode_stats(self.best_episodes, cost_fn))
+
     def _selection_score(self, metrics: dict[str, float]) -> float:
         for learned_score in ("learned_penalised_reward", "learned_feasible_reward"):
             if learned_score in metrics:
@@ -149,7 +188,7 @@ class ConstraintEvalCallback(EvalCallback):
         self._sync_normalization()
         constraint_net = getattr(self.model, "constraint_net", None)
         if self.recorder is not None:
-            self.recorder.cost_fn = constraint_net.cost if constraint_net is not None else None
+            self.recorder.recording = constraint_net is not None
             self.recorder.episodes = []
         result = evaluate_constraint(
             self.model, self.eval_env, n_episodes=self.n_eval_episodes, deterministic=self.deterministic
@@ -163,13 +202,17 @@ class ConstraintEvalCallback(EvalCallback):
             "mean_ep_length": float(np.mean(result.episode_lengths)),
             **result.outcome_rates,  # driving envs: collision, off-road, time-out and goal rates
         }
-        if self.recorder is not None and constraint_net is not None and self.recorder.episodes:
-            learned = np.array(self.recorder.episodes[: self.n_eval_episodes], dtype=float)
+        episodes = self.recorder.episodes[: self.n_eval_episodes] if self.recorder is not None else []
+        if constraint_net is not None and episodes:
+            learned = learned_episode_stats(episodes, constraint_net.cost)
             metrics["learned_feasible_reward"] = float(learned[:, 1].mean())
             metrics["mean_learned_cost"] = float(learned[:, 2].mean())
             penalised = self._learned_penalised_rewards(learned)
             if penalised is not None:
                 metrics["learned_penalised_reward"] = float(penalised.mean())
+            rescored = self._rescore_best(constraint_net.cost)
+            if rescored is not None:
+                self.best_score = metrics["best_model_rescored"] = rescored
         self.last_mean_reward = metrics["mean_reward"]
         for key, value in metrics.items():
             self.logger.record(f"eval/{key}", value)
@@ -186,7 +229,7 @@ class ConstraintEvalCallback(EvalCallback):
         self.history.setdefault("episode_costs", []).append(result.episode_costs)
         for key, flags in result.outcomes.items():
             self.history.setdefault(key, []).append(flags)
-        for key in ("learned_feasible_reward", "mean_learned_cost", "learned_penalised_reward"):
+        for key in ("learned_feasible_reward", "mean_learned_cost", "learned_penalised_reward", "best_model_rescored"):
             self.history.setdefault(key, []).append(metrics.get(key, np.nan))
         score = self._selection_score(metrics)
         self.history.setdefault("selection_score", []).append(score)
@@ -196,6 +239,7 @@ class ConstraintEvalCallback(EvalCallback):
 
         if score > self.best_score:
             self.best_score = score
+            self.best_episodes = episodes
             if self.verbose >= 1:
                 print(f"New best model (selection score {score:.3g})")
             if self.best_model_save_path is not None:
