@@ -467,3 +467,26 @@ def test_precision_recall_of_a_recovered_map():
     true_unsafe = np.array([[True, True], [False, False]])
     assert precision_recall(np.array([[True, False], [True, True]]), true_unsafe) == (1 / 3, 1 / 2)
     assert precision_recall(np.zeros((2, 2), dtype=bool), true_unsafe) == (0.0, 0.0)
+
+
+@pytest.mark.parametrize("cls", LAGRANGIAN)
+def test_constraint_learning_rate_decays_per_update_and_survives_save_load(cls, tmp_path):
+    """The reference's anneal_clr_by_factor: each update uses the previous rate times the decay."""
+    writer = CapturingWriter()
+    model = make_model(cls, constraint_learning_rate=0.01, trainer_kwargs={"learning_rate_decay": 0.5})
+    model.set_logger(Logger(folder=None, output_formats=[writer]))
+    model.learn(96)  # three updates, one per 32-step rollout
+    np.testing.assert_allclose(writer.values["constraint/learning_rate"], [0.01, 0.005, 0.0025])
+    assert model.constraint_optimizer.param_groups[0]["lr"] == pytest.approx(0.00125)
+    model.save(tmp_path / "model.zip")
+    loaded = cls.load(tmp_path / "model.zip", env=make_env(), demonstrations=corridor_demonstrations())
+    writer = CapturingWriter()
+    loaded.set_logger(Logger(folder=None, output_formats=[writer]))
+    loaded.learn(32, reset_num_timesteps=False)
+    np.testing.assert_allclose(writer.values["constraint/learning_rate"], [0.00125])  # goes on where it was
+
+
+def test_constraint_learning_rate_decay_must_be_a_factor_in_0_1():
+    for decay in (0.0, 1.5):
+        with pytest.raises(ValueError, match="`learning_rate_decay` must be in"):
+            make_model(BC2L, trainer_kwargs={"learning_rate_decay": decay}).learn(32)

@@ -79,6 +79,10 @@ class ICRLTrainer(BaseCallback):
         ``IRLDataQueue``, so old behaviour thins out instead of vanishing. Without it, a model fitted only to the
         learner's latest trajectories can forget a region the learner stopped visiting, and the learner comes back
         to it (seen on BlockedHalfCheetah, ``benchmarks/RESULTS.md``). Kept in memory only: not saved with the model
+    :param learning_rate_decay: Factor applied to the optimiser's learning rate after each update (1: constant). The
+        reference code anneals the constraint learning rate by 0.9 per outer iteration (``anneal_clr_by_factor``), so
+        that late updates, when the learner already looks like the expert, move the constraint less. The rate travels
+        with the optimiser's state, so a resumed run goes on from where it was
     :param seed: Seed of the minibatch sampling (the model's seed, when it has one, replaces it before the first update)
     :param budget_from_expert: Set the learner's cost budget to the expert's mean learned cost per step after each
         update (and before the first), logged as ``constraint/cost_budget``: the learner is asked to be as feasible
@@ -104,6 +108,7 @@ class ICRLTrainer(BaseCallback):
         batch_size: int | None = None,
         n_nominal_trajectories: int = 50,
         nominal_memory: int = 0,
+        learning_rate_decay: float = 1.0,
         seed: int | None = None,
         budget_from_expert: bool = False,
         verbose: int = 0,
@@ -118,6 +123,8 @@ class ICRLTrainer(BaseCallback):
             raise ValueError(f"`batch_size` must be >= 1 or None, got {batch_size}.")
         if nominal_memory < 0:
             raise ValueError(f"`nominal_memory` must be >= 0 (0: no memory), got {nominal_memory}.")
+        if not 0.0 < learning_rate_decay <= 1.0:
+            raise ValueError(f"`learning_rate_decay` must be in (0, 1] (1: constant rate), got {learning_rate_decay}.")
         if len(expert_obs) == 0 or len(expert_obs) != len(expert_acts):
             raise ValueError(
                 f"Need as many expert observations as actions (> 0), got {len(expert_obs)} and {len(expert_acts)}."
@@ -137,6 +144,7 @@ class ICRLTrainer(BaseCallback):
         self.batch_size = batch_size
         self.n_nominal_trajectories = int(n_nominal_trajectories)
         self.nominal_memory = int(nominal_memory)
+        self.learning_rate_decay = float(learning_rate_decay)
         self.remembered: list[NominalTrajectory] = []
         self.budget_from_expert = budget_from_expert
         self.n_updates = 0
@@ -270,6 +278,9 @@ class ICRLTrainer(BaseCallback):
         self.constraint_net.eval()
         self.n_updates += 1
         stats = {key: float(np.mean(values)) for key, values in logs.items()}
+        stats["learning_rate"] = float(self.optimizer.param_groups[0]["lr"])  # the rate this update used
+        for group in self.optimizer.param_groups:
+            group["lr"] *= self.learning_rate_decay
         stats.update(self._after_update_stats(nominal))
         stats["expert_feasibility"] = float(np.mean(self._feasibility(self.expert_obs, self.expert_acts)))
         stats["nominal_feasibility"] = float(np.mean(self._feasibility(nominal.obs, nominal.acts)))
