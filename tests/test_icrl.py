@@ -15,7 +15,7 @@ from sb3_icrl.common.envs import ConstrainedCorridorEnv
 from sb3_icrl.common.evaluation import evaluate_constraint
 from sb3_icrl.constraints import BetaFeasibilityNet, FeasibilityNet, GACLRewardWrapper, LearnedCostVecEnvWrapper
 from sb3_icrl.data import DemonstrationError, Demonstrations, Trajectory, load_demonstrations
-from sb3_icrl.icrl import NominalData, TrajectoryRecorderVecEnvWrapper
+from sb3_icrl.icrl import ICRLTrainer, NominalData, NominalTrajectory, TrajectoryRecorderVecEnvWrapper
 from sb3_icrl.icrl.tabular import cost_table, precision_recall, tabular_icrl
 from sb3_icrl.mecl import MECLTrainer
 from sb3_icrl.pi_lagrangian import PILagrangian
@@ -490,3 +490,56 @@ def test_constraint_learning_rate_decay_must_be_a_factor_in_0_1():
     for decay in (0.0, 1.5):
         with pytest.raises(ValueError, match="`learning_rate_decay` must be in"):
             make_model(BC2L, trainer_kwargs={"learning_rate_decay": decay}).learn(32)
+
+
+@pytest.mark.parametrize("cls", LAGRANGIAN)
+def test_match_tolerance_skips_updates_once_the_learner_matches_the_expert(cls, tmp_path, monkeypatch):
+    """After the warm-up, an update is skipped when the gap measured before it is below the tolerance."""
+    gaps = iter([0.5, 0.01, 0.01, 0.2, 0.04, 0.01])
+    monkeypatch.setattr(ICRLTrainer, "feasibility_gap", lambda self, nominal: next(gaps))
+    writer = CapturingWriter()
+    model = make_model(cls, trainer_kwargs={"match_tolerance": 0.05, "match_warmup_updates": 2})
+    model.set_logger(Logger(folder=None, output_formats=[writer]))
+    model.learn(32 * 3)
+    # The second update is made despite its small gap: the warm-up is not over
+    assert writer.values["constraint/skipped"] == [0.0, 0.0, 1.0]
+    np.testing.assert_allclose(writer.values["constraint/feasibility_gap"], [0.5, 0.01, 0.01])
+    assert model.n_constraint_updates == 2
+    frozen = [p.detach().clone() for p in model.constraint_net.parameters()]
+    model.learn(32, reset_num_timesteps=False)  # gap 0.2: updated
+    assert model.n_constraint_updates == 3
+    assert any(not th.equal(a, b) for a, b in zip(frozen, model.constraint_net.parameters(), strict=True))
+
+    model.save(tmp_path / "model.zip")
+    loaded = cls.load(tmp_path / "model.zip", env=make_env(), demonstrations=corridor_demonstrations())
+    assert loaded.n_constraint_updates == 3
+    writer = CapturingWriter()
+    loaded.set_logger(Logger(folder=None, output_formats=[writer]))
+    frozen = [p.detach().clone() for p in loaded.constraint_net.parameters()]
+    lr = loaded.constraint_optimizer.param_groups[0]["lr"]
+    loaded.learn(32 * 2, reset_num_timesteps=False)  # gaps 0.04 and 0.01: no second warm-up after loading
+    assert writer.values["constraint/skipped"] == [1.0, 1.0]
+    assert all(th.equal(a, b) for a, b in zip(frozen, loaded.constraint_net.parameters(), strict=True))
+    assert loaded.constraint_optimizer.param_groups[0]["lr"] == lr
+    assert loaded.n_constraint_updates == 3
+
+
+def test_feasibility_gap_is_the_expert_mean_less_the_learner_mean():
+    model = make_model(MECL)
+    model.learn(32)
+    trainer = model.icrl_trainer
+    # The expert's first pairs with the other actions: not the expert's mean
+    nominal = NominalData.from_trajectories([NominalTrajectory(trainer.expert_obs[:5], 2 - trainer.expert_acts[:5])])
+    expected = np.mean(1.0 - model.constraint_cost(trainer.expert_obs, trainer.expert_acts)) - np.mean(
+        1.0 - model.constraint_cost(nominal.obs, nominal.acts)
+    )
+    assert trainer.feasibility_gap(nominal) == pytest.approx(expected)
+    expert = NominalData.from_trajectories([NominalTrajectory(trainer.expert_obs, trainer.expert_acts)])
+    assert trainer.feasibility_gap(expert) == pytest.approx(0.0, abs=1e-6)
+
+
+def test_match_tolerance_and_warmup_must_be_positive():
+    with pytest.raises(ValueError, match="`match_tolerance` must be > 0"):
+        make_model(BC2L, trainer_kwargs={"match_tolerance": 0.0}).learn(32)
+    with pytest.raises(ValueError, match="`match_warmup_updates` must be >= 1"):
+        make_model(BC2L, trainer_kwargs={"match_warmup_updates": 0}).learn(32)

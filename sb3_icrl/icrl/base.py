@@ -102,6 +102,8 @@ class ICRLAlgorithmMixin:
         self.n_nominal_trajectories = n_nominal_trajectories
         self.trainer_class = trainer_class or self.default_trainer_class
         self.trainer_kwargs = dict(trainer_kwargs or {})
+        #: Constraint updates made so far (kept by the trainer, saved with the model)
+        self.n_constraint_updates = 0
         self.constraint_optimizer: th.optim.Optimizer | None = None
         self.recorder: TrajectoryRecorderVecEnvWrapper | None = None
         self.constraint_wrapper: LearnedCostVecEnvWrapper | GACLRewardWrapper | None = None

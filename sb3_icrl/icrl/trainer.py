@@ -83,6 +83,15 @@ class ICRLTrainer(BaseCallback):
         reference code anneals the constraint learning rate by 0.9 per outer iteration (``anneal_clr_by_factor``), so
         that late updates, when the learner already looks like the expert, move the constraint less. The rate travels
         with the optimiser's state, so a resumed run goes on from where it was
+    :param match_tolerance: Skip an update when the learner already looks as feasible as the expert under the current
+        model: the expert's mean feasibility less that of the learner's new trajectories, measured before the update
+        (logged as ``constraint/feasibility_gap``), is below this (``None``: never skip). Once the learner stays in
+        the expert's region, a classifier trained on expert vs learner can only go on by telling their gaits apart,
+        and the learner, charged for its own gait, falls back (seen on BlockedHalfCheetah, ``benchmarks/RESULTS.md``).
+        A skipped update leaves the model, its learning rate and the budget as they were (``constraint/skipped`` is
+        1). The gap is small too while the model has learned nothing yet, hence ``match_warmup_updates``
+    :param match_warmup_updates: Updates always made before ``match_tolerance`` may skip one (counted over the
+        model's life: saved with it, so a resumed run does not warm up again)
     :param seed: Seed of the minibatch sampling (the model's seed, when it has one, replaces it before the first update)
     :param budget_from_expert: Set the learner's cost budget to the expert's mean learned cost per step after each
         update (and before the first), logged as ``constraint/cost_budget``: the learner is asked to be as feasible
@@ -109,6 +118,8 @@ class ICRLTrainer(BaseCallback):
         n_nominal_trajectories: int = 50,
         nominal_memory: int = 0,
         learning_rate_decay: float = 1.0,
+        match_tolerance: float | None = None,
+        match_warmup_updates: int = 3,
         seed: int | None = None,
         budget_from_expert: bool = False,
         verbose: int = 0,
@@ -125,6 +136,12 @@ class ICRLTrainer(BaseCallback):
             raise ValueError(f"`nominal_memory` must be >= 0 (0: no memory), got {nominal_memory}.")
         if not 0.0 < learning_rate_decay <= 1.0:
             raise ValueError(f"`learning_rate_decay` must be in (0, 1] (1: constant rate), got {learning_rate_decay}.")
+        if match_tolerance is not None and match_tolerance <= 0.0:
+            raise ValueError(f"`match_tolerance` must be > 0 or None (never skip), got {match_tolerance}.")
+        if match_warmup_updates < 1:
+            raise ValueError(
+                f"`match_warmup_updates` must be >= 1 (the first model is not fitted yet), got {match_warmup_updates}."
+            )
         if len(expert_obs) == 0 or len(expert_obs) != len(expert_acts):
             raise ValueError(
                 f"Need as many expert observations as actions (> 0), got {len(expert_obs)} and {len(expert_acts)}."
@@ -145,6 +162,8 @@ class ICRLTrainer(BaseCallback):
         self.n_nominal_trajectories = int(n_nominal_trajectories)
         self.nominal_memory = int(nominal_memory)
         self.learning_rate_decay = float(learning_rate_decay)
+        self.match_tolerance = match_tolerance
+        self.match_warmup_updates = int(match_warmup_updates)
         self.remembered: list[NominalTrajectory] = []
         self.budget_from_expert = budget_from_expert
         self.n_updates = 0
@@ -161,6 +180,8 @@ class ICRLTrainer(BaseCallback):
                 f"budget_statistic={getattr(self.model, 'budget_statistic', None)!r}."
             )
         self._last_update = self.num_timesteps
+        # The update count lives on the model too, so that it is saved with it
+        self.n_updates = max(self.n_updates, int(getattr(self.model, "n_constraint_updates", 0)))
         if self.model.seed is not None and self.n_updates == 0:
             # Seeded once: a later learn() call continues the sequence
             self._rng = np.random.default_rng(self.model.seed)
@@ -182,15 +203,31 @@ class ICRLTrainer(BaseCallback):
             return
         self._last_update = self.num_timesteps
         n_recalled = len(self.remembered)
-        stats = self.update(NominalData.from_trajectories(self.remembered + trajectories))
+        gap = self.feasibility_gap(NominalData.from_trajectories(trajectories))
+        if self.match_tolerance is not None and self.n_updates >= self.match_warmup_updates and gap < self.match_tolerance:
+            stats: dict[str, float] = {"skipped": 1.0}
+        else:
+            stats = {**self.update(NominalData.from_trajectories(self.remembered + trajectories)), "skipped": 0.0}
+            self.model.n_constraint_updates = self.n_updates  # type: ignore[attr-defined]
+            self.install()
+        stats["feasibility_gap"] = gap
         self.remember(trajectories)
         if self.nominal_memory > 0:
             stats["n_remembered_trajectories"] = float(n_recalled)
-        self.install()
         if self.budget_from_expert:
             stats["cost_budget"] = float(self.model.cost_budget[0])  # type: ignore[attr-defined]
         for key, value in stats.items():
             self.logger.record(f"constraint/{key}", value)
+
+    def feasibility_gap(self, nominal: NominalData) -> float:
+        """
+        The expert's mean feasibility less the learner's, under the current model.
+
+        :param nominal: The learner's trajectories
+        :return: The gap (negative when the learner looks the more feasible)
+        """
+        expert = float(np.mean(self._feasibility(self.expert_obs, self.expert_acts)))
+        return expert - float(np.mean(self._feasibility(nominal.obs, nominal.acts)))
 
     def remember(self, trajectories: list[NominalTrajectory]) -> None:
         """
