@@ -545,3 +545,17 @@ def test_match_tolerance_and_warmup_must_be_positive():
         make_model(BC2L, trainer_kwargs={"match_tolerance": 0.0}).learn(32)
     with pytest.raises(ValueError, match="`match_warmup_updates` must be >= 1"):
         make_model(BC2L, trainer_kwargs={"match_warmup_updates": 0}).learn(32)
+
+
+def test_a_loaded_model_samples_its_constraint_minibatches_from_its_seed(tmp_path):
+    """The update count carries over a load, but a new trainer still seeds its minibatch sampling from the model."""
+    model = make_model(MECL, constraint_batch_size=4)
+    model.learn(64)
+    model.save(tmp_path / "model.zip")
+    rngs = []
+    for _ in range(2):
+        loaded = MECL.load(tmp_path / "model.zip", env=make_env(), demonstrations=corridor_demonstrations())
+        loaded.learn(32, reset_num_timesteps=False)
+        assert loaded.icrl_trainer.n_updates == model.n_constraint_updates + 1
+        rngs.append(loaded.icrl_trainer._rng.integers(1 << 30, size=4))
+    np.testing.assert_array_equal(rngs[0], rngs[1])

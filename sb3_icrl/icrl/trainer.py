@@ -180,11 +180,11 @@ class ICRLTrainer(BaseCallback):
                 f"budget_statistic={getattr(self.model, 'budget_statistic', None)!r}."
             )
         self._last_update = self.num_timesteps
-        # The update count lives on the model too, so that it is saved with it
-        self.n_updates = max(self.n_updates, int(getattr(self.model, "n_constraint_updates", 0)))
         if self.model.seed is not None and self.n_updates == 0:
             # Seeded once: a later learn() call continues the sequence
             self._rng = np.random.default_rng(self.model.seed)
+        # The update count lives on the model too, so that it is saved with it
+        self.n_updates = max(self.n_updates, int(getattr(self.model, "n_constraint_updates", 0)))
         self.install()
 
     def _on_step(self) -> bool:
