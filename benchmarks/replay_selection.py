@@ -20,7 +20,7 @@ import torch as th
 import yaml
 
 from sb3_icrl.common.evaluation import evaluate_constraint
-from sb3_icrl.zoo.callbacks import ConstraintEvalCallback, learned_episode_stats
+from sb3_icrl.zoo.callbacks import learned_episode_stats, learned_selection_score
 from sb3_icrl.zoo.compare import describe_run
 from sb3_icrl.zoo.hyperparams import ALGOS, env_name, preprocess_hyperparams
 from sb3_icrl.zoo.train import create_env
@@ -47,9 +47,7 @@ def main() -> None:
     algo, env_id, _, _ = describe_run(args.run)
     with open(os.path.join(args.run, env_name(env_id), "config.yml")) as file:
         params = preprocess_hyperparams(yaml.safe_load(file))
-    selector = ConstraintEvalCallback.__new__(ConstraintEvalCallback)  # only its scoring rules are used
-    selector.best_episodes = []
-    best_score, best_steps = -np.inf, None
+    best_score, best_steps, best_episodes = -np.inf, None, []
     print("| steps | learned score | best so far, priced again | best | true violation rate | true feasible reward |")
     print("|---|---|---|---|---|---|")
     for steps, path in checkpoints(args.run):
@@ -58,17 +56,21 @@ def main() -> None:
         env, recorder = create_env(env_id, params, 1, args.seed, None, 0.0, None, eval_env=True, stats_path=stats)
         assert recorder is not None
         model = ALGOS[algo].load(path, device="cpu", demonstrations_source=None)
-        selector.model = model
         recorder.recording = True
         result = evaluate_constraint(model, env, n_episodes=args.episodes, deterministic=True)
         env.close()
         episodes = recorder.episodes[: args.episodes]
-        score = selector._learned_score(learned_episode_stats(episodes, model.constraint_net.cost))
-        rescored = selector._rescore_best(model.constraint_net.cost)
+        score = learned_selection_score(model, learned_episode_stats(episodes, model.constraint_net.cost))
+        # as the callback does: the best so far, priced again with this checkpoint's constraint, multiplier and budget
+        rescored = (
+            learned_selection_score(model, learned_episode_stats(best_episodes, model.constraint_net.cost))
+            if best_episodes
+            else None
+        )
         if rescored is not None:
             best_score = rescored
         if score > best_score:
-            best_score, best_steps, selector.best_episodes = score, steps, episodes
+            best_score, best_steps, best_episodes = score, steps, episodes
         print(
             f"| {steps} | {score:.0f} | {'' if rescored is None else f'{rescored:.0f}'} | {best_steps} | "
             f"{result.violation_rate:.0%} | {result.mean_feasible_reward:.0f} |"

@@ -12,7 +12,13 @@ import yaml
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from sb3_icrl.zoo import ALGOS, ICRL_ALGOS, main, resolve_env_id
-from sb3_icrl.zoo.callbacks import ConstraintEvalCallback, RecordedEpisode, learned_episode_stats
+from sb3_icrl.zoo.callbacks import (
+    ConstraintEvalCallback,
+    RecordedEpisode,
+    learned_episode_stats,
+    learned_penalised_rewards,
+    learned_selection_score,
+)
 from sb3_icrl.zoo.hyperparams import (
     DEFAULT_HYPERPARAMS_DIR,
     HyperparameterError,
@@ -261,14 +267,15 @@ class _Multiplier:
 @pytest.mark.parametrize("statistic", ["step", "episode"])
 def test_learned_penalised_reward_prices_only_the_cost_beyond_the_budget(statistic: str) -> None:
     """reward - lambda * max(0, learned cost - budget), the budget per step scaled by the episode length."""
-    callback = ConstraintEvalCallback.__new__(ConstraintEvalCallback)
-    callback.model = _Model(lagrange_multiplier=_Multiplier(), cost_budget=np.array([0.1]), budget_statistic=statistic)
+    model = _Model(lagrange_multiplier=_Multiplier(), cost_budget=np.array([0.1]), budget_statistic=statistic)
     # rows: (reward, learned feasible reward, learned cost, length)
     episodes = np.array([[100.0, 0.0, 30.0, 200.0], [50.0, 50.0, 5.0, 100.0]])
     expected = [100.0 - 2.0 * (30.0 - 20.0), 50.0] if statistic == "step" else [100.0 - 2.0 * 29.9, 50.0 - 2.0 * 4.9]
-    np.testing.assert_allclose(callback._learned_penalised_rewards(episodes), expected)
-    callback.model = _Model(cost_budget=np.array([0.1]), budget_statistic=statistic)  # GACL: no multiplier
-    assert callback._learned_penalised_rewards(episodes) is None
+    np.testing.assert_allclose(learned_penalised_rewards(model, episodes), expected)
+    assert learned_selection_score(model, episodes) == pytest.approx(np.mean(expected))
+    gacl = _Model(cost_budget=np.array([0.1]), budget_statistic=statistic)  # no multiplier: the learned feasible reward
+    assert learned_penalised_rewards(gacl, episodes) is None
+    assert learned_selection_score(gacl, episodes) == 25.0
 
 
 def test_learned_episode_stats_price_recorded_episodes() -> None:

@@ -52,6 +52,36 @@ def learned_episode_stats(
     return rows
 
 
+def learned_penalised_rewards(model: Any, stats: np.ndarray) -> np.ndarray | None:
+    """
+    Each episode's reward less ``lambda * max(0, learned cost - budget)``, with the learner's multiplier and budget as
+    they stand (a per-step budget times the episode length); ``None`` for models without a multiplier.
+
+    :param model: The learner (a Lagrangian one has ``lagrange_multiplier``, ``cost_budget`` and ``budget_statistic``)
+    :param stats: Rows ``(reward, learned feasible reward, learned cost, length)`` of :func:`learned_episode_stats`
+    """
+    multiplier = getattr(model, "lagrange_multiplier", None)
+    if multiplier is None:
+        return None
+    budget = float(np.asarray(model.cost_budget).reshape(-1)[0])
+    multiplier_value = float(np.asarray(multiplier.value).reshape(-1)[0])
+    rewards, costs, lengths = stats[:, 0], stats[:, 2], stats[:, 3]
+    allowance = budget * lengths if model.budget_statistic == "step" else np.full_like(costs, budget)
+    return rewards - multiplier_value * np.maximum(costs - allowance, 0.0)
+
+
+def learned_selection_score(model: Any, stats: np.ndarray) -> float:
+    """
+    The score that ranks models with a learned constraint: the mean learned penalised reward
+    (:func:`learned_penalised_rewards`), or for models without a multiplier the mean learned feasible reward.
+
+    :param model: The learner
+    :param stats: Rows of :func:`learned_episode_stats`
+    """
+    penalised = learned_penalised_rewards(model, stats)
+    return float((penalised if penalised is not None else stats[:, 1]).mean())
+
+
 class LearnedCostRecorder(VecEnvWrapper):
     """
     Records each finished episode's raw observations, actions and rewards while ``recording`` is on, so that the
@@ -146,33 +176,11 @@ class ConstraintEvalCallback(EvalCallback):
         eval_normalize.obs_rms = deepcopy(train_normalize.obs_rms)
         eval_normalize.ret_rms = deepcopy(train_normalize.ret_rms)
 
-    def _learned_penalised_rewards(self, episodes: np.ndarray) -> np.ndarray | None:
-        """
-        Each episode's reward less ``lambda * max(0, learned cost - budget)``, in the learner's budget units
-        (per step: the budget times the episode length); ``None`` for models without a multiplier.
-
-        :param episodes: The recorder's rows ``(reward, learned feasible reward, learned cost, length)``
-        """
-        multiplier = getattr(self.model, "lagrange_multiplier", None)
-        if multiplier is None:
-            return None
-        learner: Any = self.model  # a PPOLagrangian: it has a multiplier
-        budget = float(np.asarray(learner.cost_budget).reshape(-1)[0])
-        multiplier_value = float(np.asarray(multiplier.value).reshape(-1)[0])
-        rewards, costs, lengths = episodes[:, 0], episodes[:, 2], episodes[:, 3]
-        allowance = budget * lengths if learner.budget_statistic == "step" else np.full_like(costs, budget)
-        return rewards - multiplier_value * np.maximum(costs - allowance, 0.0)
-
-    def _learned_score(self, stats: np.ndarray) -> float:
-        """The learned selection score of priced episodes (rows of :func:`learned_episode_stats`)."""
-        penalised = self._learned_penalised_rewards(stats)
-        return float((penalised if penalised is not None else stats[:, 1]).mean())
-
     def _rescore_best(self, cost_fn: Callable[[np.ndarray, np.ndarray], Any]) -> float | None:
         """The best model's recorded episodes priced with ``cost_fn`` and today's multiplier and budget (``None``: no best)."""
         if not self.best_episodes:
             return None
-        return self._learned_score(learned_episode_stats(self.best_episodes, cost_fn))
+        return learned_selection_score(self.model, learned_episode_stats(self.best_episodes, cost_fn))
 
     def _selection_score(self, metrics: dict[str, float]) -> float:
         for learned_score in ("learned_penalised_reward", "learned_feasible_reward"):
@@ -207,7 +215,7 @@ class ConstraintEvalCallback(EvalCallback):
             learned = learned_episode_stats(episodes, constraint_net.cost)
             metrics["learned_feasible_reward"] = float(learned[:, 1].mean())
             metrics["mean_learned_cost"] = float(learned[:, 2].mean())
-            penalised = self._learned_penalised_rewards(learned)
+            penalised = learned_penalised_rewards(self.model, learned)
             if penalised is not None:
                 metrics["learned_penalised_reward"] = float(penalised.mean())
             rescored = self._rescore_best(constraint_net.cost)
