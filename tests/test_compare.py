@@ -107,3 +107,24 @@ def test_compare_errors_before_evaluating(runs: pathlib.Path, tmp_path: pathlib.
     (copy / "args.yml").write_text("env: sb3_icrl/GridWorldWall-v0\nseed: null\n")
     with pytest.raises(RunFolderError, match="without a fixed --seed"):
         check_runs([str(copy.parent)])
+
+
+def test_merge_compare_joins_the_json_of_several_calls(tmp_path: pathlib.Path) -> None:
+    """benchmarks/merge_compare.py: one table from runs evaluated in separate calls; files of other eval seeds refused."""
+    import dataclasses
+    import subprocess
+    import sys
+
+    script = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "merge_compare.py"
+    calls = [[_result("vicrl", 1, 10.0), _result("mecl", 1, 12.0)], [_result("vicrl", 2, 20.0), _result("mecl", 2, 26.0)]]
+    paths = []
+    for index, call in enumerate(calls):
+        path = tmp_path / f"call{index}.json"
+        path.write_text(json.dumps({"runs": [dataclasses.asdict(result) for result in call], "eval_seed": 100}))
+        paths.append(str(path))
+    merged = subprocess.run([sys.executable, str(script), *paths], capture_output=True, text=True, check=True).stdout
+    assert "| mecl | 1, 2 | 0% +- 0% | 19 +- 7 |" in merged and "| vicrl | 1, 2 | 0% +- 0% | 15 +- 5 |" in merged
+    other_seed = tmp_path / "other.json"
+    other_seed.write_text(json.dumps({"runs": [], "eval_seed": 7}))
+    refused = subprocess.run([sys.executable, str(script), paths[0], str(other_seed)], capture_output=True, text=True)
+    assert refused.returncode != 0 and "different held-out seeds" in refused.stderr

@@ -1,0 +1,36 @@
+"""
+Merge the ``--json`` files of several ``sb3-icrl compare`` calls into one per-seed table and summary::
+
+    python benchmarks/merge_compare.py logs/s7/compare_*_final.json logs/s8/compare_*_final.json --reference vicrl
+
+Runs finish at different times; each is evaluated once, when it finishes, and the tables are merged here. The files
+must share the held-out evaluation seed. A run found in several files keeps its last row.
+"""
+
+import argparse
+import json
+
+from sb3_icrl.zoo.compare import RunResult, format_table, summarise
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("files", nargs="+", help="JSON files written by `sb3-icrl compare --json`")
+    parser.add_argument("--reference", default="vicrl", help="Algorithm to test the others against (Wilcoxon)")
+    args = parser.parse_args()
+    rows: dict[str, dict] = {}
+    eval_seeds = set()
+    for path in args.files:
+        with open(path) as file:
+            data = json.load(file)
+        eval_seeds.add(data["eval_seed"])
+        rows.update({row["run"]: row for row in data["runs"]})
+    if len(eval_seeds) != 1:
+        raise SystemExit(f"The files were evaluated on different held-out seeds {sorted(eval_seeds)}: rerun them on one.")
+    results = sorted((RunResult(**row) for row in rows.values()), key=lambda result: (result.algo, result.seed))
+    reference = args.reference if any(result.algo == args.reference for result in results) else None
+    print(format_table(results, summarise(results, reference), reference))
+
+
+if __name__ == "__main__":
+    main()
