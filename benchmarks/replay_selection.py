@@ -20,7 +20,7 @@ import torch as th
 import yaml
 
 from sb3_icrl.common.evaluation import evaluate_constraint
-from sb3_icrl.zoo.callbacks import learned_episode_stats, learned_selection_score
+from sb3_icrl.zoo.callbacks import learned_episode_stats, learned_selection_score, rescore_episodes
 from sb3_icrl.zoo.compare import describe_run
 from sb3_icrl.zoo.hyperparams import ALGOS, env_name, preprocess_hyperparams
 from sb3_icrl.zoo.train import create_env
@@ -62,11 +62,7 @@ def main() -> None:
         episodes = recorder.episodes[: args.episodes]
         score = learned_selection_score(model, learned_episode_stats(episodes, model.constraint_net.cost))
         # as the callback does: the best so far, priced again with this checkpoint's constraint, multiplier and budget
-        rescored = (
-            learned_selection_score(model, learned_episode_stats(best_episodes, model.constraint_net.cost))
-            if best_episodes
-            else None
-        )
+        rescored = rescore_episodes(model, best_episodes, model.constraint_net.cost)
         if rescored is not None:
             best_score = rescored
         if score > best_score:

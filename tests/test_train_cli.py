@@ -18,6 +18,7 @@ from sb3_icrl.zoo.callbacks import (
     learned_episode_stats,
     learned_penalised_rewards,
     learned_selection_score,
+    rescore_episodes,
 )
 from sb3_icrl.zoo.hyperparams import (
     DEFAULT_HYPERPARAMS_DIR,
@@ -295,14 +296,12 @@ def test_learned_episode_stats_price_recorded_episodes() -> None:
 
 def test_best_model_is_priced_again_with_the_current_constraint() -> None:
     """A best model whose episodes a later constraint finds costly loses its score (and its place) under that constraint."""
-    callback = ConstraintEvalCallback.__new__(ConstraintEvalCallback)
-    callback.model = _Model(lagrange_multiplier=_Multiplier(), cost_budget=np.array([0.1]), budget_statistic="step")
-    callback.best_episodes = []
-    assert callback._rescore_best(lambda observations, actions: np.zeros(len(observations))) is None
-    callback.best_episodes = [RecordedEpisode(np.zeros((10, 1)), np.zeros((10, 1)), np.full(10, 3.0))]
-    assert callback._rescore_best(lambda observations, actions: np.zeros(len(observations))) == 30.0
+    model = _Model(lagrange_multiplier=_Multiplier(), cost_budget=np.array([0.1]), budget_statistic="step")
+    assert rescore_episodes(model, [], lambda observations, actions: np.zeros(len(observations))) is None
+    best = [RecordedEpisode(np.zeros((10, 1)), np.zeros((10, 1)), np.full(10, 3.0))]
+    assert rescore_episodes(model, best, lambda observations, actions: np.zeros(len(observations))) == 30.0
     # a cost of 0.6 per step: 6 in all against a budget of 0.1 * 10, priced at lambda = 2
-    assert callback._rescore_best(lambda observations, actions: np.full(len(observations), 0.6)) == 30.0 - 2.0 * 5.0
+    assert rescore_episodes(model, best, lambda observations, actions: np.full(len(observations), 0.6)) == 30.0 - 2.0 * 5.0
 
 
 def test_console_entry_point() -> None:

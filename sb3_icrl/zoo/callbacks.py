@@ -82,6 +82,23 @@ def learned_selection_score(model: Any, stats: np.ndarray) -> float:
     return float((penalised if penalised is not None else stats[:, 1]).mean())
 
 
+def rescore_episodes(
+    model: Any, episodes: Sequence[RecordedEpisode], cost_fn: Callable[[np.ndarray, np.ndarray], Any]
+) -> float | None:
+    """
+    Earlier recorded episodes (the best model's) priced again: their :func:`learned_selection_score` under ``cost_fn``
+    and the model's multiplier and budget as they stand now.
+
+    :param model: The learner now
+    :param episodes: The recorded episodes (none: no best model yet)
+    :param cost_fn: The learned cost now
+    :return: The score, or ``None`` when there are no episodes
+    """
+    if not episodes:
+        return None
+    return learned_selection_score(model, learned_episode_stats(episodes, cost_fn))
+
+
 class LearnedCostRecorder(VecEnvWrapper):
     """
     Records each finished episode's raw observations, actions and rewards while ``recording`` is on, so that the
@@ -176,12 +193,6 @@ class ConstraintEvalCallback(EvalCallback):
         eval_normalize.obs_rms = deepcopy(train_normalize.obs_rms)
         eval_normalize.ret_rms = deepcopy(train_normalize.ret_rms)
 
-    def _rescore_best(self, cost_fn: Callable[[np.ndarray, np.ndarray], Any]) -> float | None:
-        """The best model's recorded episodes priced with ``cost_fn`` and today's multiplier and budget (``None``: no best)."""
-        if not self.best_episodes:
-            return None
-        return learned_selection_score(self.model, learned_episode_stats(self.best_episodes, cost_fn))
-
     def _selection_score(self, metrics: dict[str, float]) -> float:
         for learned_score in ("learned_penalised_reward", "learned_feasible_reward"):
             if learned_score in metrics:
@@ -218,7 +229,7 @@ class ConstraintEvalCallback(EvalCallback):
             penalised = learned_penalised_rewards(self.model, learned)
             if penalised is not None:
                 metrics["learned_penalised_reward"] = float(penalised.mean())
-            rescored = self._rescore_best(constraint_net.cost)
+            rescored = rescore_episodes(self.model, self.best_episodes, constraint_net.cost)
             if rescored is not None:
                 self.best_score = metrics["best_model_rescored"] = rescored
         self.last_mean_reward = metrics["mean_reward"]
