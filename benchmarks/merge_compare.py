@@ -10,13 +10,13 @@ must share the held-out evaluation seed. A run found in several files keeps its 
 import argparse
 import json
 
-from sb3_icrl.zoo.compare import RunResult, format_table, summarise
+from sb3_icrl.zoo.compare import RunFolderError, RunResult, format_table, summarise
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("files", nargs="+", help="JSON files written by `sb3-icrl compare --json`")
-    parser.add_argument("--reference", default="vicrl", help="Algorithm to test the others against (Wilcoxon)")
+    parser.add_argument("--reference", default=None, help="Algorithm to test the others against (Wilcoxon)")
     args = parser.parse_args()
     rows: dict[str, dict] = {}
     eval_seeds = set()
@@ -28,8 +28,11 @@ def main() -> None:
     if len(eval_seeds) != 1:
         raise SystemExit(f"The files were evaluated on different held-out seeds {sorted(eval_seeds)}: rerun them on one.")
     results = sorted((RunResult(**row) for row in rows.values()), key=lambda result: (result.algo, result.seed))
-    reference = args.reference if any(result.algo == args.reference for result in results) else None
-    print(format_table(results, summarise(results, reference), reference))
+    try:
+        summary = summarise(results, args.reference)  # as sb3-icrl compare: an absent reference or a repeated seed is an error
+    except RunFolderError as error:
+        raise SystemExit(f"error: {error}") from None
+    print(format_table(results, summary, args.reference))
 
 
 if __name__ == "__main__":

@@ -122,9 +122,13 @@ def test_merge_compare_joins_the_json_of_several_calls(tmp_path: pathlib.Path) -
         path = tmp_path / f"call{index}.json"
         path.write_text(json.dumps({"runs": [dataclasses.asdict(result) for result in call], "eval_seed": 100}))
         paths.append(str(path))
-    merged = subprocess.run([sys.executable, str(script), *paths], capture_output=True, text=True, check=True).stdout
+    merged = subprocess.run(
+        [sys.executable, str(script), *paths, "--reference", "vicrl"], capture_output=True, text=True, check=True
+    ).stdout
     assert "| mecl | 1, 2 | 0% +- 0% | 19 +- 7 |" in merged and "| vicrl | 1, 2 | 0% +- 0% | 15 +- 5 |" in merged
     other_seed = tmp_path / "other.json"
     other_seed.write_text(json.dumps({"runs": [], "eval_seed": 7}))
     refused = subprocess.run([sys.executable, str(script), paths[0], str(other_seed)], capture_output=True, text=True)
     assert refused.returncode != 0 and "different held-out seeds" in refused.stderr
+    absent = subprocess.run([sys.executable, str(script), *paths, "--reference", "gacl"], capture_output=True, text=True)
+    assert absent.returncode != 0 and "--reference 'gacl' has no run" in absent.stderr
