@@ -38,9 +38,12 @@ def zero_multiplier_model(env_fn, **kwargs) -> PPOLagrangian:
 
 @pytest.mark.parametrize("env_fn", [PendulumWithCost, ConstrainedCorridorEnv])
 def test_zero_multiplier_update_equals_ppo_update(env_fn):
-    """Same seed, same rollout buffer content: one PPOLagrangian update with lambda = 0 is PPO's update, bit for bit."""
+    """
+    Same seed, same rollout buffer content: one PPOLagrangian update with lambda = 0 is PPO's update, bit for bit, when
+    PPO uses the fused Adam that PPOLagrangian's policy picks by default.
+    """
     kwargs = dict(n_steps=64, batch_size=16, n_epochs=3, seed=7)
-    ppo = PPO("MlpPolicy", env_fn(), **kwargs)
+    ppo = PPO("MlpPolicy", env_fn(), policy_kwargs=dict(optimizer_kwargs=dict(eps=1e-5, fused=True)), **kwargs)
     lag = zero_multiplier_model(env_fn, **kwargs)
     ppo_params, lag_params = ppo.policy.state_dict(), lag.policy.state_dict()
     for key in ppo_params:
@@ -61,7 +64,10 @@ def test_zero_multiplier_update_equals_ppo_update(env_fn):
 
 
 def test_zero_multiplier_training_matches_ppo_end_to_end():
-    """Whole runs agree up to float rounding (PPOLagrangian computes the rollout's values in one batch)."""
+    """
+    Whole runs agree up to float rounding (PPOLagrangian computes the rollout's values in one batch, and its Adam is
+    fused where PPO's default loops over the tensors).
+    """
     kwargs = dict(n_steps=64, batch_size=16, n_epochs=2, seed=3)
     ppo = PPO("MlpPolicy", PendulumWithCost(), **kwargs).learn(256)
     lag = zero_multiplier_model(PendulumWithCost, **kwargs).learn(256)
@@ -268,3 +274,21 @@ def test_episode_statistic_uses_the_episodes_ended_since_the_last_update():
     assert len(costs) == 4
     expected = costs[0] + np.mean(costs[1:3]) + costs[3]
     assert model.lagrange_multiplier.value[0] == pytest.approx(expected)
+
+
+def test_optimizers_fused_by_default_with_sb3_adam_settings():
+    """Both optimisers take torch's fused Adam with SB3's eps; a caller's own choice (foreach, other kwargs) is kept."""
+    model = PPOLagrangian("MlpPolicy", PendulumWithCost(), n_steps=64, batch_size=16)
+    for optimizer in (model.policy.optimizer, model.policy.cost_optimizer):
+        assert optimizer.defaults["fused"] is True
+        assert optimizer.defaults["eps"] == 1e-5
+    own = PPOLagrangian(
+        "MlpPolicy", PendulumWithCost(), n_steps=64, batch_size=16, policy_kwargs=dict(optimizer_kwargs=dict(foreach=True))
+    )
+    for optimizer in (own.policy.optimizer, own.policy.cost_optimizer):
+        assert optimizer.defaults["foreach"] is True and not optimizer.defaults["fused"]
+        assert optimizer.defaults["eps"] == 1e-8  # torch's default: the caller gave kwargs, as in SB3
+    rmsprop = PPOLagrangian(
+        "MlpPolicy", PendulumWithCost(), n_steps=64, batch_size=16, policy_kwargs=dict(optimizer_class=th.optim.RMSprop)
+    )
+    assert "fused" not in rmsprop.policy.optimizer_kwargs  # torch's RMSprop has no fused CPU kernel in this list

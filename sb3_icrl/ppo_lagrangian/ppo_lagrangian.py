@@ -475,8 +475,9 @@ class PPOLagrangian(PPO):
                 policy_loss_1 = advantages * ratio
                 policy_loss_2 = advantages * th.clamp(ratio, 1 - clip_range, 1 + clip_range)
                 policy_loss = -th.min(policy_loss_1, policy_loss_2).mean()
-                pg_losses.append(policy_loss.item())
-                clip_fractions.append(th.mean((th.abs(ratio - 1) > clip_range).float()).item())
+                # Statistics stay tensors until the end of train(): no synchronising .item() per minibatch
+                pg_losses.append(policy_loss.detach())
+                clip_fractions.append(th.mean((th.abs(ratio - 1) > clip_range).float()))
 
                 cost_values = self.policy.predict_cost_values(rollout_data.observations)
                 if self.clip_range_vf is None:
@@ -489,12 +490,12 @@ class PPOLagrangian(PPO):
                         cost_values - rollout_data.old_cost_values, -clip_range_vf, clip_range_vf
                     )
                 value_loss = F.mse_loss(rollout_data.returns, values_pred)
-                value_losses.append(value_loss.item())
+                value_losses.append(value_loss.detach())
                 cost_value_loss = F.mse_loss(rollout_data.cost_returns, cost_values_pred)
-                cost_value_losses.append(cost_value_loss.item())
+                cost_value_losses.append(cost_value_loss.detach())
 
                 entropy_loss = -th.mean(-log_prob) if entropy is None else -th.mean(entropy)
-                entropy_losses.append(entropy_loss.item())
+                entropy_losses.append(entropy_loss.detach())
 
                 loss = (
                     policy_loss
@@ -505,10 +506,10 @@ class PPOLagrangian(PPO):
 
                 with th.no_grad():
                     log_ratio = log_prob - rollout_data.old_log_prob
-                    approx_kl_div = th.mean((th.exp(log_ratio) - 1) - log_ratio).cpu().numpy()
+                    approx_kl_div = th.mean((th.exp(log_ratio) - 1) - log_ratio)
                     approx_kl_divs.append(approx_kl_div)
 
-                if self.target_kl is not None and approx_kl_div > 1.5 * self.target_kl:
+                if self.target_kl is not None and approx_kl_div.item() > 1.5 * self.target_kl:
                     continue_training = False
                     if self.verbose >= 1:
                         print(f"Early stopping at step {epoch} due to reaching max kl: {approx_kl_div:.2f}")
@@ -518,8 +519,8 @@ class PPOLagrangian(PPO):
                 self.policy.cost_optimizer.zero_grad()
                 loss.backward()
                 # Clip separately: the cost critic's gradients must not rescale the actor-critic's
-                th.nn.utils.clip_grad_norm_(actor_critic_params, self.max_grad_norm)
-                th.nn.utils.clip_grad_norm_(cost_critic_params, self.max_grad_norm)
+                th.nn.utils.clip_grad_norm_(actor_critic_params, self.max_grad_norm, foreach=True)
+                th.nn.utils.clip_grad_norm_(cost_critic_params, self.max_grad_norm, foreach=True)
                 self.policy.optimizer.step()
                 self.policy.cost_optimizer.step()
 
@@ -532,12 +533,12 @@ class PPOLagrangian(PPO):
             self.rollout_buffer.cost_values.flatten(), self.rollout_buffer.cost_returns.flatten()
         )
 
-        self.logger.record("train/entropy_loss", np.mean(entropy_losses))
-        self.logger.record("train/policy_gradient_loss", np.mean(pg_losses))
-        self.logger.record("train/value_loss", np.mean(value_losses))
-        self.logger.record("train/cost_value_loss", np.mean(cost_value_losses))
-        self.logger.record("train/approx_kl", np.mean(approx_kl_divs))
-        self.logger.record("train/clip_fraction", np.mean(clip_fractions))
+        self.logger.record("train/entropy_loss", _mean(entropy_losses))
+        self.logger.record("train/policy_gradient_loss", _mean(pg_losses))
+        self.logger.record("train/value_loss", _mean(value_losses))
+        self.logger.record("train/cost_value_loss", _mean(cost_value_losses))
+        self.logger.record("train/approx_kl", _mean(approx_kl_divs))
+        self.logger.record("train/clip_fraction", _mean(clip_fractions))
         self.logger.record("train/loss", loss.item())
         self.logger.record("train/explained_variance", explained_var)
         self.logger.record("train/cost_explained_variance", cost_explained_var)
@@ -571,6 +572,11 @@ class PPOLagrangian(PPO):
             reset_num_timesteps=reset_num_timesteps,
             progress_bar=progress_bar,
         )
+
+
+def _mean(values: list[th.Tensor]) -> float:
+    """The mean of a list of scalar tensors as a float (NaN for an empty list, as ``np.mean``)."""
+    return float(th.stack(values).double().mean()) if values else float("nan")
 
 
 def _env_name(env: VecEnv, idx: int) -> str:
