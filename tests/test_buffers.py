@@ -99,3 +99,33 @@ def test_samples_carry_cost_fields_aligned_with_observations():
         assert batch.old_cost_values.shape == (len(batch.observations), 2)
         np.testing.assert_array_equal(batch.old_cost_values[:, 0].numpy(), batch.observations[:, 0].numpy())
         np.testing.assert_array_equal(batch.old_cost_values[:, 1].numpy(), -batch.observations[:, 0].numpy())
+
+
+def test_sampling_gives_sb3_layout_contiguous_and_equal_to_per_field_indexing():
+    """get() gathers from tensors made once per rollout: the same values, shapes and order as indexing each array."""
+    buffer = CostRolloutBuffer(N_STEPS, OBS_SPACE, spaces.Box(-1, 1, shape=(2,)), n_envs=N_ENVS, n_costs=2)
+    rng = np.random.default_rng(3)
+    for _ in range(N_STEPS):
+        buffer.add(
+            rng.normal(size=(N_ENVS, 3)).astype(np.float32),
+            rng.normal(size=(N_ENVS, 2)).astype(np.float32),
+            rng.normal(size=N_ENVS).astype(np.float32),
+            np.zeros(N_ENVS),
+            th.as_tensor(rng.normal(size=N_ENVS).astype(np.float32)),
+            th.as_tensor(rng.normal(size=N_ENVS).astype(np.float32)),
+        )
+        buffer.add_costs(rng.uniform(size=(N_ENVS, 2)).astype(np.float32))
+    buffer.set_cost_values(rng.normal(size=(N_STEPS, N_ENVS, 2)).astype(np.float32))
+    dones = np.zeros(N_ENVS, dtype=bool)
+    buffer.compute_returns_and_advantage(th.zeros(N_ENVS), dones, last_cost_values=np.zeros((N_ENVS, 2)))
+    for epoch in range(2):  # the second epoch samples from the tensors made by the first
+        np.random.seed(epoch)
+        batches = list(buffer.get(batch_size=5))
+        np.random.seed(epoch)
+        indices = np.random.permutation(N_STEPS * N_ENVS)
+        for start, batch in zip(range(0, N_STEPS * N_ENVS, 5), batches, strict=True):
+            expected = buffer._get_samples(indices[start : start + 5])
+            for name, value, reference in zip(batch._fields, batch, expected, strict=True):
+                assert value.shape == reference.shape, name
+                assert value.is_contiguous(), name
+                assert th.equal(value, reference), name
