@@ -1,5 +1,7 @@
 """Feasibility nets: input handling, normaliser, Beta cost modes, save/load and error messages."""
 
+import copy
+
 import numpy as np
 import pytest
 import scipy.integrate
@@ -9,6 +11,7 @@ from gymnasium import spaces
 from torch import nn
 
 from sb3_icrl.constraints import BetaFeasibilityNet, FeasibilityNet, InputNormalizer, beta_tail_feasibility
+from sb3_icrl.constraints.networks import NUMPY_MAX_BATCH
 
 RNG = np.random.default_rng(0)
 OBS = RNG.normal(3.0, 2.0, size=(32, 4)).astype(np.float32)
@@ -174,3 +177,64 @@ def test_cvar_matches_the_tail_mean_by_integration(alpha, beta, confidence):
     tail_mean /= 1.0 - confidence
     cvar = beta_tail_feasibility(np.array([alpha]), np.array([beta]), confidence, "cvar")[0]
     assert cvar == pytest.approx(tail_mean, rel=1e-6)
+
+
+@pytest.mark.parametrize("activation_fn", [nn.ReLU, nn.Tanh, nn.LeakyReLU, nn.ELU, nn.Sigmoid])
+@pytest.mark.parametrize("net_class", [FeasibilityNet, BetaFeasibilityNet])
+def test_numpy_cost_equals_torch_forward(net_class, activation_fn):
+    """The per-step NumPy path gives the torch forward pass's feasibility, for every activation it knows."""
+    rng = np.random.default_rng(0)
+    net = net_class(5, 2, hidden_sizes=[16, 8], activation_fn=activation_fn, obs_select_dim=[0, 3], clip_input=2.0)
+    expert_obs, expert_acts = rng.normal(size=(200, 5)), rng.normal(size=(200, 2))
+    net.fit_normalizer(expert_obs, expert_acts)
+    obs, acts = 3 * rng.normal(size=(4, 5)), rng.normal(size=(4, 2))  # some inputs clipped by the normaliser
+    assert net._numpy_forward(obs, acts) is not None
+    with th.no_grad():
+        if net_class is FeasibilityNet:
+            expected = net.feasibility(obs, acts).numpy()
+        else:
+            alpha, beta = net.alpha_beta(obs, acts)
+            expected = (alpha / (alpha + beta)).numpy()
+    kwargs = {} if net_class is FeasibilityNet else {"cost_mode": "mean"}
+    np.testing.assert_allclose(net.predict_feasibility(obs, acts, **kwargs), expected, rtol=1e-5, atol=1e-6)
+    # A batch above NUMPY_MAX_BATCH goes through torch: the same values for the same pairs
+    big_obs, big_acts = np.repeat(obs, NUMPY_MAX_BATCH, axis=0), np.repeat(acts, NUMPY_MAX_BATCH, axis=0)
+    assert net._numpy_forward(big_obs, big_acts) is None
+    np.testing.assert_allclose(
+        net.predict_feasibility(big_obs, big_acts, **kwargs)[::NUMPY_MAX_BATCH], expected, rtol=1e-5, atol=1e-6
+    )
+
+
+def test_numpy_cost_follows_every_weight_change():
+    """An optimiser step, load_state_dict and a new normaliser fit all reach the per-step cost at once."""
+    rng = np.random.default_rng(1)
+    net = FeasibilityNet(3, 1, hidden_sizes=[8])
+    net.fit_normalizer(rng.normal(size=(50, 3)), rng.normal(size=(50, 1)))
+    obs, acts = rng.normal(size=(2, 3)), rng.normal(size=(2, 1))
+    before = net.cost(obs, acts)
+    snapshot = copy.deepcopy(net.state_dict())
+    optimizer = th.optim.Adam(net.parameters(), lr=0.5)
+    net.feasibility(obs, acts).sum().backward()
+    optimizer.step()
+    stepped = net.cost(obs, acts)
+    assert not np.allclose(stepped, before)
+    with th.no_grad():
+        np.testing.assert_allclose(stepped, 1 - net.feasibility(obs, acts).numpy(), rtol=1e-5)
+    net.load_state_dict(snapshot)
+    np.testing.assert_array_equal(net.cost(obs, acts), before)
+    net.fit_normalizer(rng.normal(loc=3.0, size=(50, 3)), rng.normal(size=(50, 1)))
+    with th.no_grad():
+        np.testing.assert_allclose(net.cost(obs, acts), 1 - net.feasibility(obs, acts).numpy(), rtol=1e-5)
+
+
+def test_numpy_path_left_to_torch_where_it_does_not_apply():
+    """Discrete spaces, torch inputs, unknown activations and malformed batches take the torch path (and its errors)."""
+    rng = np.random.default_rng(2)
+    discrete = FeasibilityNet(4, 3, discrete_obs=True, discrete_actions=True, normalize_input=False)
+    assert discrete._numpy_forward(np.array([0, 1]), np.array([2, 0])) is None
+    net = FeasibilityNet(3, 1, hidden_sizes=[8], normalize_input=False, activation_fn=nn.GELU)
+    assert net._numpy_forward(rng.normal(size=(2, 3)), rng.normal(size=(2, 1))) is None
+    relu = FeasibilityNet(3, 1, hidden_sizes=[8], normalize_input=False)
+    assert relu._numpy_forward(th.zeros(2, 3), th.zeros(2, 1)) is None
+    with pytest.raises(ValueError, match="batch of shape"):
+        relu.cost(rng.normal(size=3), rng.normal(size=(1, 1)))

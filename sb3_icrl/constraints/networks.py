@@ -22,6 +22,26 @@ SelfConstraintNet = TypeVar("SelfConstraintNet", bound="_ConstraintNet")
 
 #: Cost modes of :class:`BetaFeasibilityNet`
 BETA_COST_MODES = ("sample", "mean", "var", "cvar")
+#: Largest batch that :meth:`_ConstraintNet.predict_feasibility` evaluates in NumPy (larger ones go through torch)
+NUMPY_MAX_BATCH = 256
+
+
+def _leaky_relu(x: np.ndarray) -> np.ndarray:
+    return np.where(x >= 0, x, np.float32(0.01) * x)
+
+
+def _elu(x: np.ndarray) -> np.ndarray:
+    return np.where(x > 0, x, np.expm1(np.minimum(x, 0)))
+
+
+#: The hidden activations (torch's defaults) the NumPy forward pass knows
+NUMPY_ACTIVATIONS = {
+    nn.ReLU: lambda x: np.maximum(x, np.float32(0)),
+    nn.Tanh: np.tanh,
+    nn.Sigmoid: scipy.special.expit,
+    nn.LeakyReLU: _leaky_relu,
+    nn.ELU: _elu,
+}
 
 
 class InputNormalizer(nn.Module):
@@ -134,6 +154,8 @@ class _ConstraintNet(nn.Module):
             raise ValueError("The constraint net has no input: `obs_select_dim` is empty and `use_action` is False.")
         self.normalizer = InputNormalizer(self.input_dim, clip_range=clip_input) if self.normalize_input else None
         self.network = nn.Sequential(*create_mlp(self.input_dim, self.n_outputs, self.hidden_sizes, activation_fn))
+        # NumPy copies of the weights and the tensor versions they were made from (see _current_numpy_weights)
+        self._numpy_weights: tuple[tuple[list[th.Tensor], list[int]], list[np.ndarray] | None] | None = None
 
     @classmethod
     def from_spaces(
@@ -309,6 +331,83 @@ class _ConstraintNet(nn.Module):
     def predict_feasibility(self, obs: ArrayLike, actions: ArrayLike | None) -> np.ndarray:
         raise NotImplementedError
 
+    def _numpy_forward(self, obs: ArrayLike, actions: ArrayLike | None) -> np.ndarray | None:
+        """
+        The network's output for a small batch of continuous NumPy inputs, computed in NumPy; ``None`` where this path
+        does not apply (discrete spaces, a GPU, torch inputs, an activation it does not know, an unfitted normaliser,
+        more than :data:`NUMPY_MAX_BATCH` pairs, or a malformed batch, which the torch path then reports).
+
+        A learner calls the learned cost once per env step on ``n_envs`` pairs: there, torch's per-operation overhead
+        (~100 us for a small MLP) dominates, and NumPy does the same float32 arithmetic in a fraction of the time.
+
+        :param obs: Observations as the env returned them, ``(batch, obs_dim)``
+        :param actions: Actions as sent to the env, ``(batch, action_dim)``
+        :return: The network's output, ``(batch, n_outputs)``, or ``None``
+        """
+        if isinstance(obs, th.Tensor) or isinstance(actions, th.Tensor):
+            return None
+        weights = self._current_numpy_weights()
+        if weights is None:
+            return None
+        obs = np.asarray(obs, dtype=np.float32)
+        if obs.ndim != 2 or obs.shape[1] != self.obs_dim or not 0 < obs.shape[0] <= NUMPY_MAX_BATCH:
+            return None
+        parts = [obs[:, self.obs_select_dim]]
+        if self.use_action:
+            if actions is None:
+                return None
+            acts = np.asarray(actions, dtype=np.float32)
+            if acts.ndim == 1 and self.action_dim == 1:
+                acts = acts.reshape(-1, 1)
+            if acts.shape != (obs.shape[0], self.action_dim):
+                return None
+            parts.append(acts)
+        inputs = np.concatenate(parts, axis=1)
+        if self.normalizer is not None:
+            inputs = (inputs - weights[0]) / weights[1]
+            if self.normalizer.clip_range is not None:
+                inputs = np.clip(inputs, -self.normalizer.clip_range, self.normalizer.clip_range)
+            weights = weights[2:]
+        activation = NUMPY_ACTIVATIONS[self.activation_fn]
+        n_layers = len(weights) // 2
+        for layer in range(n_layers):
+            inputs = inputs @ weights[2 * layer] + weights[2 * layer + 1]
+            if layer < n_layers - 1:
+                inputs = activation(inputs)
+        return inputs.astype(np.float32, copy=False)
+
+    def _current_numpy_weights(self) -> list[np.ndarray] | None:
+        """
+        Normaliser mean and std (when normalising), then each linear layer's transposed weight and bias, as NumPy
+        copies; ``None`` where the NumPy path does not apply. Copied again whenever a tensor has changed in place (an
+        optimiser step, ``load_state_dict``: torch counts versions) or moved (``to``, see :meth:`_apply`).
+        """
+        cache = self._numpy_weights
+        if cache is not None and all(tensor._version == version for tensor, version in zip(*cache[0], strict=True)):
+            return cache[1]
+        tensors = [*self.buffers(), *self.parameters()]
+        usable = (
+            not (self.discrete_obs or self.discrete_actions)
+            and self.activation_fn in NUMPY_ACTIVATIONS
+            and all(tensor.device.type == "cpu" and tensor.dtype in (th.float32, th.bool) for tensor in tensors)
+            and (self.normalizer is None or bool(self.normalizer.fitted))
+        )
+        arrays: list[np.ndarray] | None = None
+        if usable:
+            arrays = []
+            if self.normalizer is not None:
+                arrays += [self.normalizer.mean.detach().numpy().copy(), self.normalizer.std.detach().numpy().copy()]
+            for module in self.network:
+                if isinstance(module, nn.Linear):
+                    arrays += [module.weight.detach().numpy().T.copy(), module.bias.detach().numpy().copy()]
+        self._numpy_weights = ((tensors, [tensor._version for tensor in tensors]), arrays)
+        return arrays
+
+    def _apply(self, fn: Any, recurse: bool = True) -> Any:
+        # ``to``, ``cuda``, ``float``...: new tensors, so the NumPy copies must be made again
+        self._numpy_weights = None
+        return super()._apply(fn, recurse)
+
     def cost(self, obs: np.ndarray, actions: np.ndarray | None) -> np.ndarray:
         """
         The learned cost ``1 - phi`` for a batch (no gradient), usable as ``PPOLagrangian``'s ``cost_fn``.
@@ -352,6 +451,9 @@ class FeasibilityNet(_ConstraintNet):
         :param actions: Actions
         :return: ``phi``, float32 of shape ``(batch,)``
         """
+        outputs = self._numpy_forward(obs, actions)
+        if outputs is not None:
+            return scipy.special.expit(outputs[:, 0]).astype(np.float32)
         with th.no_grad():
             return self.feasibility(obs, actions).cpu().numpy().astype(np.float32)
 
@@ -447,8 +549,18 @@ class BetaFeasibilityNet(_ConstraintNet):
         """
         mode = self.cost_mode if cost_mode is None else _check_cost_mode(cost_mode)
         level = self.confidence if confidence is None else _check_confidence(confidence)
+        outputs = self._numpy_forward(obs, actions)
+        if outputs is not None:
+            # torch's softplus: log(1 + exp(x)), and x itself above 20
+            concentrations = np.where(outputs > 20, outputs, np.logaddexp(np.float32(0), outputs)) + self.min_concentration
+            alpha_np, beta_np = concentrations[:, 0].astype(np.float32), concentrations[:, 1].astype(np.float32)
+            if mode == "mean":
+                return (alpha_np / (alpha_np + beta_np)).astype(np.float32)
+            alpha, beta = th.from_numpy(alpha_np), th.from_numpy(beta_np)
+        else:
+            with th.no_grad():
+                alpha, beta = self.alpha_beta(obs, actions)
         with th.no_grad():
-            alpha, beta = self.alpha_beta(obs, actions)
             if mode == "sample":
                 return th.distributions.Beta(alpha, beta).sample().cpu().numpy().astype(np.float32)
             if mode == "mean":
