@@ -1,0 +1,230 @@
+"""
+Training speed of PPO, PPOLagrangian, MECL and VICRL on BlockedHalfCheetah-v0 at the same settings, and where the
+time goes.
+
+All four use the PPO settings of the shipped BlockedHalfCheetah VICRL recipe (``zoo_hyperparams/vicrl.yml``: envs,
+rollout length, minibatch, epochs, networks) and the same VecEnv stack as ``train.py`` (DummyVecEnv, Monitor,
+VecNormalize). PPO is SB3's; PPOLagrangian learns on the env's true cost with the recipe's PID multiplier; MECL and
+VICRL are their full recipes on the shipped demonstrations. Runs are interleaved (PPO, PPOLag, MECL, VICRL, PPO, ...)
+with one torch thread, so that machine noise hits all alike; fps is env steps over the wall time of ``learn``.
+
+Each run is also timed by part: every timed function books the time spent in it, less the time of timed functions it
+calls, to one category; ``learn`` itself is the root, so the categories add up to the wall time of ``learn`` (the
+coverage line says how closely; the timers cost about 1 us a call).
+
+    python benchmarks/icrl_speed.py --steps 20480 --repeats 2
+    python benchmarks/icrl_speed.py --steps 10240 -params n_envs:1 n_steps:512   # the recipe's settings overridden
+"""
+
+import argparse
+import functools
+import platform
+import statistics
+import time
+from collections import defaultdict
+from collections.abc import Callable
+from typing import Any
+
+import torch as th
+from stable_baselines3 import PPO
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
+
+from sb3_icrl import MECL, VICRL, PPOLagrangian
+from sb3_icrl.constraints.wrappers import LearnedCostVecEnvWrapper
+from sb3_icrl.data.registry import load_demonstrations
+from sb3_icrl.icrl.recorder import TrajectoryRecorderVecEnvWrapper
+from sb3_icrl.zoo.hyperparams import algo_kwargs, load_hyperparams, preprocess_hyperparams, resolve_env_id
+from sb3_icrl.zoo.train import StoreDict, create_env
+
+ENV_ID = "BlockedHalfCheetah-v0"
+ALGOS = ("ppo", "ppolag", "mecl", "vicrl")
+#: The PPO settings every algorithm shares; the rest of an ICRL entry (constraint model, trainer) is the algorithm's
+PPO_KEYS = (
+    "n_steps",
+    "batch_size",
+    "n_epochs",
+    "gamma",
+    "gae_lambda",
+    "learning_rate",
+    "ent_coef",
+    "clip_range",
+    "max_grad_norm",
+    "vf_coef",
+    "policy_kwargs",
+)
+CATEGORIES = (
+    "PPO update (train)",
+    "policy and value forwards (rollouts)",
+    "rollout loop, callbacks, buffer, GAE",
+    "VecEnv stack (DummyVecEnv, VecNormalize, cost wrapper)",
+    "trajectory recorder",
+    "learned cost",
+    "constraint update",
+    "env python (wrappers, reward, cost)",
+    "MuJoCo physics",
+    "learn set-up, logging, other",
+)
+
+
+class SectionTimer:
+    """Exclusive wall time per category: a timed call pauses the category of the call it is made from."""
+
+    def __init__(self) -> None:
+        self.totals: dict[str, float] = defaultdict(float)
+        self.calls: dict[str, int] = defaultdict(int)
+        self._stack: list[str] = []
+        self._last = 0.0
+
+    def _enter(self, category: str) -> None:
+        now = time.perf_counter()
+        if self._stack:
+            self.totals[self._stack[-1]] += now - self._last
+        self._stack.append(category)
+        self.calls[category] += 1
+        self._last = now
+
+    def _exit(self) -> None:
+        now = time.perf_counter()
+        self.totals[self._stack.pop()] += now - self._last
+        self._last = now
+
+    def wrap(self, category: str, function: Callable[..., Any]) -> Callable[..., Any]:
+        """``function`` with its time booked to ``category``."""
+
+        @functools.wraps(function)
+        def timed(*args: Any, **kwargs: Any) -> Any:
+            self._enter(category)
+            try:
+                return function(*args, **kwargs)
+            finally:
+                self._exit()
+
+        return timed
+
+    def patch(self, owner: Any, name: str, category: str) -> None:
+        """Time ``owner.name`` (an instance attribute shadows the class's method)."""
+        if hasattr(owner, name):
+            setattr(owner, name, self.wrap(category, getattr(owner, name)))
+
+
+def recipe(env_id: str, overrides: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """Preprocessed hyper-parameters per algorithm: the VICRL recipe's PPO settings for all, ICRL keys their own."""
+    shared = preprocess_hyperparams(load_hyperparams("vicrl", env_id, overrides)[0])
+    params: dict[str, dict[str, Any]] = {}
+    for algo in ALGOS:
+        source = "vicrl" if algo in ("ppo", "ppolag") else algo
+        entry = preprocess_hyperparams(load_hyperparams(source, env_id, overrides)[0])
+        entry.update({key: shared[key] for key in (*PPO_KEYS, "n_envs", "normalize") if key in shared})
+        params[algo] = entry
+    return params
+
+
+def build(algo: str, params: dict[str, Any], env_id: str, seed: int, demonstrations: Any) -> BaseAlgorithm:
+    env, _ = create_env(env_id, params, params["n_envs"], seed, {}, 0.0, None)
+    if algo == "ppo":
+        return PPO(params["policy"], env, seed=seed, **{key: params[key] for key in PPO_KEYS if key in params})
+    if algo == "ppolag":
+        kwargs = {key: params[key] for key in (*PPO_KEYS, "lagrange_update", "lagrange_kwargs") if key in params}
+        return PPOLagrangian(params["policy"], env, seed=seed, cost_budget=0.0, budget_statistic="step", **kwargs)
+    algo_class = {"mecl": MECL, "vicrl": VICRL}[algo]
+    return algo_class(params["policy"], env, seed=seed, demonstrations=demonstrations, **algo_kwargs(params))
+
+
+def instrument(model: BaseAlgorithm, timer: SectionTimer) -> None:
+    """Time the parts of ``model``'s training loop (instance attributes only: nothing global changes)."""
+    timer.patch(model, "train", CATEGORIES[0])
+    timer.patch(model, "collect_rollouts", CATEGORIES[2])
+    for name in ("forward", "act", "predict_values", "predict_all_values"):
+        timer.patch(model.policy, name, CATEGORIES[1])
+    constraint_net = getattr(model, "constraint_net", None)
+    if constraint_net is not None:
+        timer.patch(constraint_net, "cost", CATEGORIES[5])
+        model.icrl_trainer = model._make_trainer()  # type: ignore[attr-defined]  # learn() keeps it
+        timer.patch(model.icrl_trainer, "_on_rollout_end", CATEGORIES[6])
+    node: VecEnv = model.get_env()  # type: ignore[assignment]
+    while True:
+        category = CATEGORIES[4] if isinstance(node, TrajectoryRecorderVecEnvWrapper) else CATEGORIES[3]
+        for name in ("step_async", "step_wait", "reset"):
+            timer.patch(node, name, category)
+        if isinstance(node, LearnedCostVecEnvWrapper):
+            timer.patch(node, "_hide_true_cost", CATEGORIES[3])
+        if not isinstance(node, VecEnvWrapper):
+            break
+        node = node.venv
+    assert isinstance(node, DummyVecEnv), f"expected a DummyVecEnv at the bottom, got {type(node).__name__}"
+    for env in node.envs:
+        timer.patch(env, "step", CATEGORIES[7])
+        timer.patch(env, "reset", CATEGORIES[7])
+        timer.patch(env.unwrapped, "do_simulation", CATEGORIES[8])
+
+
+def measure(algo: str, params: dict[str, Any], env_id: str, steps: int, seed: int, demos: Any) -> tuple[float, dict]:
+    """fps of ``learn(steps)`` and the time per category (model construction is not timed)."""
+    model = build(algo, params, env_id, seed, demos)
+    timer = SectionTimer()
+    instrument(model, timer)
+    learn = timer.wrap(CATEGORIES[9], model.learn)
+    start = time.perf_counter()
+    learn(steps)
+    wall = time.perf_counter() - start
+    return model.num_timesteps / wall, {"wall": wall, **{key: timer.totals[key] for key in CATEGORIES}}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--steps", type=int, default=20480, help="env steps per run (a multiple of n_envs x n_steps)")
+    parser.add_argument("--repeats", type=int, default=2, help="interleaved rounds of the four algorithms")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads")
+    parser.add_argument("--algos", nargs="+", default=list(ALGOS), choices=ALGOS)
+    parser.add_argument("-params", "--hyperparams", nargs="+", type=str, action=StoreDict, default={}, help="overrides k:v")
+    args = parser.parse_args()
+    th.set_num_threads(args.threads)
+    env_id = resolve_env_id(ENV_ID)
+    params = recipe(env_id, args.hyperparams)
+    demos = load_demonstrations(ENV_ID)
+    shared = params["vicrl"]
+    print(
+        f"{ENV_ID}: n_envs {shared['n_envs']}, n_steps {shared['n_steps']}, batch_size {shared['batch_size']}, "
+        f"n_epochs {shared['n_epochs']}, {args.steps} steps per run, torch threads {args.threads}",
+        flush=True,
+    )
+
+    measure("ppo", params["ppo"], env_id, shared["n_envs"] * shared["n_steps"], 0, demos)  # warm-up
+    fps: dict[str, list[float]] = {algo: [] for algo in args.algos}
+    parts: dict[str, list[dict]] = {algo: [] for algo in args.algos}
+    for repeat in range(args.repeats):
+        for algo in args.algos:
+            run_fps, run_parts = measure(algo, params[algo], env_id, args.steps, repeat, demos)
+            fps[algo].append(run_fps)
+            parts[algo].append(run_parts)
+            print(f"round {repeat} {algo:7s} {run_fps:8.1f} steps/s", flush=True)
+
+    print(f"\nmachine: {platform.processor() or platform.machine()}, {time.strftime('%Y-%m-%d')}")
+    for algo in args.algos:
+        print(f"{algo:7s} mean {statistics.mean(fps[algo]):8.1f} steps/s  ({1e6 / statistics.mean(fps[algo]):.0f} us/step)")
+    reference = {"ppolag": "ppo", "mecl": "ppolag", "vicrl": "ppolag"}
+    for algo, peer in reference.items():
+        if algo in fps and peer in fps:
+            ratios = [mine / theirs for mine, theirs in zip(fps[algo], fps[peer], strict=True)]
+            ratio = statistics.mean(fps[algo]) / statistics.mean(fps[peer])
+            print(
+                f"{algo} fps / {peer} fps = {ratio:.3f} (rounds: {', '.join(f'{r:.3f}' for r in ratios)}; "
+                f"target >= 0.95: {'PASS' if ratio >= 0.95 else 'FAIL'})"
+            )
+
+    print("\nshare of wall time (mean over rounds)")
+    print(f"{'part':56s}" + "".join(f"{algo:>9s}" for algo in args.algos))
+    for category in CATEGORIES:
+        shares = [statistics.mean(run[category] / run["wall"] for run in parts[algo]) for algo in args.algos]
+        print(f"{category:56s}" + "".join(f"{100 * share:8.1f}%" for share in shares))
+    coverage = [
+        statistics.mean(sum(run[key] for key in CATEGORIES) / run["wall"] for run in parts[algo]) for algo in args.algos
+    ]
+    print(f"{'sum of the parts / wall time':56s}" + "".join(f"{100 * share:8.1f}%" for share in coverage))
+    per_step = [statistics.mean(1e6 * run["wall"] / args.steps for run in parts[algo]) for algo in args.algos]
+    print(f"{'us per env step':56s}" + "".join(f"{value:9.0f}" for value in per_step))
+
+
+if __name__ == "__main__":
+    main()
