@@ -382,7 +382,7 @@ def test_resume_from_a_checkpoint(algo: str, tmp_path: pathlib.Path) -> None:
     args = _resume_args(algo, tmp_path)
     assert main([*args, "-n", "384"]) == 0
     first = tmp_path / algo / "ConstrainedCorridor-v0_1"
-    # Saved at the 256th step, before the second rollout's update: one multiplier and constraint update behind the end
+    # Saved at the start of the third rollout (256 steps), after two updates: one multiplier update behind the end
     checkpoint = first / "rl_model_256_steps.zip"
     assert all((first / f"rl_model_vecnormalize_{steps}_steps.pkl").is_file() for steps in (128, 256, 384))
 

@@ -1,8 +1,10 @@
 """Small helpers shared by the package, its benchmarks and its scripts."""
 
+import io
 import json
 import os
 import pathlib
+import pickle
 import tempfile
 from typing import Any
 
@@ -22,6 +24,9 @@ def atomic_write_bytes(path: str | pathlib.Path, data: bytes, mode: int = 0o644)
     try:
         with os.fdopen(file_descriptor, "wb") as file:
             file.write(data)
+            file.flush()
+            # On disk before the rename: after a power cut the name holds the old file or the whole new one
+            os.fsync(file.fileno())
         os.chmod(temporary, mode)
         os.replace(temporary, path)
     except BaseException:
@@ -38,3 +43,31 @@ def atomic_write_json(path: str | pathlib.Path, data: Any, **json_kwargs: Any) -
     :param json_kwargs: Passed to ``json.dumps`` (e.g. ``indent=2``)
     """
     atomic_write_bytes(path, json.dumps(data, **json_kwargs).encode())
+
+
+def atomic_save_model(model: Any, path: str | pathlib.Path) -> str:
+    """
+    ``model.save(path)`` for an SB3 model, atomically: a run killed while saving keeps the previous file or none,
+    never a truncated zip under the model's name.
+
+    :param model: An SB3 algorithm
+    :param path: Destination (``.zip`` is added when missing, as SB3 does)
+    :return: The path written
+    """
+    path = str(path)
+    if not path.endswith(".zip"):
+        path += ".zip"
+    buffer = io.BytesIO()
+    model.save(buffer)
+    atomic_write_bytes(path, buffer.getvalue())
+    return path
+
+
+def atomic_save_pickle(obj: Any, path: str | pathlib.Path) -> None:
+    """
+    Pickle ``obj`` to ``path`` atomically (e.g. ``VecNormalize`` statistics, which ``VecNormalize.load`` reads back).
+
+    :param obj: A picklable object
+    :param path: Destination file
+    """
+    atomic_write_bytes(path, pickle.dumps(obj))

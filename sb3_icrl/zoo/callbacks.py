@@ -1,5 +1,6 @@
 """Evaluation callback with the benchmark's metrics; model selection sees only what the learner knows."""
 
+import io
 import os
 import warnings
 from collections.abc import Callable, Sequence
@@ -9,11 +10,12 @@ from typing import Any
 
 import numpy as np
 from gymnasium import spaces
-from stable_baselines3.common.callbacks import EvalCallback
+from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, unwrap_vec_normalize
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 
 from sb3_icrl.common.evaluation import evaluate_constraint
+from sb3_icrl.common.utils import atomic_save_model, atomic_save_pickle, atomic_write_bytes
 
 
 @dataclass
@@ -175,6 +177,24 @@ class ConstraintEvalCallback(EvalCallback):
         self.best_score = -np.inf
         self.best_episodes: list[RecordedEpisode] = []  # the best model's recorded episodes, priced again later
 
+    def resume_history(self, up_to_timesteps: int) -> None:
+        """
+        Go on from the ``evaluations.npz`` of an interrupted run: keep its evaluations made up to ``up_to_timesteps``
+        (the checkpoint the run resumes from), and the best selection score among them, so that the best model is
+        replaced only by a better one.
+
+        :param up_to_timesteps: Steps of the checkpoint the run resumes from
+        """
+        path = self.log_path if self.log_path is None or self.log_path.endswith(".npz") else self.log_path + ".npz"
+        if path is None or not os.path.isfile(path):
+            return
+        with np.load(path) as saved:
+            keep = np.asarray(saved["timesteps"]) <= up_to_timesteps
+            self.history = {key: [row for row, kept in zip(saved[key], keep, strict=True) if kept] for key in saved.files}
+        scores = [float(score) for score in self.history.get("selection_score", [])]
+        if scores and os.path.isfile(os.path.join(self.best_model_save_path or "", "best_model.zip")):
+            self.best_score = max(scores)
+
     def _init_callback(self) -> None:
         # The eval env is built like the training one, but the ICRL models add their own wrappers to theirs
         with warnings.catch_warnings():
@@ -254,7 +274,9 @@ class ConstraintEvalCallback(EvalCallback):
         self.history.setdefault("selection_score", []).append(score)
         if self.log_path is not None:
             arrays: dict[str, Any] = {key: np.array(value) for key, value in self.history.items()}
-            np.savez(self.log_path, **arrays)
+            buffer = io.BytesIO()
+            np.savez(buffer, **arrays)
+            atomic_write_bytes(self.log_path if self.log_path.endswith(".npz") else self.log_path + ".npz", buffer.getvalue())
 
         if score > self.best_score:
             self.best_score = score
@@ -262,7 +284,49 @@ class ConstraintEvalCallback(EvalCallback):
             if self.verbose >= 1:
                 print(f"New best model (selection score {score:.3g})")
             if self.best_model_save_path is not None:
-                self.model.save(os.path.join(self.best_model_save_path, "best_model"))
+                atomic_save_model(self.model, os.path.join(self.best_model_save_path, "best_model"))
             if self.callback_on_new_best is not None:
                 return self.callback_on_new_best.on_step()
+        return True
+
+
+class AtomicCheckpointCallback(CheckpointCallback):
+    """
+    Checkpoints (model, and ``VecNormalize`` statistics) every ``save_freq`` timesteps, taken where a run can be
+    continued exactly: at the start of a rollout, after the previous update, so a resumed run (``train.py --resume``)
+    collects the same rollouts the interrupted one had left. Each file is written atomically, statistics first: a run
+    killed at any moment leaves whole checkpoints only, each with its statistics beside it.
+
+    :param save_freq: Timesteps between checkpoints (the first rollout start at or past each multiple)
+    :param save_path: Folder of the checkpoints
+    :param name_prefix: File prefix: ``<prefix>_<timesteps>_steps.zip``
+    :param save_vecnormalize: Also save the ``VecNormalize`` statistics (``<prefix>_vecnormalize_<timesteps>_steps.pkl``)
+    :param verbose: Verbosity level
+    """
+
+    def __init__(
+        self, save_freq: int, save_path: str, name_prefix: str = "rl_model", save_vecnormalize: bool = False, verbose: int = 0
+    ):
+        super().__init__(save_freq, save_path, name_prefix=name_prefix, save_vecnormalize=save_vecnormalize, verbose=verbose)
+        self._last_saved = 0
+
+    def _init_callback(self) -> None:
+        super()._init_callback()
+        self._last_saved = self.num_timesteps  # a resumed run counts from its checkpoint
+
+    def _on_rollout_start(self) -> None:
+        if self.num_timesteps - self._last_saved < self.save_freq:
+            return
+        self._last_saved = self.num_timesteps
+        vec_normalize = self.model.get_vec_normalize_env()
+        if self.save_vecnormalize and vec_normalize is not None:
+            atomic_save_pickle(vec_normalize, self._checkpoint_path("vecnormalize_", extension="pkl"))
+        model_path = atomic_save_model(self.model, self._checkpoint_path(extension="zip"))
+        if self.verbose >= 2:
+            print(f"Saving model checkpoint to {model_path}")
+
+    def _on_training_end(self) -> None:
+        self._on_rollout_start()  # the end of training is a rollout boundary too
+
+    def _on_step(self) -> bool:
         return True

@@ -73,7 +73,8 @@ def run_folder(folder: str, algo: str, name: str, exp_id: int) -> str:
     log_path = os.path.join(folder, algo)
     if exp_id <= 0:
         exp_id = get_latest_run_id(log_path, name)
-        if exp_id == 0:
+        # A benchmark suite names runs by seed, so a <name>_0 folder is a run of its own
+        if exp_id == 0 and not os.path.isdir(os.path.join(log_path, f"{name}_0")):
             raise FileNotFoundError(f"No {algo} run of {name} in {log_path} (train one with train.py).")
     path = os.path.join(log_path, f"{name}_{exp_id}")
     if not os.path.isdir(path):

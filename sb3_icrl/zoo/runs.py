@@ -93,3 +93,40 @@ def find_vecnormalize(model_path: str, name: str) -> str | None:
         candidates.append(os.path.join(folder, f"{match['prefix']}_vecnormalize_{match['steps']}_steps.pkl"))
     candidates += [os.path.join(folder, name, "vecnormalize.pkl"), os.path.join(folder, "vecnormalize.pkl")]
     return next((path for path in candidates if os.path.isfile(path)), None)
+
+
+#: Written (atomically) into a run folder once its training has run to the end; a run folder without it is unfinished
+FINISHED_FILE = "finished.json"
+
+
+def is_finished(run: str) -> bool:
+    """
+    :param run: A run folder ``<folder>/<algo>/<EnvName>_<N>``
+    :return: Whether its training ran to the end (``finished.json`` is there)
+    """
+    return os.path.isfile(os.path.join(run, FINISHED_FILE))
+
+
+def latest_checkpoint(run: str) -> str | None:
+    """
+    The checkpoint to resume an unfinished run from: the ``rl_model_<steps>_steps.zip`` with the most steps that is a
+    readable zip (checkpoints are written atomically, but a folder may come from elsewhere).
+
+    :param run: A run folder
+    :return: The path, or ``None`` when the folder holds no usable checkpoint
+    """
+    if not os.path.isdir(run):
+        return None
+    checkpoints = []
+    for entry in os.listdir(run):
+        match = CHECKPOINT_PATTERN.match(entry)
+        if match and match["prefix"] == "rl_model":
+            checkpoints.append((int(match["steps"]), os.path.join(run, entry)))
+    for _, path in sorted(checkpoints, reverse=True):
+        try:
+            with zipfile.ZipFile(path) as archive:
+                if archive.testzip() is None and "data" in archive.namelist():
+                    return path
+        except (zipfile.BadZipFile, OSError):
+            continue
+    return None

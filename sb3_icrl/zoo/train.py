@@ -31,16 +31,17 @@ import stable_baselines3
 import torch as th
 import yaml
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
+from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.utils import set_random_seed
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 
 import sb3_icrl
+from sb3_icrl.common.utils import atomic_save_model, atomic_save_pickle, atomic_write_json
 from sb3_icrl.data import load_demonstrations
 from sb3_icrl.envs.wrappers import TransitionNoiseWrapper
 from sb3_icrl.plots import ConstraintFigureCallback
-from sb3_icrl.zoo.callbacks import ConstraintEvalCallback, LearnedCostRecorder
+from sb3_icrl.zoo.callbacks import AtomicCheckpointCallback, ConstraintEvalCallback, LearnedCostRecorder
 from sb3_icrl.zoo.hyperparams import (
     ALGOS,
     EVAL_KEYS,
@@ -53,7 +54,14 @@ from sb3_icrl.zoo.hyperparams import (
     preprocess_hyperparams,
     resolve_env_id,
 )
-from sb3_icrl.zoo.runs import TrainedAgentError, check_trained_agent, find_vecnormalize
+from sb3_icrl.zoo.runs import (
+    FINISHED_FILE,
+    TrainedAgentError,
+    check_trained_agent,
+    find_vecnormalize,
+    is_finished,
+    latest_checkpoint,
+)
 
 
 class StoreDict(argparse.Action):
@@ -110,6 +118,20 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
         "--violating-fraction", type=float, default=None, help="Shipped imperfect-expert variant (0.2, 0.5, 0.8)"
     )
     parser.add_argument("--transition-noise", type=float, default=0.0, help="Std of N(0, sigma) next-state noise")
+    parser.add_argument(
+        "--exp-id",
+        type=int,
+        default=None,
+        help="Write the run to <folder>/<algo>/<EnvName>_<exp-id> (default: the next free N); it must not exist yet "
+        "unless --resume",
+    )
+    parser.add_argument(
+        "--resume",
+        action="store_true",
+        default=False,
+        help="With --exp-id: skip the run if it finished, continue it from its latest checkpoint if it has one, else "
+        "start it afresh in that folder",
+    )
     return parser
 
 
@@ -166,6 +188,7 @@ def create_env(
     monitor_dir: str | None,
     eval_env: bool = False,
     stats_path: str | None = None,
+    append_monitor: bool = False,
 ) -> tuple[VecEnv, LearnedCostRecorder | None]:
     """
     Vectorised env with Monitor, the yml's wrappers, transition noise and VecNormalize (eval: frozen, raw reward).
@@ -179,6 +202,7 @@ def create_env(
     :param monitor_dir: Folder of the Monitor files (``None``: not written)
     :param eval_env: Build an evaluation env: a :class:`LearnedCostRecorder` at its bottom, statistics frozen
     :param stats_path: ``VecNormalize`` statistics to start from (``vecnormalize.pkl``), when normalising
+    :param append_monitor: Append to the Monitor files instead of replacing them (a resumed run)
     :return: The env and its recorder (eval envs only)
     """
     venv = make_vec_env(
@@ -187,6 +211,7 @@ def create_env(
         seed=seed,
         env_kwargs=env_kwargs,
         monitor_dir=monitor_dir,
+        monitor_kwargs={"override_existing": False} if append_monitor else None,
         wrapper_class=_wrapper_class(params["env_wrapper"], transition_noise),
         vec_env_cls=DummyVecEnv,
     )
@@ -225,14 +250,44 @@ def _demonstrations(algo: str, env_id: str, args: argparse.Namespace, env: VecEn
         raise
 
 
+def _run_folder(args: argparse.Namespace, name: str) -> str:
+    """``<folder>/<algo>/<EnvName>_<N>``: N from ``--exp-id``, else the next free one (as rl-zoo)."""
+    log_path = os.path.join(args.log_folder, args.algo)
+    if args.exp_id is None:
+        if args.resume:
+            raise ValueError("--resume continues the run named by --exp-id: pass --exp-id N as well.")
+        return os.path.join(log_path, f"{name}_{get_latest_run_id(log_path, name) + 1}")
+    if args.exp_id < 0:
+        raise ValueError(f"--exp-id must be >= 0, got {args.exp_id}.")
+    if args.resume and args.trained_agent:
+        raise ValueError("--resume continues a run from its own checkpoints: leave out -i/--trained-agent.")
+    save_path = os.path.join(log_path, f"{name}_{args.exp_id}")
+    if os.path.exists(save_path) and not args.resume:
+        raise ValueError(f"{save_path} exists: pass --resume to continue it, or another --exp-id.")
+    return save_path
+
+
 def _setup(
-    args: argparse.Namespace, env_id: str, params: dict[str, Any], kwargs: dict[str, Any], save_path: str
+    args: argparse.Namespace,
+    env_id: str,
+    params: dict[str, Any],
+    kwargs: dict[str, Any],
+    save_path: str,
+    resuming: bool = False,
 ) -> tuple[BaseAlgorithm, list[BaseCallback]]:
-    """Envs, model and callbacks of a run."""
+    """Envs, model and callbacks of a run (``resuming``: its own checkpoint in ``args.trained_agent``)."""
     env_kwargs = args.env_kwargs or {}
     stats_path = _resume_statistics(args.trained_agent, env_id, params) if args.trained_agent else None
     env, _ = create_env(
-        env_id, params, params["n_envs"], args.seed, env_kwargs, args.transition_noise, save_path, stats_path=stats_path
+        env_id,
+        params,
+        params["n_envs"],
+        args.seed,
+        env_kwargs,
+        args.transition_noise,
+        save_path,
+        stats_path=stats_path,
+        append_monitor=resuming,
     )
     demonstrations = _demonstrations(args.algo, env_id, args, env)
     if demonstrations is not None:
@@ -240,7 +295,7 @@ def _setup(
     algo_class = ALGOS[args.algo]
     tensorboard_log = os.path.join(args.tensorboard_log, env_name(env_id)) if args.tensorboard_log else None
     if args.trained_agent:
-        model = _load_trained_agent(args, env, demonstrations, tensorboard_log)
+        model = _load_trained_agent(args, env, demonstrations, tensorboard_log, warn_overrides=not resuming)
         return model, _callbacks(args, env_id, params, save_path)
     try:
         model = algo_class(
@@ -274,11 +329,11 @@ def _resume_statistics(trained_agent: str, env_id: str, params: dict[str, Any]) 
 
 
 def _load_trained_agent(
-    args: argparse.Namespace, env: VecEnv, demonstrations: Any, tensorboard_log: str | None
+    args: argparse.Namespace, env: VecEnv, demonstrations: Any, tensorboard_log: str | None, warn_overrides: bool = True
 ) -> BaseAlgorithm:
     """``args.trained_agent`` on ``env``: everything saved in the zip (multiplier, constraint net, optimisers) goes on."""
     ignored = sorted(key for key in args.hyperparams or {} if key not in ZOO_KEYS)
-    if ignored:
+    if ignored and warn_overrides:
         warnings.warn(f"-i keeps the hyper-parameters saved in {args.trained_agent}: the overrides {ignored} are not used.")
     extra = {"demonstrations": demonstrations} if demonstrations is not None else {}
     try:
@@ -297,9 +352,7 @@ def _callbacks(args: argparse.Namespace, env_id: str, params: dict[str, Any], sa
     callbacks: list[BaseCallback] = [callback(**cb_kwargs) for callback, cb_kwargs in params["callback"]]
     n_envs = params["n_envs"]
     if args.save_freq > 0:
-        callbacks.append(
-            CheckpointCallback(max(args.save_freq // n_envs, 1), save_path, name_prefix="rl_model", save_vecnormalize=True)
-        )
+        callbacks.append(AtomicCheckpointCallback(args.save_freq, save_path, name_prefix="rl_model", save_vecnormalize=True))
     if args.eval_freq > 0:
         eval_env, recorder = create_env(
             env_id,
@@ -353,25 +406,46 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
     n_timesteps = args.n_timesteps if args.n_timesteps > 0 else params["n_timesteps"]
     kwargs = algo_kwargs(params)
 
-    log_path = os.path.join(args.log_folder, args.algo)
-    save_path = os.path.join(log_path, f"{name}_{get_latest_run_id(log_path, name) + 1}")
+    save_path = _run_folder(args, name)
+    resume_from = None
+    if args.resume:
+        if is_finished(save_path):
+            if args.verbose:
+                print(f"{save_path} has finished: nothing to do")
+            return save_path
+        resume_from = latest_checkpoint(save_path)
+        if resume_from is None:
+            shutil.rmtree(save_path, ignore_errors=True)  # nothing to continue: start afresh in the same folder
+        else:
+            args.trained_agent = resume_from
+            if args.verbose:
+                print(f"Resuming {save_path} from {os.path.basename(resume_from)}")
     params_path = os.path.join(save_path, name)
     os.makedirs(params_path, exist_ok=True)
-    with open(os.path.join(params_path, "config.yml"), "w") as file:
-        yaml.safe_dump({**raw_params, "n_timesteps": n_timesteps}, file)
-    with open(os.path.join(params_path, "args.yml"), "w") as file:
-        yaml.safe_dump({**vars(args), "env": env_id, "hyperparams_entry": source}, file)
-    with open(os.path.join(params_path, "versions.yml"), "w") as file:
-        yaml.safe_dump(versions(), file)
-    with open(os.path.join(save_path, "command.txt"), "w") as file:
+    if resume_from is None:
+        with open(os.path.join(params_path, "config.yml"), "w") as file:
+            yaml.safe_dump({**raw_params, "n_timesteps": n_timesteps}, file)
+        with open(os.path.join(params_path, "args.yml"), "w") as file:
+            yaml.safe_dump({**vars(args), "env": env_id, "hyperparams_entry": source}, file)
+        with open(os.path.join(params_path, "versions.yml"), "w") as file:
+            yaml.safe_dump(versions(), file)
+    with open(os.path.join(save_path, "command.txt"), "a" if resume_from else "w") as file:
         file.write(shlex.join(["python", sys.argv[0], *(argv if argv is not None else sys.argv[1:])]) + "\n")
 
     try:
-        model, callbacks = _setup(args, env_id, params, kwargs, save_path)
+        model, callbacks = _setup(args, env_id, params, kwargs, save_path, resuming=resume_from is not None)
     except Exception:
-        shutil.rmtree(save_path, ignore_errors=True)  # no half-made run folder for a run that never started
+        if resume_from is None:
+            shutil.rmtree(save_path, ignore_errors=True)  # no half-made run folder for a run that never started
         raise
+    if resume_from is not None:
+        # The same total as the interrupted run: only the steps it had left
+        n_timesteps = max(n_timesteps - model.num_timesteps, 0)
+        for callback in callbacks:
+            if isinstance(callback, ConstraintEvalCallback):
+                callback.resume_history(model.num_timesteps)
     start = time.time()
+    finished = False
     try:
         model.learn(
             n_timesteps,
@@ -380,13 +454,19 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
             progress_bar=args.progress,
             reset_num_timesteps=not args.trained_agent,
         )
+        finished = True
     except KeyboardInterrupt:
         print("Interrupted: saving the model")
     finally:
-        model.save(os.path.join(save_path, name))
+        atomic_save_model(model, os.path.join(save_path, name))
         vec_normalize = model.get_vec_normalize_env()
         if vec_normalize is not None:
-            vec_normalize.save(os.path.join(params_path, "vecnormalize.pkl"))
+            atomic_save_pickle(vec_normalize, os.path.join(params_path, "vecnormalize.pkl"))
+    if finished:
+        atomic_write_json(
+            os.path.join(save_path, FINISHED_FILE),
+            {"num_timesteps": int(model.num_timesteps), "wall_time_s": time.time() - start, "resumed_from": resume_from},
+        )
     if args.verbose:
         print(f"Saved {save_path} ({time.time() - start:.1f} s)")
     return save_path
@@ -419,8 +499,8 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
 
 def cli(argv: list[str] | None = None) -> int:
     """
-    ``sb3-icrl <command>``: ``train`` (this module), ``enjoy`` (:mod:`sb3_icrl.zoo.enjoy`) or ``compare``
-    (:mod:`sb3_icrl.zoo.compare`).
+    ``sb3-icrl <command>``: ``train`` (this module), ``enjoy`` (:mod:`sb3_icrl.zoo.enjoy`), ``compare``
+    (:mod:`sb3_icrl.zoo.compare`) or ``benchmark`` (:mod:`sb3_icrl.benchmark.cli`).
 
     :param argv: Arguments, the command first (default: ``sys.argv[1:]``)
     :return: Exit status
@@ -436,10 +516,15 @@ def cli(argv: list[str] | None = None) -> int:
         from sb3_icrl.zoo import compare  # imports this module
 
         return compare.main(argv[1:], prog="sb3-icrl compare")
+    if argv and argv[0] == "benchmark":
+        from sb3_icrl.benchmark import cli as benchmark_cli
+
+        return benchmark_cli.main(argv[1:], prog="sb3-icrl benchmark")
     print(
         "usage: sb3-icrl train --algo ALGO --env ENV [options] (see sb3-icrl train --help)\n"
         "       sb3-icrl enjoy --algo ALGO --env ENV [options] (see sb3-icrl enjoy --help)\n"
-        "       sb3-icrl compare RUN [RUN ...] [options] (see sb3-icrl compare --help)",
+        "       sb3-icrl compare RUN [RUN ...] [options] (see sb3-icrl compare --help)\n"
+        "       sb3-icrl benchmark run|report|list SUITE [options] (see sb3-icrl benchmark --help)",
         file=sys.stderr,
     )
     return 2
