@@ -1,0 +1,163 @@
+"""
+``sb3-icrl benchmark``: run a suite of training runs, then report it::
+
+    sb3-icrl benchmark run table3 -f logs/ --jobs 2
+    sb3-icrl benchmark run table3 -f logs/ --only env=BlockedHalfCheetah-v0 algo=mecl,vicrl
+    sb3-icrl benchmark run table3 -f logs/ --backend ray --address auto
+    sb3-icrl benchmark report table3 -f logs/ -o results/table3
+    sb3-icrl benchmark list
+
+Every run is a ``train.py`` run in ``<folder>/<suite>/<variant>/<algo>/<EnvName>_<seed>/`` (an rl-zoo run folder, so
+enjoy, plots, compare and TensorBoard work on it), its output in ``<folder>/<suite>/logs/``. Running the same command
+again skips the finished runs and resumes the others from their last checkpoint.
+"""
+
+import argparse
+import os
+import sys
+import time
+from typing import Any
+
+from sb3_icrl.benchmark.report import evaluate_finished, markdown_table, summarise_suite, write_figures, write_report
+from sb3_icrl.benchmark.runner import BACKENDS, RunOutcome, make_backend, run_all
+from sb3_icrl.benchmark.suite import SUITES_DIR, SuiteError, load_suite
+
+
+def _only(values: list[str] | None) -> dict[str, list[str]]:
+    only: dict[str, list[str]] = {}
+    for item in values or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key or not value:
+            raise SuiteError(f"--only takes key=value[,value...] (env, algo, seed, variant), got {item!r}.")
+        only.setdefault(key, []).extend(part for part in value.split(",") if part)
+    return only
+
+
+def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    commands = parser.add_subparsers(dest="command", required=True)
+    run = commands.add_parser("run", help="train every run of a suite (resumes)")
+    report = commands.add_parser("report", help="evaluate the finished runs and write the tables and figures")
+    for sub in (run, report):
+        sub.add_argument("suite", help="a shipped suite (table3, noise, imperfect, multi, experts, smoke) or a .yml path")
+        sub.add_argument("-f", "--log-folder", default="logs", help="log root (runs go to <root>/<suite>/...)")
+        sub.add_argument("--only", nargs="+", default=None, help="filters key=value[,value]: env, algo, seed, variant")
+    run.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="runs at a time (default: one per core)")
+    run.add_argument("--backend", choices=BACKENDS, default="local", help="local process pool, or Ray tasks")
+    run.add_argument("--address", default=None, help="Ray cluster address (--backend ray; default: start one here)")
+    run.add_argument("--no-report", action="store_true", help="do not write the report once the runs are done")
+    report.add_argument("-o", "--output", default=None, help="report folder (default: <root>/<suite>/report)")
+    report.add_argument("--no-figures", action="store_true", help="tables only")
+    commands.add_parser("list", help="the shipped suites")
+    return parser
+
+
+class Display:
+    """
+    Progress of a suite: a live line (rich) of runs done / running / failed / left with an ETA on a terminal, one
+    line per event otherwise (logs, CI).
+    """
+
+    def __init__(self, total: int):
+        self.total = total
+        self.start = time.time()
+        self.ended = 0
+        self.trained_seconds: list[float] = []
+        self.live: Any = None
+        if sys.stdout.isatty():
+            from rich.live import Live
+
+            self.live = Live("", refresh_per_second=2, transient=False)
+            self.live.start()
+
+    def line(self, counts: dict[str, int]) -> str:
+        finished = counts["done"] + counts["skipped"]
+        left = counts["left"] + counts["running"]
+        eta = ""
+        if self.trained_seconds and left:
+            per_run = sum(self.trained_seconds) / len(self.trained_seconds)
+            parallel = max(counts["running"], 1)
+            eta = f" · ETA {time.strftime('%H:%M', time.localtime(time.time() + per_run * left / parallel))}"
+        return (
+            f"{finished}/{self.total} done ({counts['skipped']} from before) · {counts['running']} running · "
+            f"{counts['failed']} failed · {counts['busy']} busy elsewhere · {counts['left']} left{eta}"
+        )
+
+    def __call__(self, event: str, outcome: RunOutcome | None, counts: dict[str, int]) -> None:
+        if outcome is not None and event == "end" and outcome.status == "done":
+            self.trained_seconds.append(outcome.seconds)
+        if self.live is not None:
+            self.live.update(self.line(counts))
+            if outcome is not None and event == "end" and outcome.status in ("done", "failed"):
+                self.live.console.print(f"{outcome.status}: {outcome.run.name} ({outcome.seconds / 60:.1f} min)")
+            return
+        if outcome is not None:
+            what = {"start": f"start (attempt {outcome.attempts})"}.get(event, outcome.status)
+            print(f"[{time.strftime('%H:%M:%S')}] {what}: {outcome.run.name} | {self.line(counts)}", flush=True)
+
+    def close(self) -> None:
+        if self.live is not None:
+            self.live.stop()
+
+
+def run_command(args: argparse.Namespace) -> int:
+    suite = load_suite(args.suite)
+    runs = suite.select(_only(args.only))
+    print(
+        f"suite {suite.name}: {len(runs)} runs in {os.path.join(args.log_folder, suite.name)} "
+        f"({args.backend}, {args.jobs} at a time)",
+        flush=True,
+    )
+    backend = make_backend(args.backend, args.jobs, args.address)
+    display = Display(len(runs))
+    try:
+        outcomes = run_all(runs, args.log_folder, backend, on_event=display)
+    finally:
+        display.close()
+    failed = [outcome for outcome in outcomes if outcome.status in ("failed", "busy")]
+    for outcome in failed:
+        print(f"\n{outcome.status.upper()}: {outcome.run.name} ({outcome.run.log_file(args.log_folder)})")
+        for line in outcome.log_tail:
+            print(f"    {line}")
+    if not args.no_report:
+        report_command(argparse.Namespace(**{**vars(args), "output": None, "no_figures": False}))
+    return 1 if failed else 0
+
+
+def report_command(args: argparse.Namespace) -> int:
+    suite = load_suite(args.suite)
+    runs = suite.select(_only(args.only))
+    results = evaluate_finished(runs, args.log_folder, suite)
+    summary = summarise_suite(suite, runs, results)
+    output = args.output or os.path.join(args.log_folder, suite.name, "report")
+    written = write_report(summary, output)
+    if not args.no_figures:
+        written += write_figures(summary, suite, args.log_folder, output)
+    print(markdown_table(summary))
+    print("wrote " + ", ".join(written))
+    return 0
+
+
+def main(argv: list[str] | None = None, prog: str | None = None) -> int:
+    """
+    :param argv: Arguments (default: ``sys.argv[1:]``)
+    :param prog: Program name in the usage line
+    :return: Exit status: 0, 1 when a run failed, 2 after a clear error
+    """
+    args = get_parser(prog).parse_args(sys.argv[1:] if argv is None else argv)
+    try:
+        if args.command == "list":
+            for path in sorted(SUITES_DIR.glob("*.yml")):
+                suite = load_suite(path)
+                print(f"{suite.name:10s} {len(suite.runs()):4d} runs  {suite.description}")
+            return 0
+        if args.command == "run":
+            return run_command(args)
+        return report_command(args)
+    except (SuiteError, ValueError, RuntimeError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

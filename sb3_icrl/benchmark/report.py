@@ -1,0 +1,352 @@
+"""
+The report of a suite: every finished run's final model on held-out episodes (as ``sb3-icrl compare`` evaluates
+it), then per cell the per-seed values, mean and std, the interquartile mean (IQM) with a 95% bootstrap confidence
+interval, the Wilcoxon signed-rank test against a reference algorithm and the paper's number, written as Markdown,
+CSV, LaTeX and JSON, with figures.
+
+IQM and the stratified bootstrap follow rliable (Agarwal et al. 2021): the IQM is the mean of the middle 50% of the
+scores (``scipy.stats.trim_mean(scores, 0.25)``), and the percentile interval resamples the seeds of each task
+independently. They are computed here with NumPy and SciPy, so the report needs no extra package.
+"""
+
+import csv
+import io
+import json
+import math
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import asdict
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import scipy.stats
+
+from sb3_icrl.benchmark.suite import RunSpec, Suite
+from sb3_icrl.common.utils import atomic_write_bytes, atomic_write_json
+from sb3_icrl.zoo.compare import RunResult, evaluate_run, summarise
+from sb3_icrl.zoo.hyperparams import env_name
+from sb3_icrl.zoo.runs import is_finished
+
+#: Bootstrap resamples of the confidence intervals
+BOOTSTRAP_REPS = 2000
+#: Seed of the bootstrap, so that a report is reproducible
+BOOTSTRAP_SEED = 0
+#: Held-out evaluation cached in each run folder
+HELDOUT_FILE = "heldout.json"
+#: Steps per held-out episode when the env declares no time limit
+DEFAULT_EPISODE_STEPS = 1000
+
+
+def iqm(scores: Sequence[float] | np.ndarray) -> float:
+    """Interquartile mean: the mean of the scores left after cutting the lowest and highest 25%."""
+    values = np.asarray(scores, dtype=float).ravel()
+    if values.size == 0:
+        return float("nan")
+    return float(scipy.stats.trim_mean(values, proportiontocut=0.25))
+
+
+def stratified_bootstrap_ci(
+    scores_by_task: Sequence[Sequence[float] | np.ndarray],
+    statistic: Callable[[np.ndarray], float] = iqm,
+    reps: int = BOOTSTRAP_REPS,
+    confidence: float = 0.95,
+    seed: int = BOOTSTRAP_SEED,
+) -> tuple[float, float]:
+    """
+    Percentile confidence interval of ``statistic`` over all scores, resampling the runs (seeds) of each task with
+    replacement, independently per task (rliable's stratified bootstrap). One task: the plain bootstrap over seeds.
+
+    :param scores_by_task: One array of per-seed scores per task
+    :param statistic: Function of the concatenated resampled scores
+    :param reps: Number of resamples
+    :param confidence: Interval size
+    :param seed: Seed of the resampling
+    :return: ``(lower, upper)``; ``(nan, nan)`` without scores
+    """
+    tasks = [np.asarray(scores, dtype=float).ravel() for scores in scores_by_task]
+    tasks = [task for task in tasks if task.size]
+    if not tasks:
+        return float("nan"), float("nan")
+    rng = np.random.default_rng(seed)
+    estimates = np.empty(reps)
+    for rep in range(reps):
+        estimates[rep] = statistic(np.concatenate([task[rng.integers(0, task.size, task.size)] for task in tasks]))
+    tail = 100 * (1 - confidence) / 2
+    lower, upper = np.percentile(estimates, [tail, 100 - tail])
+    return float(lower), float(upper)
+
+
+def heldout_steps(env_id: str, episodes: int) -> int:
+    """Evaluation steps for ``episodes`` held-out episodes (episodes that end early leave room for more)."""
+    limit = gym.spec(env_id).max_episode_steps or DEFAULT_EPISODE_STEPS
+    return episodes * limit
+
+
+def evaluate_finished(
+    runs: Sequence[RunSpec], root: str, suite: Suite, log: Callable[[str], None] = print
+) -> list[tuple[RunSpec, RunResult]]:
+    """
+    Held-out evaluation of every finished run (cached in the run folder as ``heldout.json``, keyed by the evaluation
+    settings, so a report is cheap to make again).
+
+    :param runs: The suite's runs
+    :param root: The log root
+    :param suite: The suite (evaluation episodes and seed)
+    :param log: Where progress lines go
+    :return: ``(run, result)`` for each finished run
+    """
+    results = []
+    for run in runs:
+        folder = run.run_folder(root)
+        if not is_finished(folder):
+            continue
+        steps = heldout_steps(run.env_id, suite.eval_episodes)
+        cache = os.path.join(folder, HELDOUT_FILE)
+        settings = {"eval_seed": suite.eval_seed, "n_timesteps": steps}
+        cached = None
+        if os.path.isfile(cache):
+            with open(cache) as file:
+                saved = json.load(file)
+            if saved.get("settings") == settings and os.path.getmtime(cache) >= os.path.getmtime(
+                os.path.join(folder, "finished.json")
+            ):
+                cached = RunResult(**saved["result"])
+        if cached is None:
+            log(f"evaluating {run.name} on {suite.eval_episodes} held-out episodes")
+            cached = evaluate_run(folder, steps, suite.eval_seed)
+            atomic_write_json(cache, {"settings": settings, "result": asdict(cached)}, indent=2)
+        cached.run = os.path.relpath(folder, root)
+        results.append((run, cached))
+    return results
+
+
+def _fmt(value: float, digits: int = 1) -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "-"
+    return f"{value:.{digits}f}"
+
+
+def summarise_suite(suite: Suite, runs: Sequence[RunSpec], results: Sequence[tuple[RunSpec, RunResult]]) -> dict[str, Any]:
+    """
+    Per cell (env, variant, algorithm): seeds, per-seed values, mean and std, IQM with its 95% bootstrap CI, the
+    Wilcoxon test against the suite's reference and the paper's numbers; per algorithm, the IQM over all envs with a
+    stratified bootstrap CI; the runs not finished yet.
+
+    :param suite: The suite
+    :param runs: Its runs (to list the missing ones)
+    :param results: ``(run, held-out result)`` of the finished runs
+    :return: A JSON-ready summary
+    """
+    by_cell: dict[tuple[str, str], list[RunResult]] = {}
+    for run, result in results:
+        by_cell.setdefault((env_name(run.env_id), run.variant), []).append(result)
+    cells = []
+    for (env, variant), cell_results in sorted(by_cell.items()):
+        reference = suite.reference if any(r.algo == suite.reference for r in cell_results) else None
+        summary = summarise(cell_results, reference=reference)
+        for algo, entry in sorted(
+            summary.items(), key=lambda item: suite.algos.index(item[0]) if item[0] in suite.algos else 99
+        ):
+            mine = sorted((r for r in cell_results if r.algo == algo), key=lambda r: r.seed)
+            feasible = [r.feasible_reward for r in mine]
+            violation = [r.violation_rate for r in mine]
+            paper = suite.paper.get(env, {}).get(algo)
+            cells.append(
+                {
+                    "env": env,
+                    "variant": variant,
+                    "algo": algo,
+                    "n_seeds": len(mine),
+                    "per_seed": [
+                        {
+                            "seed": r.seed,
+                            "feasible_reward": r.feasible_reward,
+                            "violation_rate": r.violation_rate,
+                            "reward": r.reward,
+                            "timesteps": r.timesteps,
+                            "n_episodes": r.n_episodes,
+                        }
+                        for r in mine
+                    ],
+                    **{key: value for key, value in entry.items() if key != "seeds"},
+                    "feasible_reward_iqm": iqm(feasible),
+                    "feasible_reward_iqm_ci95": list(stratified_bootstrap_ci([feasible])),
+                    "violation_rate_iqm": iqm(violation),
+                    "violation_rate_iqm_ci95": list(stratified_bootstrap_ci([violation])),
+                    "reference": reference if algo != reference else None,
+                    "paper_feasible_reward": paper[0] if paper else None,
+                    "paper_violation_rate": paper[1] if paper else None,
+                }
+            )
+    aggregates = []
+    for algo in suite.algos:
+        tasks = [[seed["violation_rate"] for seed in cell["per_seed"]] for cell in cells if cell["algo"] == algo]
+        if tasks:
+            lower, upper = stratified_bootstrap_ci(tasks)
+            aggregates.append(
+                {
+                    "algo": algo,
+                    "n_cells": len(tasks),
+                    "violation_rate_iqm": iqm(np.concatenate(tasks)),
+                    "violation_rate_iqm_ci95": [lower, upper],
+                }
+            )
+    finished = {run for run, _ in results}
+    missing = [run.name for run in runs if run not in finished]
+    return {
+        "suite": suite.name,
+        "description": suite.description,
+        "eval_episodes": suite.eval_episodes,
+        "eval_seed": suite.eval_seed,
+        "reference": suite.reference,
+        "cells": cells,
+        "aggregates": aggregates,
+        "runs_missing": missing,
+    }
+
+
+def markdown_table(summary: dict[str, Any]) -> str:
+    """The cells as a Markdown table: ours (mean +- std, IQM [CI]) beside the paper's, per-seed values visible."""
+    lines = [
+        "| env | variant | algo | seeds | feasible reward (mean ± std) | IQM [95% CI] | violation rate | Wilcoxon p | paper "
+        "| per seed (feasible / violation) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for cell in summary["cells"]:
+        low, high = cell["feasible_reward_iqm_ci95"]
+        paper = (
+            f"{cell['paper_feasible_reward']:g} / {100 * cell['paper_violation_rate']:.0f}%"
+            if cell["paper_feasible_reward"] is not None
+            else "-"
+        )
+        per_seed = ", ".join(
+            f"{s['seed']}: {s['feasible_reward']:.0f} / {100 * s['violation_rate']:.0f}%" for s in cell["per_seed"]
+        )
+        p_value = cell.get("wilcoxon_p")
+        lines.append(
+            f"| {cell['env']} | {cell['variant']} | {cell['algo']} | {cell['n_seeds']} | "
+            f"{_fmt(cell['feasible_reward_mean'])} ± {_fmt(cell['feasible_reward_std'])} | "
+            f"{_fmt(cell['feasible_reward_iqm'])} [{_fmt(low)}, {_fmt(high)}] | "
+            f"{100 * cell['violation_rate_mean']:.0f}% ± {100 * cell['violation_rate_std']:.0f}% | "
+            f"{_fmt(p_value, 3) if p_value is not None else '-'} | {paper} | {per_seed} |"
+        )
+    if summary["runs_missing"]:
+        lines.append("")
+        lines.append(f"Not finished yet ({len(summary['runs_missing'])}): " + ", ".join(summary["runs_missing"]))
+    return "\n".join(lines) + "\n"
+
+
+def latex_table(summary: dict[str, Any]) -> str:
+    """The cells as a LaTeX ``tabular`` (booktabs): feasible reward and violation rate, mean ± std, and the paper's."""
+    rows = [
+        "\\begin{tabular}{lllrrrr}",
+        "\\toprule",
+        "Env & Variant & Method & Feasible reward & Violation rate & Paper reward & Paper violation \\\\",
+        "\\midrule",
+    ]
+    for cell in summary["cells"]:
+        paper_reward = _fmt(cell["paper_feasible_reward"], 2) if cell["paper_feasible_reward"] is not None else "--"
+        paper_violation = f"{100 * cell['paper_violation_rate']:.0f}\\%" if cell["paper_violation_rate"] is not None else "--"
+        rows.append(
+            f"{cell['env']} & {cell['variant']} & {cell['algo'].upper()} & "
+            f"${_fmt(cell['feasible_reward_mean'])} \\pm {_fmt(cell['feasible_reward_std'])}$ & "
+            f"${100 * cell['violation_rate_mean']:.0f}\\% \\pm {100 * cell['violation_rate_std']:.0f}\\%$ & "
+            f"{paper_reward} & {paper_violation} \\\\"
+        )
+    rows += ["\\bottomrule", "\\end{tabular}"]
+    return "\n".join(rows).replace("_", "\\_") + "\n"
+
+
+def csv_rows(summary: dict[str, Any]) -> str:
+    """One row per run: cell, seed and held-out values."""
+    buffer = io.StringIO()
+    writer = csv.writer(buffer)
+    writer.writerow(
+        ["env", "variant", "algo", "seed", "feasible_reward", "violation_rate", "reward", "timesteps", "n_episodes"]
+    )
+    for cell in summary["cells"]:
+        for seed in cell["per_seed"]:
+            writer.writerow(
+                [
+                    cell["env"],
+                    cell["variant"],
+                    cell["algo"],
+                    seed["seed"],
+                    seed["feasible_reward"],
+                    seed["violation_rate"],
+                    seed["reward"],
+                    seed["timesteps"],
+                    seed["n_episodes"],
+                ]
+            )
+    return buffer.getvalue()
+
+
+def write_report(summary: dict[str, Any], output: str) -> list[str]:
+    """
+    Write ``summary.json``, ``table.md``, ``runs.csv`` and ``table.tex`` to ``output`` (atomically).
+
+    :return: The paths written
+    """
+    paths = {
+        "summary.json": json.dumps(summary, indent=2, sort_keys=True) + "\n",
+        "table.md": markdown_table(summary),
+        "runs.csv": csv_rows(summary),
+        "table.tex": latex_table(summary),
+    }
+    written = []
+    for name, text in paths.items():
+        path = os.path.join(output, name)
+        atomic_write_bytes(path, text.encode())
+        written.append(path)
+    return written
+
+
+def write_figures(summary: dict[str, Any], suite: Suite, root: str, output: str) -> list[str]:
+    """
+    Per env and variant: training curves (mean +- std over seeds, from ``evaluations.npz``); per suite: ours against
+    the paper, cell by cell. PNG files in ``output``.
+
+    :return: The paths written
+    """
+    from sb3_icrl.plots.figures import load_runs, new_figure, save_figure, training_curves_figure
+
+    written = []
+    for env_id in suite.envs:
+        for variant in suite.variants:
+            try:
+                runs = load_runs(os.path.join(root, suite.name, variant), suite.algos, env_id, skip_missing=True)
+            except (FileNotFoundError, ValueError):
+                continue
+            try:
+                figure = training_curves_figure(runs, title=f"{env_name(env_id)} ({variant})")
+            except ValueError:
+                continue
+            written.append(str(save_figure(figure, os.path.join(output, f"curves_{env_name(env_id)}_{variant}.png"))))
+    compared = [cell for cell in summary["cells"] if cell["paper_feasible_reward"] is not None]
+    if compared:
+        figure = new_figure(width=max(6.4, 0.5 * len(compared)), height=4.8)
+        axes = figure.subplots(1, 2)
+        labels = [f"{cell['env'].split('-')[0]}\n{cell['algo']}" for cell in compared]
+        positions = np.arange(len(compared))
+        for ax, key, title in (
+            (axes[0], "feasible_reward", "feasible reward / paper's"),
+            (axes[1], "violation_rate", "violation rate"),
+        ):
+            if key == "feasible_reward":
+                ours = [
+                    cell["feasible_reward_mean"] / cell["paper_feasible_reward"] if cell["paper_feasible_reward"] else np.nan
+                    for cell in compared
+                ]
+                ax.bar(positions, ours, color="tab:blue", label="ours / paper")
+                ax.axhline(1.0, color="black", linewidth=0.8)
+            else:
+                ax.bar(positions - 0.2, [cell["violation_rate_mean"] for cell in compared], width=0.4, label="ours")
+                ax.bar(positions + 0.2, [cell["paper_violation_rate"] for cell in compared], width=0.4, label="paper")
+            ax.set_xticks(positions, labels, rotation=90, fontsize=7)
+            ax.set_title(title)
+            ax.legend(fontsize=7)
+        figure.tight_layout()
+        written.append(str(save_figure(figure, os.path.join(output, "ours_vs_paper.png"))))
+    return written

@@ -1,0 +1,267 @@
+"""
+Running a suite's runs: each is a ``train.py`` process with its output in a log file, on a local pool of processes or
+as Ray tasks. A run that finished is skipped; an interrupted one resumes from its last checkpoint (``train.py
+--resume``); a failing one is tried once more, then reported with the end of its log.
+"""
+
+import contextlib
+import ctypes
+import fcntl
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
+from dataclasses import dataclass, field
+from typing import Any
+
+from sb3_icrl.benchmark.suite import RunSpec
+from sb3_icrl.zoo.runs import is_finished
+
+#: Attempts per run before it is listed as failed
+MAX_ATTEMPTS = 2
+#: Lines of a failed run's log shown in the summary
+LOG_TAIL_LINES = 15
+BACKENDS = ("local", "ray")
+
+
+@dataclass
+class RunOutcome:
+    """
+    What became of one run.
+
+    :param run: The run
+    :param status: ``"done"`` (trained now), ``"skipped"`` (had finished before), ``"busy"`` (another process holds
+        it), or ``"failed"``
+    :param attempts: How many times it was started
+    :param seconds: Wall time of its last attempt
+    :param log_tail: The end of its log, when it failed
+    """
+
+    run: RunSpec
+    status: str
+    attempts: int = 0
+    seconds: float = 0.0
+    log_tail: list[str] = field(default_factory=list)
+
+
+def _die_with_parent() -> None:
+    """In the child: get SIGKILL when the parent dies, so a killed suite leaves no orphaned runs behind (Linux)."""
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+
+
+@contextlib.contextmanager
+def run_lock(run_folder: str) -> Iterator[bool]:
+    """
+    An exclusive lock on a run folder (a ``.lock`` file beside it), so that two suites never train the same run.
+
+    :param run_folder: The run folder
+    :return: Whether the lock was taken (``False``: another process holds it)
+    """
+    os.makedirs(os.path.dirname(run_folder), exist_ok=True)
+    with open(run_folder + ".lock", "a") as handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            yield False
+            return
+        try:
+            yield True
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def train_command(argv: Sequence[str]) -> list[str]:
+    """The command line of a training run: this Python, ``-m sb3_icrl.zoo.train``, the arguments."""
+    return [sys.executable, "-m", "sb3_icrl.zoo.train", *argv]
+
+
+def execute_run(argv: Sequence[str], log_file: str, run_folder: str) -> tuple[str, float]:
+    """
+    Train one run to its end (or find it finished), its output appended to ``log_file``.
+
+    :param argv: train.py arguments (with ``--exp-id`` and ``--resume``)
+    :param log_file: The run's log
+    :param run_folder: The run folder (for the lock and the finished check)
+    :return: ``(status, seconds)``: status ``"done"``, ``"skipped"``, ``"busy"`` or ``"failed"``
+    """
+    if is_finished(run_folder):
+        return "skipped", 0.0
+    with run_lock(run_folder) as locked:
+        if not locked:
+            return "busy", 0.0
+        if is_finished(run_folder):
+            return "skipped", 0.0
+        os.makedirs(os.path.dirname(log_file), exist_ok=True)
+        start = time.time()
+        with open(log_file, "a") as log:
+            log.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} {' '.join(train_command(argv))}\n")
+            log.flush()
+            env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+            process = subprocess.run(
+                train_command(argv), stdout=log, stderr=subprocess.STDOUT, env=env, preexec_fn=_die_with_parent
+            )
+        seconds = time.time() - start
+        return ("done" if process.returncode == 0 and is_finished(run_folder) else "failed"), seconds
+
+
+def log_tail(log_file: str, lines: int = LOG_TAIL_LINES) -> list[str]:
+    """The last ``lines`` lines of a log (empty when there is none)."""
+    if not os.path.isfile(log_file):
+        return []
+    with open(log_file, errors="replace") as file:
+        return [line.rstrip("\n") for line in file.readlines()[-lines:]]
+
+
+class Backend:
+    """Starts runs and reports them as they end (``submit`` then ``wait_any``); at most ``capacity`` at a time."""
+
+    capacity: int = 1
+
+    def submit(self, run: RunSpec, root: str) -> Any:
+        raise NotImplementedError
+
+    def wait_any(self, pending: set[Any]) -> tuple[set[Any], set[Any]]:
+        raise NotImplementedError
+
+    def result(self, handle: Any) -> tuple[str, float]:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        pass
+
+
+class LocalBackend(Backend):
+    """A pool of ``jobs`` concurrent training processes on this machine."""
+
+    def __init__(self, jobs: int):
+        self.capacity = jobs
+        self.executor = ThreadPoolExecutor(max_workers=jobs)
+
+    def submit(self, run: RunSpec, root: str) -> Future:
+        return self.executor.submit(execute_run, run.train_argv(root), run.log_file(root), run.run_folder(root))
+
+    def wait_any(self, pending: set[Any]) -> tuple[set[Any], set[Any]]:
+        done, not_done = wait(pending, timeout=1.0, return_when=FIRST_COMPLETED)
+        return set(done), set(not_done)
+
+    def result(self, handle: Any) -> tuple[str, float]:
+        return handle.result()
+
+    def close(self) -> None:
+        self.executor.shutdown(wait=True, cancel_futures=True)
+
+
+class RayBackend(Backend):
+    """
+    Each run a Ray task asking for one CPU, on the cluster at ``address`` or on a Ray instance started here with
+    ``jobs`` CPUs. The run folders must be on storage every node sees.
+    """
+
+    def __init__(self, jobs: int, address: str | None = None):
+        try:
+            import ray
+        except ImportError as error:
+            raise RuntimeError('The ray backend needs Ray: pip install "sb3-icrl[cluster]".') from error
+        self.ray = ray
+        if not ray.is_initialized():
+            if address:
+                ray.init(address=address, log_to_driver=False)
+            else:
+                ray.init(num_cpus=jobs, log_to_driver=False, include_dashboard=False)
+        self.task = ray.remote(num_cpus=1, max_retries=0)(execute_run)
+        # Ray queues tasks until a CPU is free: submit as many as the cluster has CPUs
+        self.capacity = max(int(ray.cluster_resources().get("CPU", jobs)), 1)
+
+    def submit(self, run: RunSpec, root: str) -> Any:
+        return self.task.remote(
+            run.train_argv(os.path.abspath(root)), run.log_file(os.path.abspath(root)), run.run_folder(os.path.abspath(root))
+        )
+
+    def wait_any(self, pending: set[Any]) -> tuple[set[Any], set[Any]]:
+        done, not_done = self.ray.wait(list(pending), num_returns=1, timeout=1.0)
+        return set(done), set(not_done)
+
+    def result(self, handle: Any) -> tuple[str, float]:
+        return self.ray.get(handle)
+
+
+def make_backend(backend: str, jobs: int, address: str | None = None) -> Backend:
+    """
+    :param backend: ``"local"`` or ``"ray"``
+    :param jobs: Concurrent runs (local pool size; CPUs of a Ray instance started here)
+    :param address: A running Ray cluster (``ray`` only)
+    """
+    if jobs < 1:
+        raise ValueError(f"--jobs must be >= 1, got {jobs}.")
+    if backend == "local":
+        if address:
+            raise ValueError("--address is for --backend ray.")
+        return LocalBackend(jobs)
+    if backend == "ray":
+        return RayBackend(jobs, address)
+    raise ValueError(f"Unknown backend {backend!r}: use one of {', '.join(BACKENDS)}.")
+
+
+def run_all(
+    runs: Sequence[RunSpec],
+    root: str,
+    backend: Backend,
+    on_event: Callable[[str, RunOutcome | None, dict[str, int]], None] | None = None,
+) -> list[RunOutcome]:
+    """
+    Run every run to its end; finished runs are skipped, failed ones retried once.
+
+    :param runs: The runs
+    :param root: The log root (``-f``)
+    :param backend: Where the runs go
+    :param on_event: Called with ``("start" | "end", outcome, counts)`` as runs start and end (for the display)
+    :return: One outcome per run, in the order of ``runs``
+    """
+    outcomes = {run: RunOutcome(run, "left") for run in runs}
+    queue = list(runs)
+    pending: dict[Any, RunSpec] = {}
+
+    def counts() -> dict[str, int]:
+        statuses = [outcome.status for outcome in outcomes.values()]
+        return {status: statuses.count(status) for status in ("done", "skipped", "running", "failed", "busy", "left")}
+
+    try:
+        while queue or pending:
+            while queue and len(pending) < backend.capacity:
+                run = queue.pop(0)
+                if is_finished(run.run_folder(root)):
+                    outcomes[run].status = "skipped"
+                    if on_event:
+                        on_event("end", outcomes[run], counts())
+                    continue
+                outcomes[run].attempts += 1
+                outcomes[run].status = "running"
+                pending[backend.submit(run, root)] = run
+                if on_event:
+                    on_event("start", outcomes[run], counts())
+            done, _ = backend.wait_any(set(pending))
+            for handle in done:
+                run = pending.pop(handle)
+                try:
+                    status, seconds = backend.result(handle)
+                except Exception as error:  # a backend failure (a lost Ray worker): the run failed this time
+                    status, seconds = "failed", 0.0
+                    outcomes[run].log_tail = [f"{type(error).__name__}: {error}"]
+                outcome = outcomes[run]
+                outcome.seconds = seconds
+                if status == "failed" and outcome.attempts < MAX_ATTEMPTS:
+                    outcome.status = "left"
+                    queue.insert(0, run)  # once more, from its last checkpoint
+                    continue
+                outcome.status = status
+                if status == "failed":
+                    outcome.log_tail = outcome.log_tail or log_tail(run.log_file(root))
+                if on_event:
+                    on_event("end", outcome, counts())
+    finally:
+        backend.close()
+    return [outcomes[run] for run in runs]

@@ -1,0 +1,362 @@
+"""
+Benchmark suites: which envs, algorithms, seeds and variants to run, read from a yml file and checked before anything
+runs. A suite expands into runs; the folder of a run is a function of its cell and seed only, so that running a suite
+again finds the runs it already made.
+"""
+
+import dataclasses
+import os
+import pathlib
+from dataclasses import dataclass, field
+from typing import Any
+
+import yaml
+
+from sb3_icrl.zoo.hyperparams import ALGOS, env_name, resolve_env_id
+
+#: Where the shipped suites live
+SUITES_DIR = pathlib.Path(__file__).resolve().parent / "suites"
+#: Top-level keys of a suite file
+SUITE_KEYS = {
+    "description": "one line on what the suite measures",
+    "envs": "list of env ids",
+    "algos": f"list of algorithms ({', '.join(ALGOS)})",
+    "seeds": "list of training seeds",
+    "variants": "mapping of variant name to its settings (default: one variant 'base' with none)",
+    "steps": "training steps: an integer, or a mapping env -> integer (default: the recipe's n_timesteps)",
+    "eval_episodes": "held-out episodes per run in the report (default 20)",
+    "eval_seed": "seed of the held-out episodes (default 100, a seed no run trains on)",
+    "train_args": "extra train.py settings for every run: eval_freq, eval_episodes, save_freq, num_threads",
+    "reference": "algorithm the report tests the others against (Wilcoxon signed-rank)",
+    "paper": "mapping env -> algo -> [feasible reward, violation rate] of the paper, shown beside ours",
+}
+#: What a variant may change, with the train.py flag it becomes
+VARIANT_KEYS = {
+    "transition_noise": "--transition-noise",
+    "violating_fraction": "--violating-fraction",
+    "demonstrations": "--demonstrations",
+    "hyperparams": "-params",
+    "env_kwargs": "--env-kwargs",
+}
+#: train.py settings a suite may give every run
+TRAIN_ARGS = {
+    "eval_freq": "--eval-freq",
+    "eval_episodes": "--eval-episodes",
+    "save_freq": "--save-freq",
+    "num_threads": "--num-threads",
+}
+DEFAULT_TRAIN_ARGS = {"eval_freq": 50_000, "eval_episodes": 5, "save_freq": 100_000, "num_threads": 1}
+
+
+class SuiteError(ValueError):
+    """A suite file that cannot be run as written; the message names the file and line."""
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """
+    One training run of a suite.
+
+    :param suite: Suite name
+    :param variant: Variant name
+    :param algo: Algorithm
+    :param env_id: Registered env id
+    :param seed: Training seed
+    :param steps: Training steps (``None``: the recipe's)
+    :param variant_settings: The variant's settings (see :data:`VARIANT_KEYS`)
+    :param train_args: train.py settings (see :data:`TRAIN_ARGS`)
+    """
+
+    suite: str
+    variant: str
+    algo: str
+    env_id: str
+    seed: int
+    steps: int | None
+    variant_settings: dict[str, Any] = field(default_factory=dict, compare=False, hash=False)
+    train_args: dict[str, Any] = field(default_factory=dict, compare=False, hash=False)
+
+    @property
+    def cell(self) -> tuple[str, str, str]:
+        """``(env, variant, algo)``: the runs of a cell differ only by seed."""
+        return (env_name(self.env_id), self.variant, self.algo)
+
+    @property
+    def name(self) -> str:
+        return f"{self.variant}/{self.algo}/{env_name(self.env_id)}/seed {self.seed}"
+
+    def log_folder(self, root: str | os.PathLike) -> str:
+        """train.py's ``-f``: ``<root>/<suite>/<variant>``."""
+        return os.path.join(os.fspath(root), self.suite, self.variant)
+
+    def run_folder(self, root: str | os.PathLike) -> str:
+        """The run folder, ``<root>/<suite>/<variant>/<algo>/<EnvName>_<seed>``: a function of cell and seed only."""
+        return os.path.join(self.log_folder(root), self.algo, f"{env_name(self.env_id)}_{self.seed}")
+
+    def log_file(self, root: str | os.PathLike) -> str:
+        """Where the run's output goes: ``<root>/<suite>/logs/<variant>_<algo>_<EnvName>_<seed>.log``."""
+        return os.path.join(
+            os.fspath(root), self.suite, "logs", f"{self.variant}_{self.algo}_{env_name(self.env_id)}_{self.seed}.log"
+        )
+
+    def train_argv(self, root: str | os.PathLike) -> list[str]:
+        """The train.py arguments of this run (it resumes itself when run again)."""
+        argv = ["--algo", self.algo, "--env", self.env_id, "--seed", str(self.seed), "-f", self.log_folder(root)]
+        argv += ["--exp-id", str(self.seed), "--resume", "--verbose", "1"]
+        if self.steps is not None:
+            argv += ["-n", str(self.steps)]
+        for key, flag in TRAIN_ARGS.items():
+            if key in self.train_args:
+                argv += [flag, str(self.train_args[key])]
+        for key, flag in VARIANT_KEYS.items():
+            value = self.variant_settings.get(key)
+            if value is None:
+                continue
+            if isinstance(value, dict):
+                argv += [
+                    flag,
+                    *(f"{name}:{item!r}" if not isinstance(item, str) else f"{name}:{item}" for name, item in value.items()),
+                ]
+            else:
+                argv += [flag, str(value)]
+        return argv
+
+
+@dataclass
+class Suite:
+    """
+    A parsed and checked suite file (see :data:`SUITE_KEYS` for what each field means).
+    """
+
+    name: str
+    path: str
+    description: str
+    envs: list[str]
+    algos: list[str]
+    seeds: list[int]
+    variants: dict[str, dict[str, Any]]
+    steps: dict[str, int | None]
+    eval_episodes: int
+    eval_seed: int
+    train_args: dict[str, Any]
+    reference: str | None
+    paper: dict[str, dict[str, tuple[float, float]]]
+
+    def runs(self) -> list[RunSpec]:
+        """Every run, env by env, then variant, algorithm and seed."""
+        return [
+            RunSpec(self.name, variant, algo, env_id, seed, self.steps[env_id], settings, self.train_args)
+            for env_id in self.envs
+            for variant, settings in self.variants.items()
+            for algo in self.algos
+            for seed in self.seeds
+        ]
+
+    def select(self, only: dict[str, list[str]]) -> list[RunSpec]:
+        """
+        The runs matching every ``--only`` filter (``env``, ``algo``, ``seed``, ``variant``; values within a key are
+        alternatives).
+
+        :param only: ``{key: [values]}``
+        """
+        unknown = sorted(set(only) - {"env", "algo", "seed", "variant"})
+        if unknown:
+            raise SuiteError(f"--only takes env=, algo=, seed= and variant=, not {', '.join(unknown)}.")
+        wanted = {key: set(values) for key, values in only.items()}
+        if "env" in wanted:
+            wanted["env"] = {env_name(resolve_env_id(value)) for value in wanted["env"]}
+        selected = [
+            run
+            for run in self.runs()
+            if all(
+                {"env": env_name(run.env_id), "algo": run.algo, "seed": str(run.seed), "variant": run.variant}[key] in values
+                for key, values in wanted.items()
+            )
+        ]
+        if not selected:
+            raise SuiteError(f"--only {only} matches none of the {len(self.runs())} runs of suite {self.name!r}.")
+        return selected
+
+    def as_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+def suite_path(name_or_path: str | os.PathLike) -> pathlib.Path:
+    """
+    A shipped suite's file by name (``table3``), or a user's suite file by path.
+
+    :param name_or_path: Suite name or ``.yml`` path
+    """
+    text = os.fspath(name_or_path)
+    if text.endswith((".yml", ".yaml")) or os.sep in text:
+        path = pathlib.Path(text)
+        if not path.is_file():
+            raise SuiteError(f"No suite file {text}.")
+        return path
+    path = SUITES_DIR / f"{text}.yml"
+    if not path.is_file():
+        shipped = sorted(file.stem for file in SUITES_DIR.glob("*.yml"))
+        raise SuiteError(f"No shipped suite {text!r}: use one of {', '.join(shipped)}, or the path of your own .yml file.")
+    return path
+
+
+def _key_lines(node: yaml.Node, prefix: tuple = ()) -> dict[tuple, int]:
+    """The 1-based line of every mapping key and sequence item in a composed yml document, by its path."""
+    lines: dict[tuple, int] = {prefix: node.start_mark.line + 1}
+    if isinstance(node, yaml.MappingNode):
+        for key_node, value_node in node.value:
+            path = (*prefix, key_node.value)
+            lines.update(_key_lines(value_node, path))
+            lines[path] = key_node.start_mark.line + 1
+    elif isinstance(node, yaml.SequenceNode):
+        for index, item in enumerate(node.value):
+            lines.update(_key_lines(item, (*prefix, index)))
+    return lines
+
+
+class _SuiteReader:
+    """Checks one suite file's content, each error naming the file and the line of the offending entry."""
+
+    def __init__(self, path: pathlib.Path, node: yaml.Node, content: dict[str, Any]):
+        self.path = path
+        self.lines = _key_lines(node)
+        self.content = content
+
+    def error(self, location: tuple, message: str) -> SuiteError:
+        while location not in self.lines and location:
+            location = location[:-1]
+        return SuiteError(f"{self.path}, line {self.lines.get(location, 1)}: {message}")
+
+    def positive_int(self, value: Any, location: tuple, allow_zero: bool = False) -> int:
+        if isinstance(value, float) and value.is_integer():
+            value = int(value)
+        if isinstance(value, bool) or not isinstance(value, int) or value < (0 if allow_zero else 1):
+            name = ".".join(map(str, location))
+            raise self.error(location, f"`{name}` must be an integer >= {0 if allow_zero else 1}, got {value!r}.")
+        return value
+
+    def env_id(self, value: Any, location: tuple) -> str:
+        try:
+            return resolve_env_id(str(value))
+        except ValueError as error:
+            raise self.error(location, str(error)) from error
+
+    def lists(self) -> tuple[list[str], list[str], list[int]]:
+        for key in self.content:
+            if key not in SUITE_KEYS:
+                known = "; ".join(f"{name} ({meaning})" for name, meaning in SUITE_KEYS.items())
+                raise self.error((key,), f"unknown key {key!r}; a suite has: {known}")
+        for key in ("envs", "algos", "seeds"):
+            if not isinstance(self.content.get(key), list) or not self.content[key]:
+                raise self.error((key,), f"`{key}` must be a non-empty list ({SUITE_KEYS[key]}).")
+        envs = [self.env_id(env, ("envs", index)) for index, env in enumerate(self.content["envs"])]
+        algos = [str(algo) for algo in self.content["algos"]]
+        for index, algo in enumerate(algos):
+            if algo not in ALGOS:
+                raise self.error(("algos", index), f"unknown algorithm {algo!r}: use one of {', '.join(ALGOS)}.")
+        seeds = []
+        for index, seed in enumerate(self.content["seeds"]):
+            if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+                raise self.error(("seeds", index), f"seeds are integers >= 0, got {seed!r}.")
+            seeds.append(seed)
+        for key, values in (("envs", envs), ("algos", algos), ("seeds", seeds)):
+            if len(set(values)) != len(values):
+                raise self.error((key,), f"`{key}` repeats an entry: {self.content[key]}.")
+        return envs, algos, seeds
+
+    def variants(self) -> dict[str, dict[str, Any]]:
+        variants = self.content.get("variants") or {"base": {}}
+        if not isinstance(variants, dict):
+            raise self.error(
+                ("variants",), "`variants` maps a variant name to its settings, e.g. {sigma-0.01: {transition_noise: 0.01}}."
+            )
+        for variant, settings in variants.items():
+            where = ("variants", variant)
+            if not isinstance(variant, str) or not variant or "/" in variant or variant != variant.strip():
+                raise self.error(where, f"variant names are folder names without '/', got {variant!r}.")
+            if not isinstance(settings, dict):
+                raise self.error(where, f"variant {variant!r} must map settings ({', '.join(VARIANT_KEYS)}) to values.")
+            for key, value in settings.items():
+                if key not in VARIANT_KEYS:
+                    raise self.error((*where, key), f"unknown variant setting {key!r}: use {', '.join(VARIANT_KEYS)}.")
+                if key in ("hyperparams", "env_kwargs") and not isinstance(value, dict):
+                    raise self.error((*where, key), f"`{key}` maps names to values.")
+                if key in ("transition_noise", "violating_fraction") and (not isinstance(value, (int, float)) or value < 0):
+                    raise self.error((*where, key), f"`{key}` is a number >= 0, got {value!r}.")
+        return {str(name): dict(settings) for name, settings in variants.items()}
+
+    def steps(self, envs: list[str]) -> dict[str, int | None]:
+        raw = self.content.get("steps")
+        if raw is None:
+            return {env: None for env in envs}
+        if not isinstance(raw, dict):
+            return {env: self.positive_int(raw, ("steps",)) for env in envs}
+        steps: dict[str, int | None] = {env: None for env in envs}
+        for key, value in raw.items():
+            env_id = self.env_id(key, ("steps", key))
+            if env_id not in steps:
+                raise self.error(("steps", key), f"{key} is not one of the suite's envs.")
+            steps[env_id] = self.positive_int(value, ("steps", key))
+        return steps
+
+    def train_args(self) -> dict[str, Any]:
+        train_args = dict(DEFAULT_TRAIN_ARGS)
+        for key, value in (self.content.get("train_args") or {}).items():
+            if key not in TRAIN_ARGS:
+                raise self.error(("train_args", key), f"unknown train setting {key!r}: use {', '.join(TRAIN_ARGS)}.")
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise self.error(("train_args", key), f"`{key}` is an integer, got {value!r}.")
+            train_args[key] = value
+        return train_args
+
+    def paper(self) -> dict[str, dict[str, tuple[float, float]]]:
+        paper: dict[str, dict[str, tuple[float, float]]] = {}
+        for env, entries in (self.content.get("paper") or {}).items():
+            name = env_name(self.env_id(env, ("paper", env)))
+            if not isinstance(entries, dict):
+                raise self.error(("paper", env), "paper numbers map algo -> [feasible reward, violation rate].")
+            for algo, numbers in entries.items():
+                if algo not in ALGOS:
+                    raise self.error(("paper", env, algo), f"unknown algorithm {algo!r}.")
+                if not (isinstance(numbers, list) and len(numbers) == 2 and all(isinstance(n, (int, float)) for n in numbers)):
+                    raise self.error(("paper", env, algo), f"expected [feasible reward, violation rate], got {numbers!r}.")
+                paper.setdefault(name, {})[algo] = (float(numbers[0]), float(numbers[1]))
+        return paper
+
+
+def load_suite(name_or_path: str | os.PathLike) -> Suite:
+    """
+    Read and check a suite: unknown keys, envs, algorithms and variant settings are errors that name the file and line.
+
+    :param name_or_path: A shipped suite's name (``table3``, ``smoke``, ...) or the path of a suite file
+    :return: The suite
+    """
+    path = suite_path(name_or_path)
+    text = path.read_text()
+    try:
+        node = yaml.compose(text)
+        content = yaml.safe_load(text)
+    except yaml.YAMLError as error:
+        raise SuiteError(f"{path}: not valid yml: {error}") from error
+    if not isinstance(content, dict) or node is None:
+        raise SuiteError(f"{path}: a suite is a mapping with the keys {', '.join(SUITE_KEYS)}.")
+    reader = _SuiteReader(path, node, content)
+    envs, algos, seeds = reader.lists()
+    reference = content.get("reference")
+    if reference is not None and reference not in algos:
+        raise reader.error(("reference",), f"reference {reference!r} is not one of the suite's algos ({', '.join(algos)}).")
+    return Suite(
+        name=path.stem,
+        path=str(path),
+        description=str(content.get("description", "")),
+        envs=envs,
+        algos=algos,
+        seeds=seeds,
+        variants=reader.variants(),
+        steps=reader.steps(envs),
+        eval_episodes=reader.positive_int(content.get("eval_episodes", 20), ("eval_episodes",)),
+        eval_seed=reader.positive_int(content.get("eval_seed", 100), ("eval_seed",), allow_zero=True),
+        train_args=reader.train_args(),
+        reference=reference,
+        paper=reader.paper(),
+    )

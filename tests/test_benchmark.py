@@ -1,0 +1,246 @@
+"""The benchmark engine: suite files, running and resuming suites, and the report's statistics."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import numpy as np
+import pytest
+import scipy.stats
+
+from sb3_icrl.benchmark import iqm, load_suite, stratified_bootstrap_ci, summarise_suite
+from sb3_icrl.benchmark.cli import main as benchmark_main
+from sb3_icrl.benchmark.report import markdown_table
+from sb3_icrl.benchmark.suite import SUITES_DIR, RunSpec, SuiteError
+from sb3_icrl.zoo.compare import RunResult
+from sb3_icrl.zoo.runs import FINISHED_FILE
+
+SHIPPED = sorted(path.stem for path in SUITES_DIR.glob("*.yml"))
+# A tiny suite: two methods, two seeds, a few hundred steps, no checkpoints (an interrupted run restarts afresh)
+TINY_SUITE = """\
+description: tiny
+envs: [GridWorldWall-v0]
+algos: [bc2l, vicrl]
+seeds: [0, 1]
+steps: 512
+eval_episodes: 2
+train_args: {eval_freq: 256, eval_episodes: 1, save_freq: 0}
+reference: vicrl
+"""
+
+
+def write(tmp_path, text: str, name: str = "suite.yml") -> str:
+    path = tmp_path / name
+    path.write_text(textwrap.dedent(text))
+    return str(path)
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_shipped_suites_parse(name):
+    suite = load_suite(name)
+    assert suite.runs(), name
+    assert len(set(run.run_folder("logs") for run in suite.runs())) == len(suite.runs())  # one folder per run
+
+
+def test_shipped_suites_are_the_benchmark():
+    assert {"table3", "noise", "imperfect", "multi", "experts", "smoke"} <= set(SHIPPED)
+    table3 = load_suite("table3")
+    assert len(table3.envs) == 7 and table3.algos == ["gacl", "bc2l", "mecl", "vicrl"]
+    assert table3.seeds == [123, 321, 456, 654, 666]
+    assert table3.paper["BlockedHalfCheetah-v0"]["vicrl"] == (3806.0, 0.0)
+    assert [settings["transition_noise"] for settings in load_suite("noise").variants.values()] == [0.001, 0.01, 0.1]
+
+
+@pytest.mark.parametrize(
+    "text, line, message",
+    [
+        ("envs: [GridWorldWall-v0]\nalgos: [bc2l]\nseeds: [0]\nepisodes: 3\n", 4, "unknown key 'episodes'"),
+        ("envs:\n  - GridWorldWall-v0\n  - NoSuchEnv-v0\nalgos: [bc2l]\nseeds: [0]\n", 3, "Unknown env 'NoSuchEnv-v0'"),
+        ("envs: [GridWorldWall-v0]\nalgos:\n  - bc2l\n  - airl\nseeds: [0]\n", 4, "unknown algorithm 'airl'"),
+        (
+            "envs: [GridWorldWall-v0]\nalgos: [bc2l]\nseeds: [0]\nvariants:\n  noisy: {noise: 0.1}\n",
+            5,
+            "unknown variant setting 'noise'",
+        ),
+        ("envs: [GridWorldWall-v0]\nalgos: [bc2l]\nseeds: [0, -1]\n", 3, "seeds are integers >= 0"),
+        ("envs: [GridWorldWall-v0]\nalgos: [bc2l]\nseeds: [0]\nreference: vicrl\n", 4, "reference 'vicrl' is not one"),
+        ("envs: [GridWorldWall-v0]\nalgos: [bc2l]\nseeds: [0]\ntrain_args: {save_every: 3}\n", 4, "unknown train setting"),
+        ("envs: []\nalgos: [bc2l]\nseeds: [0]\n", 1, "`envs` must be a non-empty list"),
+    ],
+)
+def test_bad_suite_files_name_file_and_line(tmp_path, text, line, message):
+    path = write(tmp_path, text)
+    with pytest.raises(SuiteError, match=f"line {line}: .*{message}") as error:
+        load_suite(path)
+    assert path in str(error.value)
+
+
+def test_unknown_suite_name_lists_the_shipped_ones():
+    with pytest.raises(SuiteError, match="table3"):
+        load_suite("tabel3")
+
+
+def test_run_folder_is_a_function_of_cell_and_seed(tmp_path):
+    suite = load_suite(write(tmp_path, TINY_SUITE))
+    run = suite.runs()[0]
+    assert run.run_folder("logs") == os.path.join("logs", "suite", "base", "bc2l", "GridWorldWall-v0_0")
+    assert run.train_argv("logs")[:10] == [
+        "--algo",
+        "bc2l",
+        "--env",
+        "sb3_icrl/GridWorldWall-v0",
+        "--seed",
+        "0",
+        "-f",
+        os.path.join("logs", "suite", "base"),
+        "--exp-id",
+        "0",
+    ]
+    assert "--resume" in run.train_argv("logs")
+    assert [r.seed for r in suite.select({"algo": ["vicrl"], "seed": ["1"]})] == [1]
+    with pytest.raises(SuiteError, match="matches none"):
+        suite.select({"algo": ["mecl"]})
+
+
+def test_variant_settings_become_train_flags():
+    suite = load_suite("imperfect")
+    argv = suite.runs()[0].train_argv("logs")
+    assert argv[argv.index("--violating-fraction") + 1] == "0.2"
+    noisy = load_suite("noise").runs()[-1].train_argv("logs")
+    assert noisy[noisy.index("--transition-noise") + 1] == "0.1"
+
+
+# ---------------------------------------------------------------- statistics against hand computation
+
+
+def test_iqm_is_the_mean_of_the_middle_half():
+    assert iqm([1, 2, 3, 4, 100, 5, 6, 7]) == pytest.approx((3 + 4 + 5 + 6) / 4)
+    assert iqm([2.0]) == 2.0
+
+
+def test_stratified_bootstrap_resamples_each_task_on_its_own():
+    tasks = [np.array([1.0, 2.0, 3.0]), np.array([10.0, 20.0])]
+    lower, upper = stratified_bootstrap_ci(tasks, statistic=np.mean, reps=500, seed=3)
+    rng = np.random.default_rng(3)
+    estimates = [np.mean(np.concatenate([task[rng.integers(0, len(task), len(task))] for task in tasks])) for _ in range(500)]
+    assert (lower, upper) == pytest.approx(tuple(np.percentile(estimates, [2.5, 97.5])))
+    # Every resample keeps three scores of the first task and two of the second: bounds within the possible means
+    assert (1 * 3 + 10 * 2) / 5 <= lower <= upper <= (3 * 3 + 20 * 2) / 5
+
+
+def _result(algo: str, seed: int, feasible: float, violation: float) -> RunResult:
+    return RunResult(f"r/{algo}/{seed}", algo, "sb3_icrl/GridWorldWall-v0", seed, 100, 1.0, violation, feasible, feasible, 20)
+
+
+def test_summary_cells_hold_hand_computed_statistics(tmp_path):
+    suite = load_suite(write(tmp_path, TINY_SUITE.replace("seeds: [0, 1]", "seeds: [0, 1, 2, 3, 4]")))
+    feasible = {"bc2l": [1.0, 2.0, 3.0, 4.0, 5.0], "vicrl": [2.0, 3.5, 4.0, 6.0, 9.0]}
+    results = [(run, _result(run.algo, run.seed, feasible[run.algo][run.seed], 0.1 * run.seed)) for run in suite.runs()]
+    summary = summarise_suite(suite, suite.runs(), results)
+    bc2l = next(cell for cell in summary["cells"] if cell["algo"] == "bc2l")
+    assert bc2l["feasible_reward_mean"] == pytest.approx(3.0)
+    assert bc2l["feasible_reward_std"] == pytest.approx(np.sqrt(2.0))  # ddof=0
+    assert bc2l["feasible_reward_iqm"] == pytest.approx(3.0)  # trim 25% of 5: one score each side
+    # bc2l is below vicrl on all five seeds: the exact two-sided signed-rank p is 2 / 2^5
+    assert bc2l["wilcoxon_p"] == pytest.approx(2 / 32)
+    assert bc2l["wilcoxon_p"] == pytest.approx(scipy.stats.wilcoxon(np.subtract(feasible["bc2l"], feasible["vicrl"])).pvalue)
+    assert [seed["feasible_reward"] for seed in bc2l["per_seed"]] == feasible["bc2l"]
+    assert summary["runs_missing"] == []
+    table = markdown_table(summary)
+    assert "0: 1 / 0%" in table and "| vicrl |" in table
+    partial = summarise_suite(suite, suite.runs(), results[:-1])
+    assert partial["runs_missing"] == [suite.runs()[-1].name]
+
+
+# ---------------------------------------------------------------- running suites
+
+
+def _summary(root) -> dict:
+    with open(os.path.join(root, "suite", "report", "summary.json")) as file:
+        summary = json.load(file)
+    return summary
+
+
+def test_suite_runs_end_to_end_then_skips_finished_runs(tmp_path, capsys):
+    path = write(tmp_path, TINY_SUITE)
+    root = str(tmp_path / "logs")
+    assert benchmark_main(["run", path, "-f", root, "--jobs", "2"]) == 0
+    summary = _summary(root)
+    assert [(cell["algo"], cell["n_seeds"]) for cell in summary["cells"]] == [("bc2l", 2), ("vicrl", 2)]
+    assert all(os.path.isfile(os.path.join(root, "suite", "report", name)) for name in ("table.md", "runs.csv", "table.tex"))
+    run = RunSpec("suite", "base", "bc2l", "sb3_icrl/GridWorldWall-v0", 0, 512)
+    assert os.path.isfile(os.path.join(run.run_folder(root), FINISHED_FILE))
+    capsys.readouterr()
+    assert benchmark_main(["run", path, "-f", root, "--jobs", "2", "--no-report"]) == 0
+    assert "4/4 done (4 from before)" in capsys.readouterr().out
+    assert _summary(root) == summary
+
+
+def test_kill_9_mid_suite_then_rerun_gives_the_same_table(tmp_path):
+    """A suite killed at any moment, then run again, ends with the JSON of a suite that was never interrupted."""
+    path = write(tmp_path, TINY_SUITE)
+    uninterrupted, interrupted = str(tmp_path / "a"), str(tmp_path / "b")
+    assert benchmark_main(["run", path, "-f", uninterrupted, "--jobs", "2"]) == 0
+    command = [sys.executable, "-m", "sb3_icrl.benchmark", "run", path, "-f", interrupted, "--jobs", "2", "--no-report"]
+    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    deadline = time.time() + 120
+    first = RunSpec("suite", "base", "bc2l", "sb3_icrl/GridWorldWall-v0", 0, 512).run_folder(interrupted)
+    while not os.path.isfile(os.path.join(first, FINISHED_FILE)) and time.time() < deadline:
+        time.sleep(0.2)
+    os.kill(process.pid, signal.SIGKILL)  # the suite only: its runs die with it
+    process.wait()
+    time.sleep(1.0)
+    assert benchmark_main(["run", path, "-f", interrupted, "--jobs", "2"]) == 0
+    assert _summary(interrupted) == _summary(uninterrupted)
+
+
+def test_resume_continues_a_run_from_its_checkpoint(tmp_path):
+    """An unfinished run with checkpoints goes on from the latest, in the same folder, to the full step count."""
+    tiny = TINY_SUITE.replace("save_freq: 0", "save_freq: 256").replace("seeds: [0, 1]", "seeds: [0]")
+    path = write(tmp_path, tiny.replace("steps: 512", "steps: 1024"))
+    root = str(tmp_path / "logs")
+    run = RunSpec("suite", "base", "bc2l", "sb3_icrl/GridWorldWall-v0", 0, 1024)
+    assert benchmark_main(["run", path, "-f", root, "--only", "algo=bc2l", "--no-report"]) == 0
+    folder = run.run_folder(root)
+    # Checkpoints at rollout starts (512 steps a rollout): one, after the first update
+    assert sorted(name for name in os.listdir(folder) if name.startswith("rl_model_")) == ["rl_model_512_steps.zip"]
+    # What a kill during the second rollout leaves: no final model, no finished.json
+    for name in (FINISHED_FILE, "GridWorldWall-v0.zip"):
+        os.remove(os.path.join(folder, name))
+    with open(os.path.join(folder, "rl_model_1024_steps.zip"), "wb") as file:
+        file.write(b"PK\x03\x04 half-written")  # a torn file under a checkpoint's name is passed over
+    assert benchmark_main(["run", path, "-f", root, "--only", "algo=bc2l", "--no-report"]) == 0
+    with open(os.path.join(folder, FINISHED_FILE)) as file:
+        finished = json.load(file)
+    assert finished["num_timesteps"] == 1024 and finished["resumed_from"].endswith("rl_model_512_steps.zip")
+    with np.load(os.path.join(folder, "evaluations.npz")) as evaluations:
+        # The evaluations up to the checkpoint are kept, the later one is made again
+        assert evaluations["timesteps"].tolist() == [256, 512, 768, 1024]
+
+
+def test_failing_run_is_retried_once_then_listed_with_its_log(tmp_path, capsys):
+    path = write(tmp_path, TINY_SUITE + "variants:\n  broken: {hyperparams: {n_steps: -5}}\n")
+    root = str(tmp_path / "logs")
+    assert benchmark_main(["run", path, "-f", root, "--jobs", "2", "--only", "algo=bc2l", "seed=0", "--no-report"]) == 1
+    out = capsys.readouterr().out
+    assert "FAILED: broken/bc2l/GridWorldWall-v0/seed 0" in out
+    assert "start (attempt 2)" in out
+    log = RunSpec("suite", "broken", "bc2l", "sb3_icrl/GridWorldWall-v0", 0, 512).log_file(root)
+    with open(log) as file:
+        assert file.read().count("=== ") == 2
+
+
+def test_ray_backend_runs_the_suite(tmp_path):
+    ray = pytest.importorskip("ray")
+    path = write(tmp_path, TINY_SUITE.replace("seeds: [0, 1]", "seeds: [0]"))
+    root = str(tmp_path / "logs")
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        assert benchmark_main(["run", path, "-f", root, "--backend", "ray"]) == 0
+    finally:
+        ray.shutdown()
+    assert [cell["n_seeds"] for cell in _summary(root)["cells"]] == [1, 1]
