@@ -22,3 +22,27 @@ def test_atomic_write_bytes_fails_half_way_without_damage(tmp_path):
     assert path.read_bytes() == b"old"
     assert [name.name for name in tmp_path.iterdir()] == ["data.bin"]
     assert oct(os.stat(path).st_mode & 0o777) == "0o644"
+
+
+def test_atomic_save_model_and_pickle_round_trip_and_keep_the_old_file_on_failure(tmp_path, monkeypatch):
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    from sb3_icrl.common.envs import ConstrainedCorridorEnv
+    from sb3_icrl.common.utils import atomic_save_model, atomic_save_pickle
+
+    venv = VecNormalize(DummyVecEnv([ConstrainedCorridorEnv]))
+    model = PPO("MlpPolicy", venv, n_steps=32, batch_size=16, policy_kwargs=dict(net_arch=[8]))
+    path = atomic_save_model(model, tmp_path / "model")
+    assert path.endswith("model.zip")
+    loaded = PPO.load(path)
+    assert all((a == b).all() for a, b in zip(loaded.policy.state_dict().values(), model.policy.state_dict().values()))
+    atomic_save_pickle(venv, tmp_path / "stats.pkl")
+    assert VecNormalize.load(str(tmp_path / "stats.pkl"), DummyVecEnv([ConstrainedCorridorEnv])).clip_obs == venv.clip_obs
+
+    before = (tmp_path / "model.zip").read_bytes()
+    monkeypatch.setattr(os, "replace", lambda *args: (_ for _ in ()).throw(OSError("disk full")))
+    with pytest.raises(OSError, match="disk full"):
+        atomic_save_model(model, tmp_path / "model.zip")
+    assert (tmp_path / "model.zip").read_bytes() == before
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["model.zip", "stats.pkl"]  # no temporary file left

@@ -75,8 +75,8 @@ def run_lock(run_folder: str) -> Iterator[bool]:
 
 
 def train_command(argv: Sequence[str]) -> list[str]:
-    """The command line of a training run: this Python, ``-m sb3_icrl.zoo.train``, the arguments."""
-    return [sys.executable, "-m", "sb3_icrl.zoo.train", *argv]
+    """The command line of a training run: ``sb3-icrl train`` with this Python and the arguments."""
+    return [sys.executable, "-m", "sb3_icrl.zoo", "train", *argv]
 
 
 def execute_run(argv: Sequence[str], log_file: str, run_folder: str) -> tuple[str, float]:
