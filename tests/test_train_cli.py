@@ -439,3 +439,25 @@ def test_resume_errors_are_clear(tmp_path: pathlib.Path, capsys) -> None:
     assert main([*base, "--algo", "ppo", "-i", str(tmp_path / "agent" / "ppo_agent.zip")]) == 2
     assert "pass -params normalize:True" in capsys.readouterr().err
     assert not any(path.is_dir() for path in tmp_path.glob("logs/*/*_*"))
+
+
+def test_exp_id_and_resume_errors_are_clear(tmp_path: pathlib.Path, capsys) -> None:
+    base = ["--algo", "ppo", "--env", "ConstrainedCorridor-v0", "-n", "64", "-f", str(tmp_path), "--verbose", "0"]
+    base += ["--eval-freq", "-1", "-params", "n_steps:64", "batch_size:32"]
+    assert main([*base, "--resume"]) == 2
+    assert "pass --exp-id N as well" in capsys.readouterr().err
+    assert main([*base, "--exp-id", "7"]) == 0
+    assert (tmp_path / "ppo" / "ConstrainedCorridor-v0_7" / "finished.json").is_file()
+    assert main([*base, "--exp-id", "7"]) == 2
+    assert "pass --resume to continue it" in capsys.readouterr().err
+    assert main([*base, "--exp-id", "7", "--resume", "--verbose", "1"]) == 0
+    assert "has finished: nothing to do" in capsys.readouterr().out
+    assert main([*base, "--exp-id", "7", "--resume", "-i", "x.zip"]) == 2
+    assert "leave out -i" in capsys.readouterr().err
+
+
+def test_icrl_run_too_short_for_a_constraint_update_says_so(tmp_path: pathlib.Path) -> None:
+    args = ["--algo", "bc2l", "--env", "GridWorldWall-v0", "-n", "128", "-f", str(tmp_path), "--verbose", "0"]
+    args += ["--eval-freq", "-1", "-params", "n_steps:64", "batch_size:32", "update_every:1000"]
+    with pytest.warns(UserWarning, match="it will make no constraint update"):
+        assert main(args) == 0

@@ -259,8 +259,6 @@ def _run_folder(args: argparse.Namespace, name: str) -> str:
         return os.path.join(log_path, f"{name}_{get_latest_run_id(log_path, name) + 1}")
     if args.exp_id < 0:
         raise ValueError(f"--exp-id must be >= 0, got {args.exp_id}.")
-    if args.resume and args.trained_agent:
-        raise ValueError("--resume continues a run from its own checkpoints: leave out -i/--trained-agent.")
     save_path = os.path.join(log_path, f"{name}_{args.exp_id}")
     if os.path.exists(save_path) and not args.resume:
         raise ValueError(f"{save_path} exists: pass --resume to continue it, or another --exp-id.")
@@ -399,12 +397,22 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
         args.seed = int(np.random.randint(2**31 - 1))
     set_random_seed(args.seed)
 
+    if args.resume and args.trained_agent:
+        raise ValueError("--resume continues a run from its own checkpoints: leave out -i/--trained-agent.")
     if args.trained_agent:
         check_trained_agent(args.trained_agent, args.algo)
     raw_params, source = load_hyperparams(args.algo, env_id, args.hyperparams, conf_file=args.conf_file)
     params = preprocess_hyperparams(raw_params)
     n_timesteps = args.n_timesteps if args.n_timesteps > 0 else params["n_timesteps"]
     kwargs = algo_kwargs(params)
+    update_every = params.get("update_every")
+    if args.algo in ICRL_ALGOS and update_every and n_timesteps < update_every and not args.trained_agent:
+        warnings.warn(
+            f"{args.algo} updates its constraint every {update_every} steps (update_every in the {source!r} entry), but this "
+            f"run trains {n_timesteps}: it will make no constraint update and learn against the untrained constraint. "
+            f"Train longer, or pass -params update_every:{max(n_timesteps // 4, 1)}.",
+            stacklevel=2,
+        )
 
     save_path = _run_folder(args, name)
     resume_from = None
