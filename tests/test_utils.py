@@ -36,7 +36,9 @@ def test_atomic_save_model_and_pickle_round_trip_and_keep_the_old_file_on_failur
     path = atomic_save_model(model, tmp_path / "model")
     assert path.endswith("model.zip")
     loaded = PPO.load(path)
-    assert all((a == b).all() for a, b in zip(loaded.policy.state_dict().values(), model.policy.state_dict().values()))
+    assert all(
+        (a == b).all() for a, b in zip(loaded.policy.state_dict().values(), model.policy.state_dict().values(), strict=True)
+    )
     atomic_save_pickle(venv, tmp_path / "stats.pkl")
     assert VecNormalize.load(str(tmp_path / "stats.pkl"), DummyVecEnv([ConstrainedCorridorEnv])).clip_obs == venv.clip_obs
 

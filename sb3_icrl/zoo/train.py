@@ -250,6 +250,34 @@ def _demonstrations(algo: str, env_id: str, args: argparse.Namespace, env: VecEn
         raise
 
 
+def _warn_without_constraint_updates(args: argparse.Namespace, params: dict[str, Any], n_timesteps: int, source: str) -> None:
+    update_every = params.get("update_every")
+    if args.algo in ICRL_ALGOS and update_every and n_timesteps < update_every and not args.trained_agent:
+        warnings.warn(
+            f"{args.algo} updates its constraint every {update_every} steps (update_every in the {source!r} entry), but this "
+            f"run trains {n_timesteps}: it will make no constraint update and learn against the untrained constraint. "
+            f"Train longer, or pass -params update_every:{max(n_timesteps // 4, 1)}.",
+            stacklevel=3,
+        )
+
+
+def _resume_checkpoint(args: argparse.Namespace, save_path: str) -> str | None:
+    """
+    With ``--resume``, the checkpoint an unfinished run goes on from (set as ``args.trained_agent``); without one, the
+    folder is cleared so the run starts afresh in it.
+    """
+    if not args.resume:
+        return None
+    resume_from = latest_checkpoint(save_path)
+    if resume_from is None:
+        shutil.rmtree(save_path, ignore_errors=True)
+        return None
+    args.trained_agent = resume_from
+    if args.verbose:
+        print(f"Resuming {save_path} from {os.path.basename(resume_from)}")
+    return resume_from
+
+
 def _run_folder(args: argparse.Namespace, name: str) -> str:
     """``<folder>/<algo>/<EnvName>_<N>``: N from ``--exp-id``, else the next free one (as rl-zoo)."""
     log_path = os.path.join(args.log_folder, args.algo)
@@ -405,29 +433,14 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
     params = preprocess_hyperparams(raw_params)
     n_timesteps = args.n_timesteps if args.n_timesteps > 0 else params["n_timesteps"]
     kwargs = algo_kwargs(params)
-    update_every = params.get("update_every")
-    if args.algo in ICRL_ALGOS and update_every and n_timesteps < update_every and not args.trained_agent:
-        warnings.warn(
-            f"{args.algo} updates its constraint every {update_every} steps (update_every in the {source!r} entry), but this "
-            f"run trains {n_timesteps}: it will make no constraint update and learn against the untrained constraint. "
-            f"Train longer, or pass -params update_every:{max(n_timesteps // 4, 1)}.",
-            stacklevel=2,
-        )
+    _warn_without_constraint_updates(args, params, n_timesteps, source)
 
     save_path = _run_folder(args, name)
-    resume_from = None
-    if args.resume:
-        if is_finished(save_path):
-            if args.verbose:
-                print(f"{save_path} has finished: nothing to do")
-            return save_path
-        resume_from = latest_checkpoint(save_path)
-        if resume_from is None:
-            shutil.rmtree(save_path, ignore_errors=True)  # nothing to continue: start afresh in the same folder
-        else:
-            args.trained_agent = resume_from
-            if args.verbose:
-                print(f"Resuming {save_path} from {os.path.basename(resume_from)}")
+    if args.resume and is_finished(save_path):
+        if args.verbose:
+            print(f"{save_path} has finished: nothing to do")
+        return save_path
+    resume_from = _resume_checkpoint(args, save_path)
     params_path = os.path.join(save_path, name)
     os.makedirs(params_path, exist_ok=True)
     if resume_from is None:
