@@ -10,8 +10,9 @@ JSON result atomically in ``--out``; ``--summarize`` re-prints the table from th
 
 Both algorithms use the same PPO settings (SB3 defaults, n_steps 2048, VecNormalize on observations and rewards).
 PPOLagrangian uses the ICRL reference code's multiplier settings (per-step cost, budget 0, SGD, the per-env init
-and learning rate of the reference ICRL code's runs). Reported per run: the training episodes' violation rate and reward over the last
-10% of steps, and a deterministic evaluation (10 episodes): violation rate, feasible cumulative reward, reward.
+and learning rate of the reference ICRL code's runs). Reported per run: the training episodes' violation rate and
+reward over the last 10% of steps, and a deterministic evaluation (10 episodes): violation rate, feasible cumulative
+reward, reward.
 """
 
 import argparse

@@ -201,7 +201,10 @@ def test_wheel_ships_the_hyperparameter_files(tmp_path: pathlib.Path) -> None:
 
 
 def test_reference_table_values() -> None:
-    """Spot checks against the reference ICRL code's settings (Ant: 50 x 200k, 2048/128/3e-5, lambda 0.1/0.05, 5e-3, [40, 40], 5, 0.6)."""
+    """
+    Spot checks against the reference ICRL code's settings (Ant: 50 x 200k, 2048/128/3e-5, lambda 0.1/0.05, 5e-3,
+    [40, 40], 5, 0.6).
+    """
     entry, _ = load_hyperparams("mecl", "BlockedAnt-v0")
     params = preprocess_hyperparams(entry)
     assert params["n_timesteps"] == 50 * 200_000 and params["update_every"] == 200_000

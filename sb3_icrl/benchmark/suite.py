@@ -12,7 +12,7 @@ from typing import Any
 
 import yaml
 
-from sb3_icrl.zoo.hyperparams import ALGOS, env_name, resolve_env_id
+from sb3_icrl.zoo.hyperparams import ALGOS, env_name, import_gym_packages, resolve_env_id
 
 #: Where the shipped suites live
 SUITES_DIR = pathlib.Path(__file__).resolve().parent / "suites"
@@ -29,6 +29,7 @@ SUITE_KEYS = {
     "train_args": "extra train.py settings for every run: eval_freq, eval_episodes, save_freq, num_threads",
     "reference": "algorithm the report tests the others against (Wilcoxon signed-rank)",
     "paper": "mapping env -> algo -> [feasible reward, violation rate] of the paper, shown beside ours",
+    "gym_packages": "modules to import first: they register your own envs",
 }
 #: What a variant may change, with the train.py flag it becomes
 VARIANT_KEYS = {
@@ -65,6 +66,7 @@ class RunSpec:
     :param steps: Training steps (``None``: the recipe's)
     :param variant_settings: The variant's settings (see :data:`VARIANT_KEYS`)
     :param train_args: train.py settings (see :data:`TRAIN_ARGS`)
+    :param gym_packages: Modules that register the env (``--gym-packages``)
     """
 
     suite: str
@@ -75,6 +77,7 @@ class RunSpec:
     steps: int | None
     variant_settings: dict[str, Any] = field(default_factory=dict, compare=False, hash=False)
     train_args: dict[str, Any] = field(default_factory=dict, compare=False, hash=False)
+    gym_packages: tuple[str, ...] = field(default=(), compare=False, hash=False)
 
     @property
     def cell(self) -> tuple[str, str, str]:
@@ -103,6 +106,8 @@ class RunSpec:
         """The train.py arguments of this run (it resumes itself when run again)."""
         argv = ["--algo", self.algo, "--env", self.env_id, "--seed", str(self.seed), "-f", self.log_folder(root)]
         argv += ["--exp-id", str(self.seed), "--resume", "--verbose", "1"]
+        if self.gym_packages:
+            argv += ["--gym-packages", *self.gym_packages]
         if self.steps is not None:
             argv += ["-n", str(self.steps)]
         for key, flag in TRAIN_ARGS.items():
@@ -141,11 +146,12 @@ class Suite:
     train_args: dict[str, Any]
     reference: str | None
     paper: dict[str, dict[str, tuple[float, float]]]
+    gym_packages: tuple[str, ...] = ()
 
     def runs(self) -> list[RunSpec]:
         """Every run, env by env, then variant, algorithm and seed."""
         return [
-            RunSpec(self.name, variant, algo, env_id, seed, self.steps[env_id], settings, self.train_args)
+            RunSpec(self.name, variant, algo, env_id, seed, self.steps[env_id], settings, self.train_args, self.gym_packages)
             for env_id in self.envs
             for variant, settings in self.variants.items()
             for algo in self.algos
@@ -341,6 +347,13 @@ def load_suite(name_or_path: str | os.PathLike) -> Suite:
     if not isinstance(content, dict) or node is None:
         raise SuiteError(f"{path}: a suite is a mapping with the keys {', '.join(SUITE_KEYS)}.")
     reader = _SuiteReader(path, node, content)
+    gym_packages = content.get("gym_packages") or []
+    if not isinstance(gym_packages, list) or not all(isinstance(package, str) for package in gym_packages):
+        raise reader.error(("gym_packages",), f"`gym_packages` is a list of module names, got {gym_packages!r}.")
+    try:
+        import_gym_packages(gym_packages)
+    except ValueError as error:
+        raise reader.error(("gym_packages",), str(error)) from error
     envs, algos, seeds = reader.lists()
     reference = content.get("reference")
     if reference is not None and reference not in algos:
@@ -359,4 +372,5 @@ def load_suite(name_or_path: str | os.PathLike) -> Suite:
         train_args=reader.train_args(),
         reference=reference,
         paper=reader.paper(),
+        gym_packages=tuple(gym_packages),
     )

@@ -160,14 +160,15 @@ def plot_constraint(args: argparse.Namespace) -> pathlib.Path:
     import gymnasium as gym
 
     from sb3_icrl.data import load_demonstrations
-    from sb3_icrl.zoo.hyperparams import ALGOS, ICRL_ALGOS, resolve_env_id
+    from sb3_icrl.zoo.hyperparams import ALGOS, ICRL_ALGOS, env_name, import_gym_packages, resolve_env_id
 
     folder, run_args = read_run(args.run_folder)
     algo = run_args["algo"]
     if algo not in ICRL_ALGOS:
         raise ValueError(f"{folder} is a {algo} run: only ICRL runs ({', '.join(ICRL_ALGOS)}) learn a constraint to plot.")
+    import_gym_packages(run_args.get("gym_packages"))  # a user's env registers itself on import
     env_id = resolve_env_id(run_args["env"])
-    name = env_id.split("/")[-1]
+    name = env_name(env_id)  # the run folder's name for the env, as train.py wrote it
     env_kwargs = dict(run_args.get("env_kwargs") or {})
     model = ALGOS[algo].load(str(_model_path(folder, name, args.model)), device="cpu")
     net: Any = model.constraint_net  # type: ignore[attr-defined]

@@ -26,7 +26,7 @@ from stable_baselines3.common.save_util import load_from_zip_file
 
 from sb3_icrl.common.utils import atomic_write_json
 from sb3_icrl.zoo import enjoy
-from sb3_icrl.zoo.hyperparams import ALGOS, env_name
+from sb3_icrl.zoo.hyperparams import ALGOS, env_name, import_gym_packages
 
 
 class RunFolderError(ValueError):
@@ -81,6 +81,7 @@ def describe_run(run: str) -> tuple[str, str, int, str]:
         )
     with open(args_path) as file:
         args = yaml.safe_load(file) or {}
+    import_gym_packages(args.get("gym_packages"))  # a user's env registers itself on import
     if env_name(args["env"]) != name:
         raise RunFolderError(f"{run}: args.yml names env {args['env']!r}, but the folder is named after {name!r}.")
     if args.get("seed") is None:

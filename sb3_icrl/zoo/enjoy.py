@@ -26,7 +26,15 @@ from gymnasium.envs.registration import load_env_creator
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from sb3_icrl.common.evaluation import ConstraintEvaluation, EpisodeAccumulator
-from sb3_icrl.zoo.hyperparams import ALGOS, ICRL_ALGOS, HyperparameterError, env_name, preprocess_hyperparams, resolve_env_id
+from sb3_icrl.zoo.hyperparams import (
+    ALGOS,
+    ICRL_ALGOS,
+    HyperparameterError,
+    env_name,
+    import_gym_packages,
+    preprocess_hyperparams,
+    resolve_env_id,
+)
 from sb3_icrl.zoo.runs import CHECKPOINT_PATTERN, TrainedAgentError, check_trained_agent, find_vecnormalize
 from sb3_icrl.zoo.train import StoreDict, create_env, get_latest_run_id
 
@@ -43,7 +51,12 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
     """
     parser = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--algo", type=str, required=True, choices=list(ALGOS), help="Algorithm")
-    parser.add_argument("--env", type=str, required=True, help="Env id, with or without the sb3_icrl/ prefix")
+    parser.add_argument(
+        "--env", type=str, required=True, help="Env id, with or without the sb3_icrl/ prefix (or MODULE:EnvId)"
+    )
+    parser.add_argument(
+        "--gym-packages", type=str, nargs="+", default=[], help="Modules to import first: they register your own envs"
+    )
     parser.add_argument("-f", "--folder", type=str, default="logs", help="Log folder (train.py's -f)")
     parser.add_argument("--exp-id", type=int, default=0, help="Run id N of <EnvName>_N (0: the latest)")
     parser.add_argument("--load-best", action="store_true", default=False, help="Load best_model.zip")
@@ -158,6 +171,7 @@ def enjoy(args: argparse.Namespace) -> ConstraintEvaluation:
     :param args: From :func:`get_parser`
     :return: The finished episodes (empty arrays when none finished)
     """
+    import_gym_packages(args.gym_packages)
     env_id = resolve_env_id(args.env)
     name = env_name(env_id)
     if args.num_threads > 0:

@@ -50,6 +50,7 @@ from sb3_icrl.zoo.hyperparams import (
     HyperparameterError,
     algo_kwargs,
     env_name,
+    import_gym_packages,
     load_hyperparams,
     preprocess_hyperparams,
     resolve_env_id,
@@ -91,7 +92,12 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
     """
     parser = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--algo", type=str, required=True, choices=list(ALGOS), help="Algorithm")
-    parser.add_argument("--env", type=str, required=True, help="Env id, with or without the sb3_icrl/ prefix")
+    parser.add_argument(
+        "--env", type=str, required=True, help="Env id, with or without the sb3_icrl/ prefix (or MODULE:EnvId)"
+    )
+    parser.add_argument(
+        "--gym-packages", type=str, nargs="+", default=[], help="Modules to import first: they register your own envs"
+    )
     parser.add_argument("-n", "--n-timesteps", type=int, default=-1, help="Timesteps (default: the yml's n_timesteps)")
     parser.add_argument(
         "-i",
@@ -417,7 +423,9 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
     :param args: From :func:`get_parser`
     :param argv: The command line, for ``command.txt``
     """
+    import_gym_packages(args.gym_packages)
     env_id = resolve_env_id(args.env)
+    args.gym_packages = [*args.gym_packages, *([args.env.partition(":")[0]] if ":" in args.env else [])]
     name = env_name(env_id)
     if args.num_threads > 0:
         th.set_num_threads(args.num_threads)
