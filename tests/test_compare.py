@@ -1,6 +1,7 @@
 """sb3-icrl compare: held-out evaluation of finished runs, summaries over seeds, and clear errors."""
 
 import json
+import os
 import pathlib
 
 import numpy as np
@@ -9,7 +10,7 @@ import yaml
 
 from sb3_icrl.zoo import enjoy
 from sb3_icrl.zoo import main as train_main
-from sb3_icrl.zoo.compare import RunFolderError, RunResult, check_runs, main, recipe_differences, summarise
+from sb3_icrl.zoo.compare import RunFolderError, RunResult, check_runs, evaluate_run, main, recipe_differences, summarise
 from sb3_icrl.zoo.train import cli
 
 TINY = ["-n", "128", "-params", "n_steps:64", "batch_size:32", "--eval-freq", "-1", "--verbose", "0"]
@@ -132,3 +133,19 @@ def test_merge_compare_joins_the_json_of_several_calls(tmp_path: pathlib.Path) -
     assert refused.returncode != 0 and "different held-out seeds" in refused.stderr
     absent = subprocess.run([sys.executable, str(script), *paths, "--reference", "gacl"], capture_output=True, text=True)
     assert absent.returncode != 0 and "--reference 'gacl' has no run" in absent.stderr
+
+
+def test_evaluate_run_loads_the_model_of_the_folder_it_is_given(tmp_path, monkeypatch):
+    """A run numbered 0 (a suite's seed 0) beside a run numbered 1: each folder is evaluated with its own model."""
+    base = ["--algo", "ppo", "--env", "ConstrainedCorridor-v0", "-n", "64", "-f", str(tmp_path), "--verbose", "0"]
+    base += ["--eval-freq", "-1", "-params", "n_steps:64", "batch_size:32"]
+    for exp_id in ("0", "1"):
+        assert train_main([*base, "--seed", exp_id, "--exp-id", exp_id]) == 0
+    loaded = []
+    original = enjoy.check_trained_agent
+    monkeypatch.setattr(enjoy, "check_trained_agent", lambda path, algo: (loaded.append(path), original(path, algo)))
+    for exp_id in ("0", "1"):
+        run = str(tmp_path / "ppo" / f"ConstrainedCorridor-v0_{exp_id}")
+        result = evaluate_run(run, 40, eval_seed=100)
+        assert result.seed == int(exp_id)
+        assert loaded[-1].startswith(run + os.sep), (loaded[-1], run)

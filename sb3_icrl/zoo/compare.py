@@ -108,9 +108,9 @@ def evaluate_run(run: str, n_timesteps: int, eval_seed: int, load_best: bool = F
     :param eval_seed: Seed of the evaluation env and policy (pick one the run did not train on)
     :param load_best: Evaluate ``best_model.zip`` instead of the final model
     """
-    algo, env_id, seed, folder = describe_run(run)
-    exp_id = os.path.normpath(run).rpartition("_")[2]
-    argv = ["--algo", algo, "--env", env_id, "-f", folder, "--exp-id", exp_id, "-n", str(n_timesteps)]
+    algo, env_id, seed, _ = describe_run(run)
+    # The folder itself: with --exp-id, a run numbered 0 (a benchmark suite's seed 0) would mean "the latest run"
+    argv = ["--algo", algo, "--env", env_id, "--run", run, "-n", str(n_timesteps)]
     argv += ["--no-render", "--seed", str(eval_seed), "--verbose", "0", *(["--load-best"] if load_best else [])]
     args = enjoy.get_parser().parse_args(argv)
     evaluation = enjoy.enjoy(args)

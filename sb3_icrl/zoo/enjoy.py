@@ -59,6 +59,7 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
     )
     parser.add_argument("-f", "--folder", type=str, default="logs", help="Log folder (train.py's -f)")
     parser.add_argument("--exp-id", type=int, default=0, help="Run id N of <EnvName>_N (0: the latest)")
+    parser.add_argument("--run", type=str, default=None, help="The run folder itself (instead of -f and --exp-id)")
     parser.add_argument("--load-best", action="store_true", default=False, help="Load best_model.zip")
     parser.add_argument("--load-checkpoint", type=int, help="Load the checkpoint rl_model_<N>_steps.zip")
     parser.add_argument("--load-last-checkpoint", action="store_true", default=False, help="Load the latest checkpoint")
@@ -176,7 +177,12 @@ def enjoy(args: argparse.Namespace) -> ConstraintEvaluation:
     name = env_name(env_id)
     if args.num_threads > 0:
         th.set_num_threads(args.num_threads)
-    run = run_folder(args.folder, args.algo, name, args.exp_id)
+    if args.run:
+        run = args.run
+        if not os.path.isdir(run):
+            raise FileNotFoundError(f"No run folder {run}.")
+    else:
+        run = run_folder(args.folder, args.algo, name, args.exp_id)
     path = model_path(run, name, args.load_best, args.load_checkpoint, args.load_last_checkpoint)
     check_trained_agent(path, args.algo)
 
