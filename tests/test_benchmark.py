@@ -159,25 +159,29 @@ def test_summary_cells_hold_hand_computed_statistics(tmp_path):
 # ---------------------------------------------------------------- running suites
 
 
-def _summary(root) -> dict:
-    with open(os.path.join(root, "suite", "report", "summary.json")) as file:
+def _summary(root, suite: str = "suite") -> dict:
+    with open(os.path.join(root, suite, "report", "summary.json")) as file:
         summary = json.load(file)
     return summary
 
 
-def test_suite_runs_end_to_end_then_skips_finished_runs(tmp_path, capsys):
-    path = write(tmp_path, TINY_SUITE)
+def test_smoke_suite_runs_end_to_end_then_skips_finished_runs(tmp_path, capsys):
     root = str(tmp_path / "logs")
-    assert benchmark_main(["run", path, "-f", root, "--jobs", "2"]) == 0
-    summary = _summary(root)
-    assert [(cell["algo"], cell["n_seeds"]) for cell in summary["cells"]] == [("bc2l", 2), ("vicrl", 2)]
-    assert all(os.path.isfile(os.path.join(root, "suite", "report", name)) for name in ("table.md", "runs.csv", "table.tex"))
-    run = RunSpec("suite", "base", "bc2l", "sb3_icrl/GridWorldWall-v0", 0, 512)
-    assert os.path.isfile(os.path.join(run.run_folder(root), FINISHED_FILE))
+    assert benchmark_main(["run", "smoke", "-f", root, "--jobs", "2"]) == 0
+    summary = _summary(root, "smoke")
+    assert [(cell["algo"], cell["n_seeds"]) for cell in summary["cells"]] == [
+        (a, 2) for a in ("gacl", "bc2l", "mecl", "vicrl")
+    ]
+    for name in ("table.md", "runs.csv", "table.tex", "curves_GridWorldWall-v0_base.png"):
+        assert os.path.isfile(os.path.join(root, "smoke", "report", name)), name
+    run = RunSpec("smoke", "base", "bc2l", "sb3_icrl/GridWorldWall-v0", 0, 2048)
+    with open(os.path.join(run.run_folder(root), FINISHED_FILE)) as file:
+        assert json.load(file)["num_timesteps"] == 2048
     capsys.readouterr()
-    assert benchmark_main(["run", path, "-f", root, "--jobs", "2", "--no-report"]) == 0
-    assert "4/4 done (4 from before)" in capsys.readouterr().out
-    assert _summary(root) == summary
+    assert benchmark_main(["run", "smoke", "-f", root, "--jobs", "2", "--no-report"]) == 0
+    assert "8/8 done (8 from before)" in capsys.readouterr().out
+    assert benchmark_main(["report", "smoke", "-f", root, "--no-figures"]) == 0
+    assert _summary(root, "smoke") == summary  # held-out results cached in the run folders, same table
 
 
 def test_kill_9_mid_suite_then_rerun_gives_the_same_table(tmp_path):
@@ -235,15 +239,15 @@ def test_failing_run_is_retried_once_then_listed_with_its_log(tmp_path, capsys):
         assert file.read().count("=== ") == 2
 
 
-def test_ray_backend_runs_the_suite(tmp_path):
+def test_ray_backend_runs_the_smoke_suite(tmp_path):
     ray = pytest.importorskip("ray")
-    path = write(tmp_path, TINY_SUITE.replace("seeds: [0, 1]", "seeds: [0]").replace("algos: [bc2l, vicrl]", "algos: [bc2l]"))
     root = str(tmp_path / "logs")
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     try:
-        assert benchmark_main(["run", path, "-f", root, "--backend", "ray", "--no-report"]) == 0
+        assert benchmark_main(["run", "smoke", "-f", root, "--backend", "ray", "--only", "algo=bc2l", "seed=0"]) == 0
     finally:
         ray.shutdown()
-    run = RunSpec("suite", "base", "bc2l", "sb3_icrl/GridWorldWall-v0", 0, 512)
+    run = RunSpec("smoke", "base", "bc2l", "sb3_icrl/GridWorldWall-v0", 0, 2048)
     with open(os.path.join(run.run_folder(root), FINISHED_FILE)) as file:
-        assert json.load(file)["num_timesteps"] == 512
+        assert json.load(file)["num_timesteps"] == 2048
+    assert [(cell["algo"], cell["n_seeds"]) for cell in _summary(root, "smoke")["cells"]] == [("bc2l", 1)]
