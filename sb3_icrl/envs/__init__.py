@@ -6,7 +6,8 @@ Environments of the ICRL benchmark, registered with gymnasium in the ``sb3_icrl`
 
     env = gymnasium.make("sb3_icrl/BlockedHalfCheetah-v0")
 
-Every step's ``info["cost"]`` is the true cost (1.0 when the constraint is broken, else 0.0).
+Every step's ``info["cost"]`` is the true cost (1.0 when the constraint is broken, else 0.0). Each env declares its
+constraint as ``constraint_spec`` (:mod:`sb3_icrl.envs.constraint_spec`), read by :func:`get_constraint_spec`.
 """
 
 import gymnasium
@@ -20,7 +21,9 @@ from sb3_icrl.envs.blocked_mujoco import (
     BlockedWalkerEnv,
     ConstrainedFeature,
 )
+from sb3_icrl.envs.constraint_spec import ConstraintSpec, FeatureConstraint, declare_constraint, get_constraint_spec
 from sb3_icrl.envs.grid_world import MAPS, GridWorldEnv
+from sb3_icrl.envs.transfer_envs import REWARD_TRANSFER_TASKS, TRANSFER_ENV_SPECS
 from sb3_icrl.envs.wrappers import TransitionNoiseWrapper
 
 NAMESPACE = "sb3_icrl"
@@ -58,7 +61,8 @@ ENV_SPECS: dict[str, tuple[str, int, dict]] = {
 
 def register_envs() -> None:
     """Register every environment of :data:`ENV_SPECS` with gymnasium; ids already registered are left alone."""
-    for name, (entry_point, max_episode_steps, kwargs) in ENV_SPECS.items():
+    # The transfer tasks (sb3_icrl.envs.transfer_envs) register with the benchmark envs
+    for name, (entry_point, max_episode_steps, kwargs) in {**ENV_SPECS, **TRANSFER_ENV_SPECS}.items():
         env_id = f"{NAMESPACE}/{name}"
         if env_id not in gymnasium.registry:
             gymnasium.register(id=env_id, entry_point=entry_point, max_episode_steps=max_episode_steps, kwargs=kwargs)
@@ -71,13 +75,19 @@ __all__ = [
     "ENV_SPECS",
     "MAPS",
     "NAMESPACE",
+    "REWARD_TRANSFER_TASKS",
+    "TRANSFER_ENV_SPECS",
     "BiasedPendulumEnv",
     "BlockedAntEnv",
     "BlockedHalfCheetahEnv",
     "BlockedSwimmerEnv",
     "BlockedWalkerEnv",
     "ConstrainedFeature",
+    "ConstraintSpec",
+    "FeatureConstraint",
     "GridWorldEnv",
     "TransitionNoiseWrapper",
+    "declare_constraint",
+    "get_constraint_spec",
     "register_envs",
 ]

@@ -10,8 +10,10 @@ constraint in every step's ``info``:
 
 The learner must not read ``info["cost"]``; it is there for experts (PPO-Lagrangian) and for evaluation.
 
-:data:`CONSTRAINED_FEATURE` says, per environment id, which observation index holds the constrained
-quantity and what the default constraint is. Thresholds and reward weights are constructor arguments
+Each environment declares its true constraint (:mod:`sb3_icrl.envs.constraint_spec`): the class attribute
+``default_constraint`` (default threshold) and the property ``constraint_spec`` (this env's threshold), read by
+:func:`~sb3_icrl.envs.constraint_spec.get_constraint_spec`. :data:`CONSTRAINED_FEATURE` is a view of these
+declarations by environment id. Thresholds and reward weights are constructor arguments
 (``gymnasium.make("sb3_icrl/BlockedHalfCheetah-v0", cost_threshold=-2.0)``).
 
 Differences from the paper's code (gym 0.21, mujoco-py), kept on purpose:
@@ -25,7 +27,8 @@ Differences from the paper's code (gym 0.21, mujoco-py), kept on purpose:
   (the same point, but ``xpos`` lags one physics sub-step behind ``qpos``).
 """
 
-from typing import Any, NamedTuple
+import dataclasses
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 from gymnasium import utils
@@ -35,6 +38,9 @@ from gymnasium.envs.mujoco.inverted_pendulum_v5 import InvertedPendulumEnv
 from gymnasium.envs.mujoco.swimmer_v5 import SwimmerEnv
 from gymnasium.envs.mujoco.walker2d_v5 import Walker2dEnv
 from numpy.typing import NDArray
+
+from sb3_icrl.envs.constraint_spec import ConstraintSpec, FeatureConstraint
+from sb3_icrl.envs.mujoco_compat import compile_model
 
 # Same as gymnasium's MujocoEnv.step
 StepReturn = tuple[NDArray[np.float64], np.float64, bool, bool, dict[str, np.float64]]
@@ -56,16 +62,6 @@ class ConstrainedFeature(NamedTuple):
     op: str
 
 
-#: True constraint of each MuJoCo environment (default thresholds): cost 1 when ``obs[obs_index] op threshold``.
-CONSTRAINED_FEATURE: dict[str, ConstrainedFeature] = {
-    "BlockedHalfCheetah-v0": ConstrainedFeature("x_position", 0, -3.0, "<="),
-    "BlockedAnt-v0": ConstrainedFeature("x_position", 0, -3.0, "<="),
-    "BiasedPendulum-v0": ConstrainedFeature("x_position", 0, -0.015, "<="),
-    "BlockedWalker-v0": ConstrainedFeature("x_position", 0, -3.0, "<="),
-    "BlockedSwimmer-v0": ConstrainedFeature("x_position", 0, 0.5, ">="),
-}
-
-
 class _PositionConstraintMixin:
     """
     Adds the benchmark's position constraint to a gymnasium MuJoCo environment.
@@ -76,8 +72,19 @@ class _PositionConstraintMixin:
     data: Any
     cost_threshold: float
     cost_op: str
+    #: The declared constraint with the default threshold (each environment's own)
+    default_constraint: ClassVar[FeatureConstraint]
+
+    @property
+    def constraint_spec(self) -> ConstraintSpec:
+        """The true constraint, with this env's ``cost_threshold`` (see :mod:`sb3_icrl.envs.constraint_spec`)."""
+        return ConstraintSpec(features=(dataclasses.replace(self.default_constraint, threshold=self.cost_threshold),))
 
     def _setup_constraint(self, cost_threshold: float, cost_op: str, kwargs: dict[str, Any]) -> None:
+        if isinstance(cost_threshold, bool) or not isinstance(cost_threshold, (int, float, np.integer, np.floating)):
+            raise TypeError(
+                f"`cost_threshold` must be a finite float, got {type(cost_threshold).__name__} {cost_threshold!r}."
+            )
         if not np.isfinite(cost_threshold):
             raise ValueError(f"`cost_threshold` must be a finite float, got {cost_threshold!r}.")
         if kwargs.pop("exclude_current_positions_from_observation", False):
@@ -139,6 +146,8 @@ class BlockedHalfCheetahEnv(_PositionConstraintMixin, HalfCheetahEnv):
     :param kwargs: Other arguments of gymnasium's ``HalfCheetahEnv`` (``reset_noise_scale``, ``render_mode``, ...)
     """
 
+    default_constraint = FeatureConstraint(obs_index=0, threshold=-3.0, op="<=", name="x_position")
+
     def __init__(
         self,
         cost_threshold: float = -3.0,
@@ -159,6 +168,10 @@ class BlockedHalfCheetahEnv(_PositionConstraintMixin, HalfCheetahEnv):
     def _get_rew(self, x_velocity: float, action: np.ndarray) -> tuple[float, dict]:
         return _abs_forward_reward(self, x_velocity, action)
 
+    def _initialize_simulation(self) -> tuple[Any, Any]:
+        # The same model without the deprecated settotalmass attribute: no mujoco warning (nor MUJOCO_LOG.TXT) per env
+        return compile_model(self.fullpath, self.width, self.height)
+
 
 class BlockedAntEnv(_PositionConstraintMixin, AntEnv):
     """
@@ -177,6 +190,8 @@ class BlockedAntEnv(_PositionConstraintMixin, AntEnv):
     :param contact_cost_weight: Weight of the squared (clipped) contact forces
     :param kwargs: Other arguments of gymnasium's ``AntEnv``
     """
+
+    default_constraint = FeatureConstraint(obs_index=0, threshold=-3.0, op="<=", name="x_position")
 
     def __init__(
         self,
@@ -232,6 +247,8 @@ class BiasedPendulumEnv(_PositionConstraintMixin, InvertedPendulumEnv):
     :param high_reward_x: Cart position (< 0) from which the reward is ``high_reward``
     :param kwargs: Other arguments of gymnasium's ``InvertedPendulumEnv``
     """
+
+    default_constraint = FeatureConstraint(obs_index=0, threshold=-0.015, op="<=", name="x_position")
 
     def __init__(
         self,
@@ -291,6 +308,8 @@ class BlockedWalkerEnv(_PositionConstraintMixin, Walker2dEnv):
     :param kwargs: Other arguments of gymnasium's ``Walker2dEnv``
     """
 
+    default_constraint = FeatureConstraint(obs_index=0, threshold=-3.0, op="<=", name="x_position")
+
     def __init__(
         self,
         cost_threshold: float = -3.0,
@@ -327,6 +346,8 @@ class BlockedSwimmerEnv(_PositionConstraintMixin, SwimmerEnv):
     :param kwargs: Other arguments of gymnasium's ``SwimmerEnv``
     """
 
+    default_constraint = FeatureConstraint(obs_index=0, threshold=0.5, op=">=", name="x_position")
+
     def __init__(
         self,
         cost_threshold: float = 0.5,
@@ -345,3 +366,24 @@ class BlockedSwimmerEnv(_PositionConstraintMixin, SwimmerEnv):
 
     def _get_rew(self, x_velocity: float, action: np.ndarray) -> tuple[float, dict]:
         return _abs_forward_reward(self, x_velocity, action)
+
+
+# The benchmark's MuJoCo environments, by registered name
+_DECLARING_ENVS: dict[str, type[_PositionConstraintMixin]] = {
+    "BlockedHalfCheetah-v0": BlockedHalfCheetahEnv,
+    "BlockedAnt-v0": BlockedAntEnv,
+    "BiasedPendulum-v0": BiasedPendulumEnv,
+    "BlockedWalker-v0": BlockedWalkerEnv,
+    "BlockedSwimmer-v0": BlockedSwimmerEnv,
+}
+#: True constraint of each MuJoCo environment (default thresholds), cost 1 when ``obs[obs_index] op threshold``: a view
+#: of the environments' own declarations (``default_constraint``)
+CONSTRAINED_FEATURE: dict[str, ConstrainedFeature] = {
+    name: ConstrainedFeature(
+        env_class.default_constraint.name,
+        env_class.default_constraint.obs_index,
+        env_class.default_constraint.threshold,
+        env_class.default_constraint.op,
+    )
+    for name, env_class in _DECLARING_ENVS.items()
+}

@@ -35,6 +35,8 @@ from typing import Any
 import numpy as np
 from gymnasium import Env, spaces
 
+from sb3_icrl.envs.constraint_spec import ConstraintSpec
+
 #: King moves as ``(d_row, d_col)``: right, left, down, up, down-right, up-right, down-left, up-left
 ACTIONS = np.array([(0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (-1, 1), (1, -1), (-1, -1)], dtype=np.int64)
 ACTION_NAMES = ("right", "left", "down", "up", "down-right", "up-right", "down-left", "up-left")
@@ -118,6 +120,12 @@ class GridWorldEnv(Env):
     """
 
     metadata = {"render_modes": ["ansi", "rgb_array"], "render_fps": 4}
+
+    @property
+    def constraint_spec(self) -> ConstraintSpec:
+        """The true constraint: the unsafe cells as states ``row * n_cols + col`` (:mod:`sb3_icrl.envs.constraint_spec`)."""
+        return ConstraintSpec(unsafe_states=frozenset(np.flatnonzero(self.unsafe_states).tolist()))
+
     #: Pixels per cell side and the colours of the ``rgb_array`` image
     cell_pixels = 16
     colors = {"free": (255, 255, 255), "unsafe": (220, 50, 50), "goal": (40, 170, 70), "agent": (40, 90, 220)}

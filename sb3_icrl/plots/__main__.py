@@ -6,6 +6,9 @@ Constraint plots from the command line::
 
     # the learned constraint of a trained ICRL run: grid map (grid worlds) or partial-dependence plot (others)
     python -m sb3_icrl.plots constraint logs/vicrl/BlockedHalfCheetah-v0_1 -o constraint.png
+
+    # per method, the learned cost over the constrained feature (one line per seed), the true threshold marked
+    python -m sb3_icrl.plots methods logs/mecl/BlockedHalfCheetah-v0_* logs/vicrl/BlockedHalfCheetah-v0_* -o methods.png
 """
 
 import argparse
@@ -40,7 +43,8 @@ def get_parser() -> argparse.ArgumentParser:
     curves = commands.add_parser("curves", help="Evaluation metrics over training, mean +- std over seeds")
     curves.add_argument("-f", "--log-folder", default="logs", help="Training log folder (holds <algo>/<EnvName>_<N>)")
     curves.add_argument("--algos", nargs="+", required=True, help="Algorithms, one line each (e.g. mecl vicrl)")
-    curves.add_argument("--env", required=True, help="Env name or id (e.g. BlockedHalfCheetah-v0)")
+    curves.add_argument("--env", required=True, help="Env name or id (e.g. BlockedHalfCheetah-v0, myns/MyEnv-v0)")
+    curves.add_argument("--gym-packages", nargs="+", default=[], help="Modules to import first: they register your envs")
     curves.add_argument("--metrics", nargs="+", default=["violation_rate", "feasible_reward"], choices=list(CURVE_METRICS))
     curves.add_argument("--skip-missing", action="store_true", help="Skip runs without evaluations.npz (default: error)")
     curves.add_argument("--title", default=None, help="Figure title (default: the env)")
@@ -50,16 +54,47 @@ def get_parser() -> argparse.ArgumentParser:
     constraint.add_argument("run_folder", help="A run folder: <log folder>/<algo>/<EnvName>_<N>")
     constraint.add_argument("--model", default=None, help="'final' (<EnvName>.zip), 'best' (best_model.zip) or a path")
     constraint.add_argument("--demonstrations", default=None, help="Dataset name or .npz (default: the run's)")
-    constraint.add_argument("--feature", default=None, help="Constrained feature (name or index) when there are several")
+    constraint.add_argument(
+        "--feature",
+        default=None,
+        help="Constrained feature: its name or index when the env declares several; for an env that declares none, the "
+        "observation index to plot (with --threshold and --op)",
+    )
+    constraint.add_argument(
+        "--threshold", type=float, default=None, help="True threshold on --feature (an env without a declared constraint)"
+    )
+    constraint.add_argument(
+        "--op", choices=["<=", "<", ">=", ">"], default=None, help="Side of --threshold that breaks the constraint"
+    )
+    constraint.add_argument(
+        "--gym-packages", nargs="+", default=[], help="Modules to import first (besides those the run's args.yml names)"
+    )
     constraint.add_argument("--episodes", type=int, default=5, help="Policy episodes for the visited-values histogram")
     constraint.add_argument("--no-beta-samples", action="store_true", help="VICRL: no spread of sampled costs")
     constraint.add_argument("--seed", type=int, default=0, help="Seed of the rollouts and samples")
     constraint.add_argument("-o", "--output", required=True, help="Image file (.png, .pdf, .svg)")
+
+    methods = commands.add_parser("methods", help="Learned cost over the constrained feature, per method, one env")
+    methods.add_argument("runs", nargs="+", help="ICRL run folders on one env (<log folder>/<algo>/<EnvName>_<N>)")
+    methods.add_argument("--feature", default=None, help="Constrained feature (name) when the env has several")
+    methods.add_argument("--level", type=float, default=0.5, help="Level t drawn as a dotted line")
+    methods.add_argument("--title", default=None, help="Figure title (default: the env)")
+    methods.add_argument("-o", "--output", required=True, help="Image file (.png, .pdf, .svg)")
     return parser
+
+
+def plot_methods(args: argparse.Namespace) -> pathlib.Path:
+    """The ``methods`` command (curves from each run's identification scores); returns the image written."""
+    from sb3_icrl.metrics.identification import methods_figure
+
+    return save_figure(methods_figure(args.runs, args.feature, args.level, args.title), args.output)
 
 
 def plot_curves(args: argparse.Namespace) -> pathlib.Path:
     """The ``curves`` command; returns the image written."""
+    from sb3_icrl.zoo.hyperparams import env_name, import_gym_packages
+
+    import_gym_packages(args.gym_packages)
     try:
         with warnings.catch_warnings(record=True) as skipped:
             warnings.simplefilter("always")
@@ -69,7 +104,7 @@ def plot_curves(args: argparse.Namespace) -> pathlib.Path:
         raise FileNotFoundError(f"{error}{hint}") from error
     for warning in skipped:
         print(f"warning: {warning.message}", file=sys.stderr)
-    title = args.title if args.title is not None else args.env.split("/")[-1]
+    title = args.title if args.title is not None else env_name(args.env)
     return save_figure(training_curves_figure(runs, metrics=args.metrics, title=title), args.output)
 
 
@@ -105,30 +140,68 @@ def _model_path(folder: pathlib.Path, name: str, choice: str | None) -> pathlib.
     return path
 
 
-def _pick_constraint(constraints: tuple[TrueConstraint, ...], feature: str | None) -> TrueConstraint:
+def _pick_constraint(
+    constraints: tuple[TrueConstraint, ...],
+    feature: str | None,
+    threshold: float | None = None,
+    op: str | None = None,
+) -> TrueConstraint:
+    """
+    The constraint to plot: the env's declared one (``feature`` picks among several; ``threshold``/``op`` override),
+    or, for an env that declares none (``constraints`` empty), the observation index ``feature``.
+
+    :return: The constraint; its threshold is ``nan`` when none is known (the figure then draws no threshold)
+    """
+    if not constraints:
+        if feature is None or not feature.lstrip("-").isdigit():
+            raise ValueError(
+                "This env declares no feature constraint: name the observation feature to plot with --feature INDEX "
+                "[--threshold X] [--op '<=' or '>='], or give the env a `constraint_spec` (sb3_icrl.envs.constraint_spec)."
+            )
+        if int(feature) < 0:
+            raise ValueError(f"--feature must be an observation index >= 0, got {feature}.")
+        if (threshold is None) != (op is None):
+            raise ValueError("--threshold and --op go together: the side of the threshold that breaks the constraint.")
+        return TrueConstraint(f"obs[{feature}]", int(feature), float("nan") if threshold is None else threshold, op or ">=")
     if feature is None:
+        chosen = constraints[0]
         if len(constraints) > 1:
             others = ", ".join(c.name for c in constraints[1:])
-            print(f"note: plotting {constraints[0].name}; the env also constrains {others} (--feature).", file=sys.stderr)
-        return constraints[0]
-    for constraint in constraints:
-        if feature in (constraint.name, str(constraint.obs_index)):
-            return constraint
-    raise ValueError(f"Unknown feature {feature!r}: this env constrains {', '.join(c.name for c in constraints)}.")
+            print(f"note: plotting {chosen.name}; the env also constrains {others} (--feature).", file=sys.stderr)
+    else:
+        matches = [c for c in constraints if feature in (c.name, str(c.obs_index))]
+        if not matches:
+            if not feature.isdigit():
+                raise ValueError(f"Unknown feature {feature!r}: this env constrains {', '.join(c.name for c in constraints)}.")
+            matches = [TrueConstraint(f"obs[{feature}]", int(feature), float("nan"), op or ">=")]
+        chosen = matches[0]
+    if threshold is not None:
+        chosen = chosen._replace(threshold=threshold)
+    if op is not None:
+        chosen = chosen._replace(op=op)
+    return chosen
 
 
 def policy_observations(
     model: Any,
     env_id: str,
     env_kwargs: dict[str, Any],
-    folder: pathlib.Path,
+    stats_path: str | None,
     run_args: dict[str, Any],
     n_episodes: int,
     seed: int,
 ) -> np.ndarray:
     """
-    Raw observations visited by the model's deterministic policy (with the run's saved normalisation, if any).
+    Raw observations visited by the model's deterministic policy, with the run's saved normalisation.
 
+    :param model: The trained model
+    :param env_id: Registered env id
+    :param env_kwargs: The run's env keyword arguments
+    :param stats_path: The model's ``VecNormalize`` statistics (``None``: the run did not normalise; see
+        :func:`~sb3_icrl.zoo.runs.run_vecnormalize`)
+    :param run_args: The run's ``args.yml`` (its transition noise)
+    :param n_episodes: Episodes to run
+    :param seed: Seed of the env
     :return: ``(n_steps, obs_dim)``
     """
     from stable_baselines3.common.env_util import make_vec_env
@@ -139,9 +212,8 @@ def policy_observations(
     noise = float(run_args.get("transition_noise") or 0.0)
     wrapper = (lambda env: TransitionNoiseWrapper(env, sigma=noise)) if noise > 0 else None
     venv: Any = make_vec_env(env_id, n_envs=1, seed=seed, env_kwargs=env_kwargs, wrapper_class=wrapper)
-    statistics = folder / env_id.split("/")[-1] / "vecnormalize.pkl"
-    if statistics.is_file():
-        venv = VecNormalize.load(str(statistics), venv)
+    if stats_path is not None:
+        venv = VecNormalize.load(stats_path, venv)
         venv.training, venv.norm_reward = False, False
     observations: list[np.ndarray] = []
     obs = venv.reset()
@@ -161,7 +233,9 @@ def plot_constraint(args: argparse.Namespace) -> pathlib.Path:
 
     from sb3_icrl.data import load_demonstrations
     from sb3_icrl.zoo.hyperparams import ALGOS, ICRL_ALGOS, env_name, import_gym_packages, resolve_env_id
+    from sb3_icrl.zoo.runs import run_vecnormalize
 
+    import_gym_packages(args.gym_packages)
     folder, run_args = read_run(args.run_folder)
     algo = run_args["algo"]
     if algo not in ICRL_ALGOS:
@@ -170,7 +244,8 @@ def plot_constraint(args: argparse.Namespace) -> pathlib.Path:
     env_id = resolve_env_id(run_args["env"])
     name = env_name(env_id)  # the run folder's name for the env, as train.py wrote it
     env_kwargs = dict(run_args.get("env_kwargs") or {})
-    model = ALGOS[algo].load(str(_model_path(folder, name, args.model)), device="cpu")
+    model_file = _model_path(folder, name, args.model)
+    model = ALGOS[algo].load(str(model_file), device="cpu")
     net: Any = model.constraint_net  # type: ignore[attr-defined]
     source = args.demonstrations or run_args.get("demonstrations") or name
     fraction = None if args.demonstrations else run_args.get("violating_fraction")
@@ -191,10 +266,18 @@ def plot_constraint(args: argparse.Namespace) -> pathlib.Path:
             title=title,
         )
     else:
-        constraint = _pick_constraint(constraint_features(env_id, env_kwargs), args.feature)
+        try:
+            declared = constraint_features(env_id, env_kwargs)
+        except ValueError:
+            declared = ()  # no declaration: --feature INDEX names what to plot
+        constraint = _pick_constraint(declared, args.feature, args.threshold, args.op)
+        obs_dim = np.asarray(transitions.obs).shape[1]
+        if constraint.obs_index >= obs_dim:
+            raise ValueError(f"--feature {constraint.obs_index} is outside the {obs_dim} observation features.")
         visited_values = {"expert": np.asarray(transitions.obs)[:, constraint.obs_index]}
         if args.episodes > 0:
-            policy_obs = policy_observations(model, env_id, env_kwargs, folder, run_args, args.episodes, args.seed)
+            stats_path = run_vecnormalize(str(folder), str(model_file), name)
+            policy_obs = policy_observations(model, env_id, env_kwargs, stats_path, run_args, args.episodes, args.seed)
             visited_values[f"policy ({args.episodes} episodes)"] = policy_obs[:, constraint.obs_index]
         figure = partial_dependence_figure(
             net,
@@ -221,7 +304,8 @@ def main(argv: list[str] | None = None) -> int:
     """
     args = get_parser().parse_args(argv)
     try:
-        path = plot_curves(args) if args.command == "curves" else plot_constraint(args)
+        commands = {"curves": plot_curves, "constraint": plot_constraint, "methods": plot_methods}
+        path = commands[args.command](args)
     except (FileNotFoundError, ValueError, TypeError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2

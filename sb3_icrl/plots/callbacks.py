@@ -1,5 +1,6 @@
 """TensorBoard constraint figures during training."""
 
+import warnings
 from typing import Any
 
 import gymnasium as gym
@@ -76,7 +77,11 @@ class ConstraintFigureCallback(BaseCallback):
         if self.model.constraint_net.discrete_obs:  # type: ignore[attr-defined]
             self.grid_env = gym.make(self.env_id, **kwargs).unwrapped
         else:
-            self.constraints = constraint_features(self.env_id, kwargs)
+            try:
+                self.constraints = constraint_features(self.env_id, kwargs)
+            except ValueError as error:
+                # A user's env without a declared constraint: training goes on, without figures
+                warnings.warn(f"ConstraintFigureCallback logs no figure: {error}", stacklevel=2)
 
     def _has_tensorboard(self) -> bool:
         return any(isinstance(output, TensorBoardOutputFormat) for output in self.logger.output_formats)

@@ -69,57 +69,39 @@ def unsafe_side(op: str) -> str:
 
 
 def _short_env_name(env_id: str) -> str:
+    env_id = env_id.rpartition(":")[2]
     return env_id.split("/", 1)[1] if env_id.startswith("sb3_icrl/") else env_id
 
 
 def constraint_features(env_id: str, env_kwargs: Mapping[str, Any] | None = None) -> tuple[TrueConstraint, ...]:
     """
-    The true constraints of a benchmark env that are thresholds on one observation feature (MuJoCo and driving envs),
-    with the thresholds the env's keyword arguments set (``cost_threshold``, ``speed_limit``, ``min_gap``).
+    The true constraints of an env that are thresholds on one observation feature, as the env declares them
+    (:func:`~sb3_icrl.envs.constraint_spec.get_constraint_spec`), with the thresholds its keyword arguments set
+    (``cost_threshold``, ``speed_limit``, ``min_gap``...).
 
-    :param env_id: Env id, with or without the ``sb3_icrl/`` prefix
+    :param env_id: Env id, with or without the ``sb3_icrl/`` prefix (or ``MODULE:EnvId``)
     :param env_kwargs: The keyword arguments the env was made with
     :return: One :class:`TrueConstraint` per constraint (two for ``HighwayVelocityDistance-v0``)
     :raises ValueError: For the grid worlds (their constraint is a set of cells: see :func:`grid_cost_map`) and
-        unknown envs
+        envs that declare no feature constraint
     """
-    from sb3_icrl.envs.blocked_mujoco import CONSTRAINED_FEATURE
+    from sb3_icrl.envs.constraint_spec import get_constraint_spec
 
-    kwargs = dict(env_kwargs or {})
+    spec = get_constraint_spec(env_id, env_kwargs)
     name = _short_env_name(env_id)
-    if name in CONSTRAINED_FEATURE:
-        feature = CONSTRAINED_FEATURE[name]
-        return (
-            TrueConstraint(
-                feature.name, feature.obs_index, float(kwargs.get("cost_threshold", feature.threshold)), feature.op
-            ),
-        )
-    if name.startswith("Highway"):
-        from sb3_icrl.envs.highway.env import DRIVING_CONSTRAINTS, HIGHWAY_CONSTRAINTS
-
-        if name in HIGHWAY_CONSTRAINTS:
-            names = kwargs.get("constraints")
-            chosen = [DRIVING_CONSTRAINTS[c] for c in names] if names is not None else list(HIGHWAY_CONSTRAINTS[name])
-            overrides: dict[str, Any] = {"ego_speed": kwargs.get("speed_limit"), "lead_gap": kwargs.get("min_gap")}
-            return tuple(
-                TrueConstraint(
-                    c.name, c.obs_index, float(c.threshold if overrides[c.name] is None else overrides[c.name]), c.op
-                )
-                for c in chosen
-            )
-    if name == "ConstrainedCorridor-v0":
-        # The test corridor: cost 1 on cells x > safe_limit, observed as x / (length - 1)
-        length, safe_limit = int(kwargs.get("length", 11)), int(kwargs.get("safe_limit", 6))
-        return (TrueConstraint("x_position", 0, safe_limit / (length - 1), ">"),)
-    if name.startswith("GridWorld"):
+    if spec is not None and spec.features:
+        return tuple(TrueConstraint(f.name, f.obs_index, f.threshold, f.op) for f in spec.features)
+    if spec is not None and spec.unsafe_states is not None:
         raise ValueError(f"{name}'s constraint is a set of unsafe cells, not a feature threshold: plot it with grid_cost_map.")
-    known = sorted([*CONSTRAINED_FEATURE, "HighwayVelocity-v0", "HighwayDistance-v0", "HighwayVelocityDistance-v0"])
-    raise ValueError(f"No known feature constraint for env {env_id!r}. Envs with one: {', '.join(known)}.")
+    raise ValueError(
+        f"No known feature constraint for env {env_id!r}: give it a `constraint_spec` (sb3_icrl.envs.constraint_spec), or "
+        "for a plot name the feature with --feature INDEX [--threshold X] [--op '<=' or '>=']."
+    )
 
 
 def constraint_feature(env_id: str, env_kwargs: Mapping[str, Any] | None = None) -> TrueConstraint:
     """
-    The (first) true feature constraint of a benchmark env: see :func:`constraint_features`.
+    The (first) true feature constraint of an env: see :func:`constraint_features`.
 
     :param env_id: Env id, with or without the ``sb3_icrl/`` prefix
     :param env_kwargs: The keyword arguments the env was made with
@@ -383,13 +365,17 @@ def default_feature_values(visited: np.ndarray, threshold: float, n_values: int 
     An even grid over the visited values and the threshold, widened by ``margin`` of its span on each side.
 
     :param visited: Visited values of the feature
-    :param threshold: The true threshold
+    :param threshold: The true threshold (``nan``: unknown, the grid spans the visited values only)
     :param n_values: Number of values
     :param margin: Widening, as a share of the span
     :return: The grid, ``(n_values,)``
     """
     finite = np.asarray(visited, dtype=float).reshape(-1)
     finite = finite[np.isfinite(finite)]
+    if not np.isfinite(threshold):
+        if len(finite) == 0:
+            raise ValueError("No finite visited value and no threshold: cannot choose the values to plot.")
+        threshold = float(finite[0])
     low, high = float(min(finite.min(initial=threshold), threshold)), float(max(finite.max(initial=threshold), threshold))
     span = high - low if high > low else max(abs(threshold), 1.0)
     return np.linspace(low - margin * span, high + margin * span, n_values)
@@ -419,7 +405,7 @@ def partial_dependence_figure(
     :param observations: Samples to average over, ``(n_samples, obs_dim)`` (e.g. the expert's)
     :param actions: Their actions (``None`` when the net ignores the action)
     :param feature_index: Index of the constrained feature in the observation
-    :param threshold: The true threshold
+    :param threshold: The true threshold (``nan`` when unknown: no threshold line)
     :param true_side: Where the true constraint is broken: ``"below"``/``"above"`` or an op (``"<="``, ``">"``...)
     :param visited_values: Visited values of the feature (an array, or ``{label: array}`` for several histograms,
         e.g. expert and policy; each normalised to a density so that sets of different sizes compare)
@@ -467,11 +453,12 @@ def partial_dependence_figure(
     hist_axis.set_ylabel("density of visited states")
     hist_axis.set_title("visited values")
     for axis in (pd_axis, hist_axis):
-        axis.axvline(threshold, color="black", linestyle="--", linewidth=1.2, label=f"true threshold {threshold:g}")
-        if side == "below":
-            axis.axvspan(grid[0], threshold, color="grey", alpha=0.12)
-        else:
-            axis.axvspan(threshold, grid[-1], color="grey", alpha=0.12)
+        if np.isfinite(threshold):  # nan: an env without a declared constraint, plotted without its threshold
+            axis.axvline(threshold, color="black", linestyle="--", linewidth=1.2, label=f"true threshold {threshold:g}")
+            if side == "below":
+                axis.axvspan(grid[0], threshold, color="grey", alpha=0.12)
+            else:
+                axis.axvspan(threshold, grid[-1], color="grey", alpha=0.12)
         axis.set_xlim(grid[0], grid[-1])
         axis.xaxis.set_major_locator(MaxNLocator(6))
         axis.set_xlabel(label)
@@ -480,6 +467,69 @@ def partial_dependence_figure(
         pd_axis.text(0.5, 0.5, "feature not an input of the net", transform=pd_axis.transAxes, ha="center", color="grey")
     if title:
         figure.suptitle(title)
+    return figure
+
+
+def methods_partial_dependence_figure(
+    curves: Mapping[str, Sequence[tuple[np.ndarray, np.ndarray]]],
+    threshold: float,
+    true_side: str,
+    feature_name: str = "constrained feature",
+    level: float | None = 0.5,
+    title: str | None = None,
+) -> Figure:
+    """
+    The learned cost over the constrained feature for several methods on one env: per method one thin line per seed
+    and their mean (each seed's curve interpolated onto the values all seeds cover); the true threshold is a vertical
+    line and the truly unsafe side is shaded.
+
+    :param curves: ``{method: [(values, mean learned cost) of each seed]}``, e.g. the ``curve`` of each run's
+        identification scores (:func:`~sb3_icrl.metrics.identification.identify_run`)
+    :param threshold: The true threshold
+    :param true_side: Where the true constraint is broken: ``"below"``/``"above"`` or an op
+    :param feature_name: Axis label of the feature
+    :param level: A level ``t`` drawn as a dotted horizontal line (``None``: none)
+    :param title: Figure title
+    :return: The figure
+    """
+    if not curves or not any(curves.values()):
+        raise ValueError("No curve to plot: pass {method: [(values, costs), ...]} with at least one seed.")
+    side = unsafe_side(true_side)
+    figure = new_figure(7.0, 4.2)
+    axis = figure.subplots(1, 1)
+    low, high = np.inf, -np.inf
+    for method, seeds in curves.items():
+        if not seeds:
+            continue
+        arrays = [(np.asarray(values, dtype=float), np.asarray(costs, dtype=float)) for values, costs in seeds]
+        for values, costs in arrays:
+            if values.shape != costs.shape or values.ndim != 1:
+                raise ValueError(f"{method}: each seed's values and costs must be 1-D arrays of the same length.")
+        start, stop = max(v[0] for v, _ in arrays), min(v[-1] for v, _ in arrays)
+        grid = np.linspace(start, stop, 201) if stop > start else arrays[0][0]
+        colour = None
+        for values, costs in arrays:
+            (line,) = axis.plot(values, costs, linewidth=0.7, alpha=0.35, color=colour)
+            colour = line.get_color()
+        mean = np.mean([np.interp(grid, values, costs) for values, costs in arrays], axis=0)
+        n_seeds = len(arrays)
+        axis.plot(grid, mean, linewidth=2.2, color=colour, label=f"{method} ({n_seeds} seed{'s' if n_seeds != 1 else ''})")
+        low, high = min(low, min(v[0] for v, _ in arrays)), max(high, max(v[-1] for v, _ in arrays))
+    axis.axvline(threshold, color="black", linestyle="--", linewidth=1.2, label=f"true threshold {threshold:g}")
+    if side == "below":
+        axis.axvspan(min(low, threshold), threshold, color="grey", alpha=0.12, label="truly unsafe")
+    else:
+        axis.axvspan(threshold, max(high, threshold), color="grey", alpha=0.12, label="truly unsafe")
+    if level is not None:
+        axis.axhline(level, color="grey", linestyle=":", linewidth=1.0, label=f"t = {level:g}")
+    axis.set_xlim(min(low, threshold), max(high, threshold))
+    axis.set_ylim(-0.02, 1.02)
+    axis.set_xlabel(feature_name)
+    axis.set_ylabel("learned cost (partial dependence)")
+    axis.grid(alpha=0.3)
+    axis.legend(fontsize=8, loc="best")
+    if title:
+        axis.set_title(title)
     return figure
 
 
@@ -521,8 +571,10 @@ def find_runs(log_folder: str | os.PathLike, algo: str, env: str) -> list[pathli
     :return: The run folders (at least one)
     :raises FileNotFoundError: When there is none (the message lists what the folder holds)
     """
+    from sb3_icrl.zoo.hyperparams import env_name
+
     algo_folder = pathlib.Path(log_folder) / algo
-    name = _short_env_name(env).replace("/", "-")
+    name = env_name(env)  # the folder name train.py gives the env
     if not algo_folder.is_dir():
         there = (
             sorted(p.name for p in pathlib.Path(log_folder).iterdir() if p.is_dir())

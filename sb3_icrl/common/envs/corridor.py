@@ -6,6 +6,8 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from sb3_icrl.envs.constraint_spec import ConstraintSpec, FeatureConstraint
+
 
 class ConstrainedCorridorEnv(gym.Env):
     """
@@ -25,6 +27,22 @@ class ConstrainedCorridorEnv(gym.Env):
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
+
+    @property
+    def constraint_spec(self) -> ConstraintSpec:
+        """
+        The true constraint (see :mod:`sb3_icrl.envs.constraint_spec`): ``x / (length - 1) > safe_limit / (length - 1)``;
+        the true cost rounds the observed ``x`` back to its cell, so float32 observations of the last safe cell are safe.
+        """
+        length, safe_limit = self.length, self.safe_limit
+
+        def cell_cost(observations: np.ndarray, actions: np.ndarray | None = None) -> np.ndarray:
+            cells = np.rint(np.atleast_2d(observations)[:, 0] * (length - 1))
+            return (cells > safe_limit).astype(np.float64)
+
+        return ConstraintSpec(
+            features=(FeatureConstraint(0, safe_limit / (length - 1), ">", "x_position"),), cost_fn=cell_cost
+        )
 
     def __init__(self, length: int = 11, safe_limit: int = 6, max_steps: int = 20, render_mode: str | None = None):
         if length < 2 or not 0 <= safe_limit < length - 1:

@@ -15,33 +15,33 @@ policy leaves the road within a few steps). One step is ``dt = 0.2`` s (two inte
 Observation (float32, 23 features modelled on CommonRoad-RL's, which the paper uses; gaps are bumper
 to bumper, "left" is the lane with the lower index, i.e. smaller ``y``; ``+`` lateral values point right):
 
-====  ===========================  ==========================================================================
-idx   name                         meaning
-====  ===========================  ==========================================================================
-0     ``ego_speed``                ego speed [m/s] (the velocity constraint is on it)
-1     ``ego_acceleration``         acceleration realised over the last step [m/s^2]
-2     ``ego_heading``              heading relative to the road [rad]
-3     ``steering``                 steering angle applied over the last step [rad]
-4     ``lat_offset``               lateral offset from the centre of the ego's lane [m]
-5     ``left_marker_distance``     distance from the ego's centre to its lane's left marking [m]
-6     ``right_marker_distance``    distance to its lane's right marking [m]
-7     ``left_road_edge_distance``  distance to the left road edge [m]
-8     ``right_road_edge_distance`` distance to the right road edge [m]
-9     ``lead_gap_left``            gap to the nearest car ahead in the left lane [m]
-10    ``lead_gap_same``            gap to the car ahead in the ego's lane [m] (the distance constraint is on it)
-11    ``lead_gap_right``           gap to the nearest car ahead in the right lane [m]
-12    ``follow_gap_left``          gap to the nearest car behind in the left lane [m]
-13    ``follow_gap_same``          gap to the car behind in the ego's lane [m]
-14    ``follow_gap_right``         gap to the nearest car behind in the right lane [m]
-15    ``lead_rel_speed_left``      speed of that car minus the ego's [m/s] (likewise 16-20)
+====  ============================  ==========================================================================
+idx   name                          meaning
+====  ============================  ==========================================================================
+0     ``ego_speed``                 ego speed [m/s] (the velocity constraint is on it)
+1     ``ego_acceleration``          acceleration realised over the last step [m/s^2]
+2     ``ego_heading``               heading relative to the road [rad]
+3     ``steering``                  steering angle applied over the last step [rad]
+4     ``lat_offset``                lateral offset from the centre of the ego's lane [m]
+5     ``left_marker_distance``      distance from the ego's centre to its lane's left marking [m]
+6     ``right_marker_distance``     distance to its lane's right marking [m]
+7     ``left_road_edge_distance``   distance to the left road edge [m]
+8     ``right_road_edge_distance``  distance to the right road edge [m]
+9     ``lead_gap_left``             gap to the nearest car ahead in the left lane [m]
+10    ``lead_gap_same``             gap to the car ahead in the ego's lane [m] (the distance constraint is on it)
+11    ``lead_gap_right``            gap to the nearest car ahead in the right lane [m]
+12    ``follow_gap_left``           gap to the nearest car behind in the left lane [m]
+13    ``follow_gap_same``           gap to the car behind in the ego's lane [m]
+14    ``follow_gap_right``          gap to the nearest car behind in the right lane [m]
+15    ``lead_rel_speed_left``       speed of that car minus the ego's [m/s] (likewise 16-20)
 16    ``lead_rel_speed_same``
 17    ``lead_rel_speed_right``
 18    ``follow_rel_speed_left``
 19    ``follow_rel_speed_same``
 20    ``follow_rel_speed_right``
-21    ``goal_distance``            longitudinal distance to the goal line [m]
-22    ``time_left``                time before the time-out [s]
-====  ===========================  ==========================================================================
+21    ``goal_distance``             longitudinal distance to the goal line [m]
+22    ``time_left``                 time before the time-out [s]
+====  ============================  ==========================================================================
 
 A car counts as in a lane when its centre is nearest to that lane's centre, and is seen when its centre
 is within ``sensing_range`` (100 m) of the ego's. Without such a car (or without such a lane) the gap
@@ -75,7 +75,8 @@ cars that satisfy the env's constraints at the take-over; the paper does not fil
 agent has acted. Recorded cars never exceed 40 m/s.
 
 :data:`HIGHWAY_CONSTRAINTS` gives, per environment id, the observation index and threshold of each
-true constraint (for constraint plots); thresholds are constructor arguments
+true constraint (default thresholds); each env declares its own, with its thresholds, as the property
+``constraint_spec`` (:mod:`sb3_icrl.envs.constraint_spec`). Thresholds are constructor arguments
 (``gymnasium.make("sb3_icrl/HighwayDistance-v0", min_gap=25.0)``).
 """
 
@@ -91,6 +92,7 @@ from highway_env.road.road import Road, RoadNetwork
 from highway_env.vehicle.kinematics import Vehicle
 from numpy.typing import NDArray
 
+from sb3_icrl.envs.constraint_spec import ConstraintSpec, FeatureConstraint
 from sb3_icrl.envs.highway.scenarios import STORE_MARGIN, Scenario, scenario_files
 
 #: Names of the observation features, in order (see the module docstring)
@@ -194,6 +196,19 @@ class HighwayConstraintEnv(gymnasium.Env):
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 5}
+
+    @property
+    def constraint_spec(self) -> ConstraintSpec:
+        """This env's true constraints with its thresholds (see :mod:`sb3_icrl.envs.constraint_spec`)."""
+        thresholds = {"velocity": self.speed_limit, "distance": self.min_gap}
+        return ConstraintSpec(
+            features=tuple(
+                FeatureConstraint(
+                    DRIVING_CONSTRAINTS[c].obs_index, thresholds[c], DRIVING_CONSTRAINTS[c].op, DRIVING_CONSTRAINTS[c].name
+                )
+                for c in self.constraints
+            )
+        )
 
     def __init__(
         self,
