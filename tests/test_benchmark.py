@@ -30,6 +30,8 @@ steps: 512
 eval_episodes: 2
 train_args: {eval_freq: 256, eval_episodes: 1, save_freq: 0}
 reference: vicrl
+# PPO-Lagrangian as forward solver (the grid recipes plan instead): its 512-step rollouts fix where checkpoints fall
+variants: {base: {hyperparams: {forward_solver: policy_gradient}}}
 """
 
 
@@ -211,7 +213,7 @@ def test_resume_continues_a_run_from_its_checkpoint(tmp_path):
     assert benchmark_main(["run", path, "-f", root, "--only", "algo=bc2l", "--no-report"]) == 0
     folder = run.run_folder(root)
     # Checkpoints at rollout boundaries (512 steps a rollout): after the first update and at the end
-    checkpoints = sorted(name for name in os.listdir(folder) if name.startswith("rl_model_"))
+    checkpoints = sorted(name for name in os.listdir(folder) if name.startswith("rl_model_") and name.endswith(".zip"))
     assert checkpoints == ["rl_model_1024_steps.zip", "rl_model_512_steps.zip"]
     # What a kill during the second rollout leaves: no final model, no finished.json, no later checkpoint
     for name in (FINISHED_FILE, "GridWorldWall-v0.zip", "rl_model_1024_steps.zip"):
@@ -251,3 +253,18 @@ def test_ray_backend_runs_the_smoke_suite(tmp_path):
     with open(os.path.join(run.run_folder(root), FINISHED_FILE)) as file:
         assert json.load(file)["num_timesteps"] == 2048
     assert [(cell["algo"], cell["n_seeds"]) for cell in _summary(root, "smoke")["cells"]] == [("bc2l", 1)]
+
+
+def test_summary_json_is_strict_json(tmp_path):
+    from sb3_icrl.benchmark.report import finite_or_null, write_report
+
+    nested = {"cells": [{"threshold_error": float("inf"), "auroc": np.float64(0.9), "ratio": float("nan")}], "n": 3}
+    assert finite_or_null(nested) == {"cells": [{"threshold_error": None, "auroc": 0.9, "ratio": None}], "n": 3}
+    shipped = os.path.join(os.path.dirname(__file__), "..", "benchmarks", "results", "halfcheetah_tuning", "summary.json")
+    with open(shipped) as file:
+        summary = json.load(file)
+    summary["cells"][0]["threshold_error_mean"] = float("-inf")
+    write_report(summary, str(tmp_path))
+    text = (tmp_path / "summary.json").read_text()
+    assert "Infinity" not in text and "NaN" not in text
+    assert json.loads(text)["cells"][0]["threshold_error_mean"] is None

@@ -18,7 +18,14 @@ import sys
 import time
 from typing import Any
 
-from sb3_icrl.benchmark.report import evaluate_finished, markdown_table, summarise_suite, write_figures, write_report
+from sb3_icrl.benchmark.report import (
+    constraint_metrics,
+    evaluate_finished,
+    markdown_table,
+    summarise_suite,
+    write_figures,
+    write_report,
+)
 from sb3_icrl.benchmark.runner import BACKENDS, RunOutcome, make_backend, run_all
 from sb3_icrl.benchmark.suite import SUITES_DIR, SuiteError, load_suite
 
@@ -128,7 +135,12 @@ def report_command(args: argparse.Namespace) -> int:
     suite = load_suite(args.suite)
     runs = suite.select(_only(args.only))
     results = evaluate_finished(runs, args.log_folder, suite)
-    summary = summarise_suite(suite, runs, results)
+    if not results and args.command == "report":
+        raise SuiteError(
+            f"No finished run of suite {suite.name!r} in {os.path.join(args.log_folder, suite.name)}: train them first with "
+            f"`sb3-icrl benchmark run {args.suite} -f {args.log_folder}` (or check -f and --only)."
+        )
+    summary = summarise_suite(suite, runs, results, constraint_metrics(results, args.log_folder))
     output = args.output or os.path.join(args.log_folder, suite.name, "report")
     written = write_report(summary, output)
     if not args.no_figures:
@@ -151,6 +163,8 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
                 suite = load_suite(path)
                 print(f"{suite.name:10s} {len(suite.runs()):4d} runs  {suite.description}")
             return 0
+        if os.path.exists(args.log_folder) and not os.path.isdir(args.log_folder):
+            raise SuiteError(f"-f/--log-folder {args.log_folder!r} is a file, not a folder: pass the log root folder.")
         if args.command == "run":
             return run_command(args)
         return report_command(args)

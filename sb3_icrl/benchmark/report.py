@@ -121,13 +121,84 @@ def evaluate_finished(
     return results
 
 
+def constraint_metrics(
+    results: Sequence[tuple[RunSpec, RunResult]], root: str, log: Callable[[str], None] = print
+) -> dict[str, dict[str, float]]:
+    """
+    Per finished run, how well its learned constraint identifies the true one (ICRL runs: AUROC, and the threshold
+    error at ``t = 0.5`` where the constraint is a feature threshold; cached in the run folder as
+    ``identification.json``) and how it transfers (the ``transfer_<task>.json`` that ``sb3-icrl transfer`` wrote, if
+    any: the learner's true violation rate and its feasible reward as a share of the oracle's).
+
+    :param results: ``(run, held-out result)`` of the finished runs (:func:`evaluate_finished`)
+    :param root: The log root
+    :param log: Where progress lines and skipped runs go
+    :return: ``{result.run: {column: value}}``
+    """
+    from sb3_icrl.metrics.identification import IDENTIFICATION_FILE, headline, identify_run
+    from sb3_icrl.metrics.transfer import read_transfers
+    from sb3_icrl.zoo.hyperparams import ICRL_ALGOS
+
+    metrics: dict[str, dict[str, float]] = {}
+    for run, result in results:
+        folder = os.path.join(root, result.run)
+        entry: dict[str, float] = {}
+        if run.algo in ICRL_ALGOS:
+            if not os.path.isfile(os.path.join(folder, IDENTIFICATION_FILE)):
+                log(f"scoring the learned constraint of {run.name} against the true one")
+            try:
+                entry.update(headline(identify_run(folder)["scores"]))
+            except Exception as error:  # a run that cannot be scored leaves its columns empty, not the report unwritten
+                log(f"no identification scores for {run.name}: {type(error).__name__}: {error}")
+        for task, transfer in read_transfers(folder).items():
+            entry[f"transfer_{task}_violation_rate"] = float(transfer["violation_rate"])
+            entry[f"transfer_{task}_feasible_ratio"] = float(transfer["feasible_reward_ratio"])
+        metrics[result.run] = entry
+    return metrics
+
+
+def _mean_of(values: Sequence[float | None]) -> float | None:
+    """Mean of the finite values given (``None`` when there is none)."""
+    finite = [float(value) for value in values if value is not None and math.isfinite(value)]
+    return float(np.mean(finite)) if finite else None
+
+
+#: Transfer columns of the per-seed values, in table order
+TRANSFER_COLUMNS = tuple(
+    f"transfer_{task}_{metric}" for task in ("same", "reward", "dynamics") for metric in ("violation_rate", "feasible_ratio")
+)
+
+
+def _identification_text(seed: dict[str, Any]) -> str:
+    """``AUROC / threshold error`` of one seed (``-`` for what it lacks)."""
+    if "identification_auroc" not in seed:
+        return "-"
+    error = seed.get("threshold_error")
+    return f"{_fmt(seed['identification_auroc'], 2)} / {_fmt(error, 2) if error is not None else '-'}"
+
+
+def _transfer_text(seed: dict[str, Any]) -> str:
+    """``task: violation / feasible-reward ratio`` of each transfer of one seed."""
+    parts = []
+    for task in ("same", "reward", "dynamics"):
+        if f"transfer_{task}_violation_rate" in seed:
+            ratio = seed[f"transfer_{task}_feasible_ratio"]
+            parts.append(f"{task} {100 * seed[f'transfer_{task}_violation_rate']:.0f}% / {_fmt(ratio, 2)}")
+    return ", ".join(parts) or "-"
+
+
 def _fmt(value: float, digits: int = 1) -> str:
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return "-"
     return f"{value:.{digits}f}"
 
 
-def summarise_suite(suite: Suite, runs: Sequence[RunSpec], results: Sequence[tuple[RunSpec, RunResult]]) -> dict[str, Any]:
+def summarise_suite(
+    suite: Suite,
+    runs: Sequence[RunSpec],
+    results: Sequence[tuple[RunSpec, RunResult]],
+    metrics: dict[str, dict[str, float]] | None = None,
+) -> dict[str, Any]:
     """
     Per cell (env, variant, algorithm): seeds, per-seed values, mean and std, IQM with its 95% bootstrap CI, the
     Wilcoxon test against the suite's reference and the paper's numbers; per algorithm, the IQM over all envs with a
@@ -136,6 +207,8 @@ def summarise_suite(suite: Suite, runs: Sequence[RunSpec], results: Sequence[tup
     :param suite: The suite
     :param runs: Its runs (to list the missing ones)
     :param results: ``(run, held-out result)`` of the finished runs
+    :param metrics: Per run (``result.run``), identification and transfer columns added to its per-seed values
+        (:func:`constraint_metrics`); the cell gets the mean identification AUROC over the seeds that have one
     :return: A JSON-ready summary
     """
     by_cell: dict[tuple[str, str], list[RunResult]] = {}
@@ -166,9 +239,13 @@ def summarise_suite(suite: Suite, runs: Sequence[RunSpec], results: Sequence[tup
                             "reward": r.reward,
                             "timesteps": r.timesteps,
                             "n_episodes": r.n_episodes,
+                            **(metrics or {}).get(r.run, {}),
                         }
                         for r in mine
                     ],
+                    "identification_auroc_mean": _mean_of(
+                        [(metrics or {}).get(r.run, {}).get("identification_auroc") for r in mine]
+                    ),
                     **{key: value for key, value in entry.items() if key != "seeds"},
                     "feasible_reward_iqm": iqm(feasible),
                     "feasible_reward_iqm_ci95": list(stratified_bootstrap_ci([feasible])),
@@ -210,8 +287,9 @@ def markdown_table(summary: dict[str, Any]) -> str:
     """The cells as a Markdown table: ours (mean +- std, IQM [CI]) beside the paper's, per-seed values visible."""
     lines = [
         "| env | variant | algo | seeds | feasible reward (mean ± std) | IQM [95% CI] | violation rate | Wilcoxon p | paper "
-        "| per seed (feasible / violation) |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| per seed (feasible / violation) | identification per seed (AUROC / threshold error) "
+        "| transfer per seed (violation / feasible reward ÷ oracle's) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for cell in summary["cells"]:
         low, high = cell["feasible_reward_iqm_ci95"]
@@ -223,13 +301,16 @@ def markdown_table(summary: dict[str, Any]) -> str:
         per_seed = ", ".join(
             f"{s['seed']}: {s['feasible_reward']:.0f} / {100 * s['violation_rate']:.0f}%" for s in cell["per_seed"]
         )
+        identification = ", ".join(f"{s['seed']}: {_identification_text(s)}" for s in cell["per_seed"])
+        transfer = ", ".join(f"{s['seed']}: {_transfer_text(s)}" for s in cell["per_seed"] if _transfer_text(s) != "-")
         p_value = cell.get("wilcoxon_p")
         lines.append(
             f"| {cell['env']} | {cell['variant']} | {cell['algo']} | {cell['n_seeds']} | "
             f"{_fmt(cell['feasible_reward_mean'])} ± {_fmt(cell['feasible_reward_std'])} | "
             f"{_fmt(cell['feasible_reward_iqm'])} [{_fmt(low)}, {_fmt(high)}] | "
             f"{100 * cell['violation_rate_mean']:.0f}% ± {100 * cell['violation_rate_std']:.0f}% | "
-            f"{_fmt(p_value, 3) if p_value is not None else '-'} | {paper} | {per_seed} |"
+            f"{_fmt(p_value, 3) if p_value is not None else '-'} | {paper} | {per_seed} | "
+            f"{identification if any('identification_auroc' in s for s in cell['per_seed']) else '-'} | {transfer or '-'} |"
         )
     if summary["runs_missing"]:
         lines.append("")
@@ -262,9 +343,8 @@ def csv_rows(summary: dict[str, Any]) -> str:
     """One row per run: cell, seed and held-out values."""
     buffer = io.StringIO()
     writer = csv.writer(buffer)
-    writer.writerow(
-        ["env", "variant", "algo", "seed", "feasible_reward", "violation_rate", "reward", "timesteps", "n_episodes"]
-    )
+    header = ["env", "variant", "algo", "seed", "feasible_reward", "violation_rate", "reward", "timesteps", "n_episodes"]
+    writer.writerow([*header, "identification_auroc", "threshold_error", *TRANSFER_COLUMNS])
     for cell in summary["cells"]:
         for seed in cell["per_seed"]:
             writer.writerow(
@@ -278,19 +358,39 @@ def csv_rows(summary: dict[str, Any]) -> str:
                     seed["reward"],
                     seed["timesteps"],
                     seed["n_episodes"],
+                    *(seed.get(column, "") for column in ("identification_auroc", "threshold_error", *TRANSFER_COLUMNS)),
                 ]
             )
     return buffer.getvalue()
 
 
+def finite_or_null(value: Any) -> Any:
+    """
+    A copy of a JSON-like value with every NaN or infinite float replaced by ``None``, so that strict JSON readers
+    can read it (a threshold error is infinite when the learned cost never crosses the threshold: the run's own
+    ``identification.json`` keeps the value and the reason).
+
+    :param value: Nested dicts, lists, tuples and scalars
+    :return: The same structure, with ``null`` where a float was not finite
+    """
+    if isinstance(value, dict):
+        return {key: finite_or_null(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite_or_null(item) for item in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
 def write_report(summary: dict[str, Any], output: str) -> list[str]:
     """
-    Write ``summary.json``, ``table.md``, ``runs.csv`` and ``table.tex`` to ``output`` (atomically).
+    Write ``summary.json`` (strict JSON: non-finite floats become ``null``), ``table.md``, ``runs.csv`` and
+    ``table.tex`` to ``output`` (atomically).
 
     :return: The paths written
     """
     paths = {
-        "summary.json": json.dumps(summary, indent=2, sort_keys=True) + "\n",
+        "summary.json": json.dumps(finite_or_null(summary), indent=2, sort_keys=True, allow_nan=False) + "\n",
         "table.md": markdown_table(summary),
         "runs.csv": csv_rows(summary),
         "table.tex": latex_table(summary),

@@ -1,0 +1,814 @@
+"""
+Does a learned constraint identify the true one? A learner can keep a 0% violation rate with a wrong constraint
+(one that forbids far too much, or the right region for the wrong reason), so the violation rate alone does not say.
+This module scores the learned cost itself against the true constraint, on a **probe set** of states and actions
+built for evaluation only (it never reaches the learner):
+
+- the expert's demonstrations, the learner's own episodes and, when a run of it is at hand, an unconstrained PPO
+  agent's episodes (which go where the constraint binds);
+- a **sweep** of each constrained feature across its range, the other features taken from visited states.
+
+Scores (:func:`identification_scores`): the AUROC of the learned cost against the true cost label; precision,
+recall and IoU of "learned cost > t" for ``t = 0.5`` and ``t`` = the learner's budget; the **threshold error**, where
+the learned cost's partial dependence over the constrained feature crosses ``t``, less the true threshold, in the
+feature's units (``inf`` or ``nan`` with a reason when it never crosses, see :func:`learned_threshold`); and the
+expected calibration error of the learned cost read as a probability of violation. Grid worlds
+(:func:`grid_identification`): precision, recall and IoU of the unsafe cells, over the cell map.
+
+The true label of a pair ``(s, a)`` is the true constraint evaluated on the state ``s`` it is taken in.
+"""
+
+import json
+import os
+import pathlib
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.stats
+
+from sb3_icrl.common.utils import atomic_write_json
+
+#: Identification results cached in each run folder (keyed by their settings)
+IDENTIFICATION_FILE = "identification.json"
+#: Bumped when the scores change meaning, so that cached results are computed again
+IDENTIFICATION_VERSION = 1
+#: Default bins of the expected calibration error
+DEFAULT_CALIBRATION_BINS = 10
+
+CostFn = Callable[[np.ndarray, np.ndarray | None], np.ndarray]
+
+
+# ---------------------------------------------------------------------------------------------------- scores
+
+
+def _binary_labels(labels: np.ndarray | Sequence[float], name: str = "labels") -> np.ndarray:
+    array = np.asarray(labels, dtype=float).reshape(-1)
+    if not np.all((array == 0.0) | (array == 1.0)):
+        raise ValueError(f"`{name}` must hold 0/1 (or False/True) true cost labels, got values {np.unique(array)[:5]}.")
+    return array.astype(bool)
+
+
+def _scores(scores: np.ndarray | Sequence[float], n_expected: int, name: str = "scores") -> np.ndarray:
+    array = np.asarray(scores, dtype=float).reshape(-1)
+    if array.shape != (n_expected,):
+        raise ValueError(f"`{name}` has {array.size} values for {n_expected} labels: pass one per labelled pair.")
+    if not np.all(np.isfinite(array)):
+        raise ValueError(f"`{name}` holds non-finite values: a learned cost must be a finite number per pair.")
+    return array
+
+
+def auroc(scores: np.ndarray | Sequence[float], labels: np.ndarray | Sequence[float]) -> float:
+    """
+    Area under the ROC curve of ``scores`` as a detector of ``labels``: the probability that a random positive pair
+    scores higher than a random negative one, ties counting one half (the Mann-Whitney statistic).
+
+    :param scores: Learned cost per pair
+    :param labels: True cost label per pair (0 or 1)
+    :return: The AUROC in ``[0, 1]`` (0.5: no better than chance); ``nan`` when the labels hold one class only
+    """
+    truth = _binary_labels(labels)
+    values = _scores(scores, truth.size)
+    n_positive, n_negative = int(truth.sum()), int((~truth).sum())
+    if n_positive == 0 or n_negative == 0:
+        return float("nan")
+    ranks = scipy.stats.rankdata(values)  # ties get their mean rank
+    rank_sum = float(ranks[truth].sum())
+    return (rank_sum - n_positive * (n_positive + 1) / 2.0) / (n_positive * n_negative)
+
+
+def overlap_scores(predicted: np.ndarray | Sequence[bool], truth: np.ndarray | Sequence[bool]) -> dict[str, float]:
+    """
+    How well a predicted unsafe set matches the true one.
+
+    :param predicted: Whether each item (pair, cell) is predicted unsafe
+    :param truth: Whether each item is truly unsafe
+    :return: ``precision`` (0 when nothing is predicted, as :func:`~sb3_icrl.icrl.tabular.precision_recall`),
+        ``recall`` (``nan`` when nothing is truly unsafe) and ``iou`` (intersection over union; ``nan`` when both sets
+        are empty)
+    """
+    guess = _binary_labels(predicted, "predicted")
+    true = _binary_labels(truth, "truth")
+    if guess.shape != true.shape:
+        raise ValueError(f"`predicted` has {guess.size} items and `truth` {true.size}: pass one flag per item in both.")
+    hits, n_guess, n_true = int(np.sum(guess & true)), int(guess.sum()), int(true.sum())
+    union = int(np.sum(guess | true))
+    return {
+        "precision": hits / n_guess if n_guess else 0.0,
+        "recall": hits / n_true if n_true else float("nan"),
+        "iou": hits / union if union else float("nan"),
+    }
+
+
+def expected_calibration_error(
+    probabilities: np.ndarray | Sequence[float], labels: np.ndarray | Sequence[float], n_bins: int = DEFAULT_CALIBRATION_BINS
+) -> float:
+    """
+    Expected calibration error of the learned cost read as a probability of violation: the pairs are binned by their
+    cost into ``n_bins`` equal bins of ``[0, 1]`` (the last one closed), and ECE is the mean over bins, weighted by the
+    bin's share of pairs, of ``|mean cost in the bin - share of truly violating pairs in the bin|``.
+
+    :param probabilities: Learned cost per pair, in ``[0, 1]``
+    :param labels: True cost label per pair (0 or 1)
+    :param n_bins: Number of bins
+    :return: The ECE in ``[0, 1]`` (0: perfectly calibrated)
+    """
+    if n_bins < 1:
+        raise ValueError(f"`n_bins` must be >= 1, got {n_bins}.")
+    truth = _binary_labels(labels)
+    values = _scores(probabilities, truth.size, "probabilities")
+    if truth.size == 0:
+        raise ValueError("No pairs to calibrate: pass at least one learned cost and label.")
+    if values.min() < 0.0 or values.max() > 1.0:
+        raise ValueError(
+            f"The learned costs span [{values.min():g}, {values.max():g}]: calibration needs probabilities in [0, 1]."
+        )
+    bins = np.minimum((values * n_bins).astype(int), n_bins - 1)
+    error = 0.0
+    for index in np.unique(bins):
+        members = bins == index
+        error += members.mean() * abs(values[members].mean() - truth[members].mean())
+    return float(error)
+
+
+@dataclass(frozen=True)
+class ThresholdCrossing:
+    """
+    Where a learned cost curve over a constrained feature crosses a level.
+
+    :param value: The learned threshold in the feature's units; ``inf`` (``-inf`` for an ``"above"`` constraint) when
+        the curve stays at or above the level up to the safe end of the range, ``nan`` when it never reaches the level
+    :param reason: Why there is no finite crossing (``None`` when there is one)
+    """
+
+    value: float
+    reason: str | None = None
+
+
+def learned_threshold(values: np.ndarray, curve: np.ndarray, level: float, side: str) -> ThresholdCrossing:
+    """
+    The learned threshold: the edge of the region where the curve is at or above ``level`` that reaches furthest into
+    the safe side. For a constraint broken below the threshold (``side="below"``) it is the largest value where the
+    curve, read left to right, falls from ``>= level`` to ``< level`` (linearly interpolated between grid values); for
+    ``side="above"``, the smallest value where it rises to ``>= level``.
+
+    :param values: Increasing grid of feature values
+    :param curve: Learned cost at each value (a partial dependence)
+    :param level: The level ``t``
+    :param side: ``"below"`` or ``"above"`` (or an op: ``"<="``, ``">"``...), the truly unsafe side
+    :return: The crossing, or ``inf``/``nan`` with the reason there is none
+    """
+    from sb3_icrl.plots.figures import unsafe_side
+
+    grid, costs = np.asarray(values, dtype=float).reshape(-1), np.asarray(curve, dtype=float).reshape(-1)
+    if grid.shape != costs.shape or grid.size < 2:
+        raise ValueError(f"`values` and `curve` must be two arrays of the same length >= 2, got {grid.size} and {costs.size}.")
+    if not np.all(np.diff(grid) > 0):
+        raise ValueError("`values` must be strictly increasing.")
+    below = unsafe_side(side) == "below"
+    if below:  # read from the safe end (right) towards the unsafe one: mirror the grid
+        grid, costs = -grid[::-1], costs[::-1]
+    above_level = costs >= level
+    span = f"[{min(values[0], values[-1]):g}, {max(values[0], values[-1]):g}]"
+    if not above_level.any():
+        return ThresholdCrossing(float("nan"), f"the learned cost never reaches {level:g} over {span}")
+    first = int(np.argmax(above_level))
+    if first == 0:
+        sign = 1.0 if below else -1.0
+        end = "right" if below else "left"
+        return ThresholdCrossing(
+            sign * float("inf"), f"the learned cost is >= {level:g} up to the safe ({end}) end of {span}: no crossing"
+        )
+    # Between grid[first - 1] (below the level) and grid[first] (at or above it)
+    low_cost, high_cost = costs[first - 1], costs[first]
+    fraction = (level - low_cost) / (high_cost - low_cost)
+    crossing = grid[first - 1] + fraction * (grid[first] - grid[first - 1])
+    return ThresholdCrossing(float(-crossing if below else crossing))
+
+
+def threshold_error(
+    values: np.ndarray, curve: np.ndarray, level: float, true_threshold: float, side: str
+) -> tuple[float, ThresholdCrossing]:
+    """
+    Learned threshold (:func:`learned_threshold`) less the true one, in the feature's units.
+
+    :param values: Increasing grid of feature values
+    :param curve: Learned cost at each value
+    :param level: The level ``t``
+    :param true_threshold: The true threshold
+    :param side: The truly unsafe side (``"below"``, ``"above"`` or an op)
+    :return: The signed error (``inf`` or ``nan`` when there is no crossing) and the crossing
+    """
+    crossing = learned_threshold(values, curve, level, side)
+    return crossing.value - float(true_threshold), crossing
+
+
+# ---------------------------------------------------------------------------------------------------- probe set
+
+
+def violates(values: np.ndarray, threshold: float, op: str) -> np.ndarray:
+    """
+    :param values: Values of a constrained feature
+    :param threshold: The true threshold
+    :param op: ``"<="``, ``"<"``, ``">="`` or ``">"``: the constraint is broken when ``value op threshold``
+    :return: Whether each value breaks the constraint
+    """
+    array = np.asarray(values, dtype=float)
+    operations: dict[str, Callable[[np.ndarray, float], np.ndarray]] = {
+        "<=": np.less_equal,
+        "<": np.less,
+        ">=": np.greater_equal,
+        ">": np.greater,
+    }
+    if op not in operations:
+        raise ValueError(f"Unknown constraint op {op!r}: expected one of {', '.join(operations)}.")
+    return operations[op](array, threshold)
+
+
+def true_cost_labels(observations: np.ndarray, constraints: Sequence[Any]) -> np.ndarray:
+    """
+    True cost label of each observation: 1 when any constraint is broken (evaluation only).
+
+    :param observations: ``(n, obs_dim)`` raw observations
+    :param constraints: :class:`~sb3_icrl.plots.figures.TrueConstraint` of the env
+    :return: ``(n,)`` booleans
+    """
+    obs = np.asarray(observations, dtype=float)
+    labels = np.zeros(len(obs), dtype=bool)
+    for constraint in constraints:
+        labels |= violates(obs[:, constraint.obs_index], constraint.threshold, constraint.op)
+    return labels
+
+
+@dataclass
+class ProbeSet:
+    """
+    States and actions on which a learned cost is scored (built for evaluation only: the arrays are read-only copies,
+    and nothing here is handed to a learner).
+
+    :param observations: ``(n, obs_dim)`` raw observations
+    :param actions: ``(n, ...)`` actions as sent to the env
+    :param sources: ``(n,)`` where each pair comes from: ``"expert"``, ``"learner"``, ``"unconstrained"``,
+        ``"sweep:<feature>"``
+    """
+
+    observations: np.ndarray
+    actions: np.ndarray
+    sources: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.observations)
+
+    def counts(self) -> dict[str, int]:
+        """Pairs per source."""
+        names, counts = np.unique(self.sources, return_counts=True)
+        return {str(name): int(count) for name, count in zip(names, counts, strict=True)}
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    copy = np.array(array, copy=True)
+    copy.setflags(write=False)
+    return copy
+
+
+def _subsample(obs: np.ndarray, acts: np.ndarray, limit: int | None, rng: np.random.Generator) -> tuple[np.ndarray, ...]:
+    if limit is not None and len(obs) > limit:
+        keep = np.sort(rng.choice(len(obs), size=limit, replace=False))
+        return obs[keep], acts[keep]
+    return obs, acts
+
+
+def feature_grid(visited: np.ndarray, threshold: float, n_values: int = 51, margin: float = 0.1) -> np.ndarray:
+    """
+    An even grid of a constrained feature over its visited values and the true threshold, widened by ``margin``.
+
+    :param visited: Visited values of the feature
+    :param threshold: The true threshold
+    :param n_values: Number of values
+    :param margin: Widening, as a share of the span
+    :return: ``(n_values,)``
+    """
+    from sb3_icrl.plots.figures import default_feature_values
+
+    return default_feature_values(visited, threshold, n_values=n_values, margin=margin)
+
+
+def build_probe_set(
+    constraints: Sequence[Any],
+    sources: Mapping[str, tuple[np.ndarray, np.ndarray]],
+    n_sweep_values: int = 51,
+    n_sweep_states: int = 100,
+    max_per_source: int | None = 5000,
+    seed: int = 0,
+) -> ProbeSet:
+    """
+    The probe set: the pairs of each source, then for each constrained feature a sweep of that feature over
+    :func:`feature_grid` of its visited values, each value set in ``n_sweep_states`` visited pairs drawn at random.
+
+    :param constraints: The env's :class:`~sb3_icrl.plots.figures.TrueConstraint` (features to sweep)
+    :param sources: ``{name: (observations, actions)}``, e.g. ``expert``, ``learner``, ``unconstrained``
+    :param n_sweep_values: Values per swept feature
+    :param n_sweep_states: Visited pairs each value is set in
+    :param max_per_source: Keep at most this many pairs of each source, drawn at random (``None``: all)
+    :param seed: Seed of the draws
+    :return: The probe set
+    """
+    if not sources:
+        raise ValueError("No source of probe pairs: pass at least the expert's (observations, actions).")
+    if n_sweep_values < 2 or n_sweep_states < 1:
+        raise ValueError(f"A sweep needs >= 2 values and >= 1 state, got {n_sweep_values} and {n_sweep_states}.")
+    rng = np.random.default_rng(seed)
+    observations, actions, names = [], [], []
+    for name, (obs, acts) in sources.items():
+        obs, acts = np.asarray(obs), np.asarray(acts)
+        if obs.ndim != 2 or len(obs) == 0 or len(acts) != len(obs):
+            raise ValueError(
+                f"Source {name!r}: expected a non-empty (n, obs_dim) batch and one action per observation, "
+                f"got observations {obs.shape} and actions {acts.shape}."
+            )
+        obs, acts = _subsample(obs, acts, max_per_source, rng)
+        observations.append(obs.astype(np.float64))
+        actions.append(acts)
+        names += [name] * len(obs)
+    visited_obs, visited_acts = np.concatenate(observations), np.concatenate(actions)
+    for constraint in constraints:
+        grid = feature_grid(visited_obs[:, constraint.obs_index], constraint.threshold, n_sweep_values)
+        # Each value gets its own draw of distinct visited pairs (with replacement only when there are too few)
+        n_visited = len(visited_obs)
+        rows = np.stack([rng.choice(n_visited, size=n_sweep_states, replace=n_visited < n_sweep_states) for _ in grid])
+        swept = visited_obs[rows].copy()  # (n_values, n_states, obs_dim)
+        swept[:, :, constraint.obs_index] = grid[:, None]
+        observations.append(swept.reshape(-1, visited_obs.shape[1]))
+        actions.append(visited_acts[rows.reshape(-1)])
+        names += [f"sweep:{constraint.name}"] * rows.size
+    return ProbeSet(_read_only(np.concatenate(observations)), _read_only(np.concatenate(actions)), _read_only(np.array(names)))
+
+
+def partial_dependence_curve(
+    cost_fn: CostFn,
+    observations: np.ndarray,
+    actions: np.ndarray | None,
+    feature_index: int,
+    values: np.ndarray,
+    max_samples: int | None = 500,
+    seed: int = 0,
+) -> np.ndarray:
+    """
+    Partial dependence of a learned cost on one feature: for each value, set the feature to it in every sample and
+    average the cost over the samples.
+
+    :param cost_fn: ``cost_fn(observations, actions) -> costs``
+    :param observations: ``(n, obs_dim)`` samples (visited states)
+    :param actions: Their actions
+    :param feature_index: Index of the feature
+    :param values: ``(n_values,)`` values of the feature
+    :param max_samples: Average over at most this many samples drawn at random (``None``: all)
+    :param seed: Seed of the draw
+    :return: ``(n_values,)`` mean costs
+    """
+    obs = np.asarray(observations, dtype=np.float64)
+    acts = None if actions is None else np.asarray(actions)
+    if obs.ndim != 2 or len(obs) == 0 or not 0 <= feature_index < obs.shape[1]:
+        raise ValueError(f"Need a non-empty (n, obs_dim) batch with feature {feature_index}, got shape {obs.shape}.")
+    if max_samples is not None and len(obs) > max_samples:
+        keep = np.sort(np.random.default_rng(seed).choice(len(obs), size=max_samples, replace=False))
+        obs, acts = obs[keep], None if acts is None else acts[keep]
+    grid = np.asarray(values, dtype=np.float64).reshape(-1)
+    batch = np.repeat(obs[None], len(grid), axis=0)
+    batch[:, :, feature_index] = grid[:, None]
+    batch_acts = None if acts is None else np.concatenate([acts] * len(grid), axis=0)
+    costs = np.asarray(cost_fn(batch.reshape(-1, obs.shape[1]), batch_acts), dtype=np.float64).reshape(len(grid), len(obs))
+    return costs.mean(axis=1)
+
+
+def _level_key(name: str) -> str:
+    return f"at_{name}"
+
+
+def identification_scores(
+    cost_fn: CostFn,
+    probes: ProbeSet,
+    constraints: Sequence[Any],
+    budget: float | None = None,
+    n_bins: int = DEFAULT_CALIBRATION_BINS,
+    n_curve_values: int = 101,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """
+    Score a learned cost against the true constraint on a probe set.
+
+    :param cost_fn: The learned cost, ``cost_fn(observations, actions) -> costs`` in ``[0, 1]``
+    :param probes: The probe set (:func:`build_probe_set`)
+    :param constraints: The env's :class:`~sb3_icrl.plots.figures.TrueConstraint` (evaluation only)
+    :param budget: The learner's budget on the learned cost (per step); ``None``: only ``t = 0.5`` is scored
+    :param n_bins: Bins of the calibration error
+    :param n_curve_values: Grid values of each feature's partial dependence
+    :param seed: Seed of the partial dependence's sample draw
+    :return: A JSON-ready dict: ``auroc``, ``ece``, ``n_probes``, ``sources`` (pairs, mean learned cost and true
+        violation share per source), ``levels`` (``{"0.5": t, "budget": t}``), and per level ``at_<level>`` with
+        ``precision``, ``recall``, ``iou``; ``features``: per constrained feature its own ``auroc``, the true
+        ``threshold`` and ``op``, the partial dependence ``curve`` (``values``, ``mean_cost``) and per level the
+        ``threshold_error``, ``learned_threshold`` and ``reason`` (``None`` unless there is no crossing)
+    """
+    if not constraints:
+        raise ValueError("No true constraint to score against.")
+    # Writable copies: the probe set stays read-only, and torch refuses to wrap read-only arrays quietly
+    costs = np.asarray(cost_fn(np.array(probes.observations), np.array(probes.actions)), dtype=np.float64).reshape(-1)
+    if costs.shape != (len(probes),):
+        raise ValueError(f"The cost function returned {costs.size} costs for {len(probes)} probe pairs.")
+    labels = true_cost_labels(probes.observations, constraints)
+    levels = {"0.5": 0.5}
+    if budget is not None:
+        if not np.isfinite(budget):
+            raise ValueError(f"`budget` must be a finite float, got {budget!r}.")
+        levels["budget"] = float(budget)
+    result: dict[str, Any] = {
+        "auroc": auroc(costs, labels),
+        "ece": expected_calibration_error(np.clip(costs, 0.0, 1.0), labels, n_bins),
+        "n_probes": len(probes),
+        "levels": levels,
+        "sources": {},
+    }
+    for name in probes.counts():
+        members = probes.sources == name
+        result["sources"][name] = {
+            "n_pairs": int(members.sum()),
+            "mean_cost": float(costs[members].mean()),
+            "violation_share": float(labels[members].mean()),
+        }
+    for name, level in levels.items():
+        result[_level_key(name)] = overlap_scores(costs > level, labels)
+
+    visited = ~np.char.startswith(probes.sources.astype(str), "sweep:")
+    visited_obs, visited_acts = np.asarray(probes.observations)[visited], np.asarray(probes.actions)[visited]
+    result["features"] = {}
+    for constraint in constraints:
+        feature_labels = violates(
+            np.asarray(probes.observations)[:, constraint.obs_index], constraint.threshold, constraint.op
+        )
+        values = feature_grid(visited_obs[:, constraint.obs_index], constraint.threshold, n_curve_values)
+        curve = partial_dependence_curve(cost_fn, visited_obs, visited_acts, constraint.obs_index, values, seed=seed)
+        entry: dict[str, Any] = {
+            "auroc": auroc(costs, feature_labels),
+            "threshold": float(constraint.threshold),
+            "op": constraint.op,
+            "curve": {"values": values.tolist(), "mean_cost": curve.tolist()},
+        }
+        for name, level in levels.items():
+            error, crossing = threshold_error(values, curve, level, constraint.threshold, constraint.op)
+            entry[_level_key(name)] = {
+                **overlap_scores(costs > level, feature_labels),
+                "threshold_error": error,
+                "learned_threshold": crossing.value,
+                "reason": crossing.reason,
+            }
+        result["features"][constraint.name] = entry
+    return result
+
+
+def grid_identification(
+    cost_map: np.ndarray, unsafe_mask: np.ndarray, budget: float | None = None, n_bins: int = DEFAULT_CALIBRATION_BINS
+) -> dict[str, Any]:
+    """
+    Score a grid world's learned cost map against its unsafe cells (every cell is a probe; no threshold error: the
+    constraint is a set of cells, not a threshold on a feature).
+
+    :param cost_map: Learned cost per cell, ``(n_rows, n_cols)`` (see :func:`~sb3_icrl.plots.figures.grid_cost_map`)
+    :param unsafe_mask: Whether each cell is truly unsafe, same shape
+    :param budget: The learner's budget; ``None``: only ``t = 0.5`` is scored
+    :param n_bins: Bins of the calibration error
+    :return: ``auroc``, ``ece``, ``n_probes``, ``levels`` and per level ``at_<level>`` with ``precision``, ``recall``
+        (those of :func:`~sb3_icrl.icrl.tabular.precision_recall`) and ``iou``
+    """
+    from sb3_icrl.icrl.tabular import precision_recall
+
+    costs, unsafe = np.asarray(cost_map, dtype=float), np.asarray(unsafe_mask, dtype=bool)
+    if costs.shape != unsafe.shape:
+        raise ValueError(f"`cost_map` {costs.shape} and `unsafe_mask` {unsafe.shape} must have the same shape.")
+    if not unsafe.any():
+        raise ValueError("The grid has no unsafe cell: there is no constraint to identify.")
+    levels = {"0.5": 0.5, **({"budget": float(budget)} if budget is not None else {})}
+    result: dict[str, Any] = {
+        "auroc": auroc(costs.reshape(-1), unsafe.reshape(-1)),
+        "ece": expected_calibration_error(np.clip(costs, 0.0, 1.0).reshape(-1), unsafe.reshape(-1), n_bins),
+        "n_probes": int(costs.size),
+        "levels": levels,
+        "features": {},
+    }
+    for name, level in levels.items():
+        recovered = costs > level
+        precision, recall = precision_recall(recovered, unsafe)
+        result[_level_key(name)] = {"precision": precision, "recall": recall, "iou": overlap_scores(recovered, unsafe)["iou"]}
+    return result
+
+
+# ---------------------------------------------------------------------------------------------------- models and runs
+
+
+def learned_cost_fn(model: Any) -> CostFn:
+    """
+    The learned cost of an ICRL model, a constraint net or a plain function, as ``cost_fn(observations, actions)``.
+
+    :param model: An ICRL algorithm (``constraint_cost``), a constraint net (``cost``) or a callable
+    :return: The cost function
+    """
+    if hasattr(model, "constraint_cost") and getattr(model, "constraint_net", None) is not None:
+        return model.constraint_cost
+    if hasattr(model, "cost") and callable(model.cost):
+        return model.cost
+    if callable(model):
+        return model
+    raise TypeError(
+        f"{type(model).__name__} holds no learned cost: pass an ICRL model (BC2L, MECL, VICRL, GACL), a constraint "
+        "net or a function cost_fn(observations, actions) -> costs."
+    )
+
+
+def policy_pairs(
+    policy: Any,
+    env_id: str,
+    env_kwargs: Mapping[str, Any] | None = None,
+    n_episodes: int = 3,
+    seed: int = 0,
+    vecnormalize_path: str | None = None,
+    transition_noise: float = 0.0,
+    max_steps: int = 20_000,
+) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Raw observations and actions of a policy's deterministic episodes (with its saved ``VecNormalize`` statistics).
+
+    :param policy: Anything with SB3's ``predict``
+    :param env_id: Env id
+    :param env_kwargs: Env keyword arguments
+    :param n_episodes: Episodes to run
+    :param seed: Seed of the env
+    :param vecnormalize_path: The policy's ``VecNormalize`` statistics, if it was trained with them
+    :param transition_noise: Transition noise of the env the policy was trained on
+    :param max_steps: Stop after this many steps even if the episodes have not ended
+    :return: ``(observations, actions)``, one row per step
+    """
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from sb3_icrl.envs.wrappers import TransitionNoiseWrapper
+
+    wrapper = (lambda env: TransitionNoiseWrapper(env, sigma=transition_noise)) if transition_noise > 0 else None
+    venv: Any = make_vec_env(env_id, n_envs=1, seed=seed, env_kwargs=dict(env_kwargs or {}), wrapper_class=wrapper)
+    if vecnormalize_path is not None:
+        venv = VecNormalize.load(vecnormalize_path, venv)
+        venv.training, venv.norm_reward = False, False
+    observations, actions = [], []
+    obs = venv.reset()
+    finished = steps = 0
+    while finished < n_episodes and steps < max_steps:
+        raw = venv.get_original_obs() if isinstance(venv, VecNormalize) else obs
+        action, _ = policy.predict(obs, deterministic=True)
+        observations.append(np.asarray(raw).reshape(1, -1))
+        actions.append(np.asarray(action).reshape(1, *np.shape(action)[1:]))
+        obs, _, dones, _ = venv.step(action)
+        finished += int(dones.sum())
+        steps += 1
+    venv.close()
+    return np.concatenate(observations), np.concatenate(actions)
+
+
+def identify_model(
+    model: Any,
+    env_id: str,
+    expert: tuple[np.ndarray, np.ndarray],
+    env_kwargs: Mapping[str, Any] | None = None,
+    other_sources: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
+    budget: float | None = None,
+    n_sweep_values: int = 51,
+    n_sweep_states: int = 100,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """
+    Identification scores of a learned constraint (an ICRL model, a constraint net or a cost function) on an env.
+
+    :param model: The learned constraint
+    :param env_id: The env it was learned on (gives the true constraint, for evaluation only)
+    :param expert: The expert's ``(observations, actions)``
+    :param env_kwargs: The env's keyword arguments (thresholds)
+    :param other_sources: More probe pairs, e.g. ``{"learner": ..., "unconstrained": ...}``
+    :param budget: The learner's budget (default: the model's ``cost_budget`` when it has one)
+    :param n_sweep_values: Values per swept feature
+    :param n_sweep_states: Visited pairs each swept value is set in
+    :param seed: Seed of the draws
+    :return: See :func:`identification_scores` (grid worlds: :func:`grid_identification`)
+    """
+    import gymnasium as gym
+
+    cost_fn = learned_cost_fn(model)
+    if budget is None and getattr(model, "cost_budget", None) is not None:
+        budget = float(np.asarray(model.cost_budget).reshape(-1)[0])
+    net = getattr(model, "constraint_net", model)
+    if getattr(net, "discrete_obs", False):
+        from sb3_icrl.plots.figures import grid_cost_map
+
+        grid = gym.make(env_id, **dict(env_kwargs or {})).unwrapped
+        return grid_identification(grid_cost_map(net, grid), grid.unsafe_mask, budget)  # type: ignore[attr-defined]
+    from sb3_icrl.plots.figures import constraint_features
+
+    constraints = constraint_features(env_id, env_kwargs)
+    probes = build_probe_set(
+        constraints, {"expert": expert, **dict(other_sources or {})}, n_sweep_values, n_sweep_states, seed=seed
+    )
+    return identification_scores(cost_fn, probes, constraints, budget=budget, seed=seed)
+
+
+def find_unconstrained_run(run_folder: str | os.PathLike) -> pathlib.Path | None:
+    """
+    A finished unconstrained PPO run on the same env, near an ICRL run: ``<folder>/ppo/<EnvName>_*`` beside it, or
+    an ``experts`` suite run (``<root>/experts/<variant>/ppo/<EnvName>_*``) when the run belongs to a suite.
+
+    :param run_folder: The ICRL run folder ``<folder>/<algo>/<EnvName>_<N>``
+    :return: The run folder, or ``None`` when there is none
+    """
+    from sb3_icrl.zoo.runs import is_finished
+
+    run = pathlib.Path(run_folder).resolve()
+    name = run.name.rpartition("_")[0]
+    patterns = [run.parent.parent / "ppo"]
+    if len(run.parents) > 4:
+        patterns += sorted((run.parents[3] / "experts").glob("*/ppo"))
+    for folder in patterns:
+        for candidate in sorted(folder.glob(f"{name}_*")):
+            if candidate.is_dir() and is_finished(str(candidate)):
+                return candidate
+    return None
+
+
+def _read_args(run: pathlib.Path) -> dict[str, Any]:
+    import yaml
+
+    found = sorted(run.glob("*/args.yml"))
+    if not found:
+        raise FileNotFoundError(f"{run} is not a training run folder: no <EnvName>/args.yml in it.")
+    with open(found[0]) as file:
+        return yaml.safe_load(file) or {}
+
+
+def read_icrl_run(run_folder: str | os.PathLike) -> tuple[pathlib.Path, dict[str, Any]]:
+    """
+    The folder and saved arguments of an ICRL run, checked.
+
+    :param run_folder: A run folder (``logs/<algo>/<EnvName>_<N>``)
+    :return: The folder and its ``args.yml``
+    :raises FileNotFoundError: When it is not a run folder
+    :raises ValueError: When the run is not an ICRL run
+    """
+    from sb3_icrl.zoo.hyperparams import ICRL_ALGOS
+
+    run = pathlib.Path(run_folder)
+    if not run.is_dir():
+        raise FileNotFoundError(f"No run folder {run}.")
+    args = _read_args(run)
+    if args.get("algo") not in ICRL_ALGOS:
+        raise ValueError(f"{run} is a {args.get('algo')} run: only ICRL runs ({', '.join(ICRL_ALGOS)}) learn a constraint.")
+    return run, args
+
+
+def _load_run_policy(run: pathlib.Path, which: str = "final") -> tuple[Any, dict[str, Any], str | None]:
+    """The model saved in a run folder, its arguments and its VecNormalize statistics."""
+    from sb3_icrl.zoo.hyperparams import ALGOS, env_name, import_gym_packages, resolve_env_id
+    from sb3_icrl.zoo.runs import find_vecnormalize
+
+    args = _read_args(run)
+    import_gym_packages(args.get("gym_packages"))
+    name = env_name(resolve_env_id(args["env"]))
+    candidates = {"final": run / f"{name}.zip", "best": run / "best_model.zip"}
+    path = candidates.get(which, pathlib.Path(which))
+    if not path.is_file():
+        raise FileNotFoundError(f"No model {path} (saved models there: {sorted(p.name for p in run.glob('*.zip'))}).")
+    model = ALGOS[args["algo"]].load(str(path), device="cpu")
+    return model, args, find_vecnormalize(str(path), name)
+
+
+def identify_run(
+    run_folder: str | os.PathLike,
+    model: str = "final",
+    n_episodes: int = 3,
+    unconstrained_run: str | os.PathLike | None = None,
+    seed: int = 0,
+    use_cache: bool = True,
+    save: bool = True,
+) -> dict[str, Any]:
+    """
+    Identification scores of a finished ICRL run's learned constraint, cached in ``<run>/identification.json``.
+
+    The probe set: the run's demonstrations, ``n_episodes`` of the learner's own episodes, ``n_episodes`` of an
+    unconstrained PPO run's (``unconstrained_run``, or :func:`find_unconstrained_run`) and the sweep; the budget is
+    the learner's as the run ended. Grid worlds: the cell map.
+
+    :param run_folder: The run folder ``<folder>/<algo>/<EnvName>_<N>``
+    :param model: ``"final"``, ``"best"`` or a path to a model zip
+    :param n_episodes: Episodes of the learner (and of the unconstrained agent)
+    :param unconstrained_run: A PPO run folder on the same env (default: one found near the run, if any)
+    :param seed: Seed of the episodes and draws
+    :param use_cache: Return the cached result when its settings match and it is newer than the model
+    :param save: Write the result to ``<run>/identification.json``
+    :return: ``{"settings": ..., "scores": ...}`` (scores: see :func:`identification_scores`)
+    """
+    from sb3_icrl.data import load_demonstrations
+    from sb3_icrl.zoo.hyperparams import resolve_env_id
+
+    run, args = read_icrl_run(run_folder)
+    unconstrained = pathlib.Path(unconstrained_run) if unconstrained_run is not None else find_unconstrained_run(run)
+    settings = {
+        "version": IDENTIFICATION_VERSION,
+        "model": model,
+        "n_episodes": n_episodes,
+        "seed": seed,
+        "unconstrained_run": None if unconstrained is None else os.path.relpath(unconstrained.resolve(), run.resolve()),
+    }
+    cache = run / IDENTIFICATION_FILE
+    if use_cache and cache.is_file():
+        with open(cache) as file:
+            saved = json.load(file)
+        newest_model = max((p.stat().st_mtime for p in run.glob("*.zip")), default=0.0)
+        if saved.get("settings") == settings and cache.stat().st_mtime >= newest_model:
+            return saved
+
+    learner, _, stats = _load_run_policy(run, model)
+    env_id = resolve_env_id(args["env"])
+    env_kwargs = dict(args.get("env_kwargs") or {})
+    noise = float(args.get("transition_noise") or 0.0)
+    demonstrations = load_demonstrations(
+        args.get("demonstrations") or env_id.split("/")[-1], violating_fraction=args.get("violating_fraction")
+    )
+    transitions = demonstrations.transitions
+    expert = (np.asarray(transitions.obs), np.asarray(transitions.acts))
+    other: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    if not getattr(learner.constraint_net, "discrete_obs", False):
+        other["learner"] = policy_pairs(learner, env_id, env_kwargs, n_episodes, seed, stats, noise)
+        if unconstrained is not None:
+            agent, agent_args, agent_stats = _load_run_policy(unconstrained)
+            agent_noise = float(agent_args.get("transition_noise") or 0.0)
+            other["unconstrained"] = policy_pairs(agent, env_id, env_kwargs, n_episodes, seed, agent_stats, agent_noise)
+    scores = identify_model(learner, env_id, expert, env_kwargs, other, seed=seed)
+    result = {"settings": settings, "run": str(run), "algo": args["algo"], "env": env_id, "scores": scores}
+    if save:
+        atomic_write_json(cache, result, indent=2)
+    return result
+
+
+def headline(scores: Mapping[str, Any]) -> dict[str, float]:
+    """
+    The identification numbers a table shows: AUROC, and the threshold error at ``t = 0.5`` of the first constrained
+    feature (left out on grid worlds, whose constraint has no threshold).
+
+    :param scores: Scores of :func:`identification_scores` or :func:`grid_identification`
+    :return: ``{"identification_auroc": ..., "threshold_error": ...}``
+    """
+    row = {"identification_auroc": float(scores["auroc"])}
+    features = list(scores.get("features", {}).values())
+    if features:  # grid worlds have no threshold: no column rather than a NaN
+        row["threshold_error"] = float(features[0][_level_key("0.5")]["threshold_error"])
+    return row
+
+
+def methods_figure(
+    run_folders: Sequence[str | os.PathLike],
+    feature: str | None = None,
+    level: float | None = 0.5,
+    title: str | None = None,
+    n_episodes: int = 3,
+) -> Any:
+    """
+    Per method, the learned cost over the constrained feature of one env (one line per seed, their mean), the true
+    threshold marked: :func:`~sb3_icrl.plots.figures.methods_partial_dependence_figure` of the partial dependence
+    curves of :func:`identify_run` (computed once, then read from each run's ``identification.json``).
+
+    :param run_folders: ICRL run folders, all on one env
+    :param feature: The constrained feature to plot (its name) when the env has several (default: the first)
+    :param level: A level ``t`` drawn as a dotted line
+    :param title: Figure title (default: the env)
+    :param n_episodes: Learner episodes of the probe set, for runs not scored yet
+    :return: The figure
+    """
+    from sb3_icrl.plots.figures import methods_partial_dependence_figure
+
+    if not run_folders:
+        raise ValueError("No run folder given: pass the ICRL runs to compare.")
+    curves: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
+    envs: set[str] = set()
+    chosen, threshold, op = feature, float("nan"), "<="
+    for folder in run_folders:
+        result = identify_run(folder, n_episodes=n_episodes)
+        envs.add(result["env"])
+        features = result["scores"].get("features", {})
+        if not features:
+            raise ValueError(f"{folder}: the env's constraint is not a threshold on a feature (a grid world?): no curve.")
+        chosen = chosen or next(iter(features))
+        if chosen not in features:
+            raise ValueError(f"Unknown feature {chosen!r} for {folder}: its env constrains {', '.join(features)}.")
+        entry = features[chosen]
+        threshold, op = entry["threshold"], entry["op"]
+        curve = (np.asarray(entry["curve"]["values"]), np.asarray(entry["curve"]["mean_cost"]))
+        curves.setdefault(str(result["algo"]).upper(), []).append(curve)
+    if len(envs) > 1:
+        raise ValueError(f"The runs trained on different envs ({sorted(envs)}): plot one env at a time.")
+    env = envs.pop().split("/")[-1]
+    return methods_partial_dependence_figure(curves, threshold, op, str(chosen), level=level, title=title or env)

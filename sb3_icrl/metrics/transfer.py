@@ -1,0 +1,384 @@
+"""
+Does a learned constraint transfer? A fresh PPO-Lagrangian is trained from scratch on the frozen learned cost of a
+finished ICRL run (budget and budget statistic as the run ended) on one of three tasks, beside two references trained
+the same way (same hyper-parameters, ``zoo_hyperparams/ppolag.yml``): PPO-Lagrangian on the true cost (the
+**oracle**) and unconstrained PPO::
+
+    sb3-icrl transfer logs/mecl/BlockedHalfCheetah-v0_1 --task reward -n 200000 --seed 0
+
+- ``same``: the env the constraint was learned on (with the run's transition noise);
+- ``reward``: a task whose reward pulls toward the constrained side (:data:`~sb3_icrl.envs.REWARD_TRANSFER_TASKS`,
+  e.g. ``BlockedHalfCheetahBackward-v0``), same observations and true constraint;
+- ``dynamics``: the env with transition noise :data:`DYNAMICS_NOISE` (:class:`~sb3_icrl.envs.TransitionNoiseWrapper`).
+
+The learner reads only the learned cost: its env is wrapped in a
+:class:`~sb3_icrl.constraints.wrappers.LearnedCostVecEnvWrapper`, which moves the true cost out of ``info["cost"]``.
+Each model is then evaluated on held-out episodes against the true cost (violation rate, feasible reward), and the
+results go into ``<run>/transfer_<task>.json`` (written atomically).
+"""
+
+import argparse
+import copy
+import inspect
+import json
+import os
+import pathlib
+import sys
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import torch as th
+
+from sb3_icrl.common.utils import atomic_write_json
+
+#: The transfer tasks
+TASKS = ("same", "reward", "dynamics")
+#: Transition noise of the ``dynamics`` task
+DYNAMICS_NOISE = 1e-2
+#: The learners of a transfer: the frozen learned cost, and the two references
+LEARNERS = ("learned", "oracle", "ppo")
+#: Bumped when the results change meaning
+TRANSFER_VERSION = 1
+
+
+def transfer_file(task: str) -> str:
+    """
+    :param task: One of :data:`TASKS`
+    :return: The name of the task's result file in a run folder
+    """
+    return f"transfer_{task}.json"
+
+
+def transfer_env(env_id: str, task: str, transition_noise: float = 0.0) -> tuple[str, float]:
+    """
+    The env and transition noise of a transfer task.
+
+    :param env_id: The env the constraint was learned on
+    :param task: One of :data:`TASKS`
+    :param transition_noise: The noise the constraint was learned with (kept by ``same``)
+    :return: ``(env id, transition noise)``
+    """
+    from sb3_icrl.envs import NAMESPACE, REWARD_TRANSFER_TASKS
+
+    if task not in TASKS:
+        raise ValueError(f"Unknown transfer task {task!r}: choose one of {', '.join(TASKS)}.")
+    if task == "same":
+        return env_id, transition_noise
+    if task == "dynamics":
+        return env_id, DYNAMICS_NOISE
+    name = env_id.split("/", 1)[1] if env_id.startswith(f"{NAMESPACE}/") else env_id
+    if name not in REWARD_TRANSFER_TASKS:
+        raise ValueError(
+            f"{env_id} has no reward-transfer task; envs with one: {', '.join(sorted(REWARD_TRANSFER_TASKS))}. "
+            "Use --task same or --task dynamics."
+        )
+    return f"{NAMESPACE}/{REWARD_TRANSFER_TASKS[name]}", transition_noise
+
+
+def _wrapper_class(params: dict[str, Any], transition_noise: float) -> Any:
+    """The yml's env wrappers under the task's transition noise, as ``train.py`` wraps its envs."""
+    from sb3_icrl.envs.wrappers import TransitionNoiseWrapper
+
+    wrappers = list(params.get("env_wrapper") or [])
+    if not wrappers and transition_noise <= 0:
+        return None
+
+    def wrap(env: Any) -> Any:
+        if transition_noise > 0:
+            env = TransitionNoiseWrapper(env, sigma=transition_noise)
+        for wrapper, kwargs in wrappers:
+            env = wrapper(env, **kwargs)
+        return env
+
+    return wrap
+
+
+def _ppo_kwargs(kwargs: dict[str, Any]) -> dict[str, Any]:
+    """The PPO-Lagrangian keyword arguments that plain PPO takes too (the cost critic's own settings dropped)."""
+    from stable_baselines3 import PPO
+
+    accepted = set(inspect.signature(PPO.__init__).parameters)
+    kept = {key: value for key, value in kwargs.items() if key in accepted}
+    if isinstance(kept.get("policy_kwargs"), dict):
+        kept["policy_kwargs"] = {key: value for key, value in kept["policy_kwargs"].items() if not key.startswith("cost_")}
+    return kept
+
+
+def train_learner(
+    learner: str,
+    env_id: str,
+    env_kwargs: dict[str, Any],
+    transition_noise: float,
+    params: dict[str, Any],
+    n_timesteps: int,
+    seed: int,
+    cost_fn: Any = None,
+    budget: float | None = None,
+    budget_statistic: str | None = None,
+) -> tuple[Any, Any]:
+    """
+    Train one learner of a transfer from scratch.
+
+    :param learner: ``"learned"`` (PPO-Lagrangian on ``cost_fn``), ``"oracle"`` (PPO-Lagrangian on the true cost) or
+        ``"ppo"`` (unconstrained)
+    :param env_id: The task's env
+    :param env_kwargs: Its keyword arguments
+    :param transition_noise: Its transition noise
+    :param params: Preprocessed PPO-Lagrangian hyper-parameters (:func:`~sb3_icrl.zoo.hyperparams.preprocess_hyperparams`)
+    :param n_timesteps: Training steps
+    :param seed: Seed
+    :param cost_fn: The frozen learned cost (``learned`` only)
+    :param budget: The learned cost's budget (``learned`` only)
+    :param budget_statistic: Its statistic, ``"step"`` or ``"episode"`` (``learned`` only)
+    :return: The model and its training env (``VecNormalize`` statistics inside, when normalising)
+    """
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    from sb3_icrl import PPOLagrangian
+    from sb3_icrl.constraints.wrappers import LearnedCostVecEnvWrapper
+    from sb3_icrl.zoo.hyperparams import algo_kwargs
+
+    if learner not in LEARNERS:
+        raise ValueError(f"Unknown learner {learner!r}: choose one of {', '.join(LEARNERS)}.")
+    venv: Any = make_vec_env(
+        env_id,
+        n_envs=params["n_envs"],
+        seed=seed,
+        env_kwargs=env_kwargs,
+        wrapper_class=_wrapper_class(params, transition_noise),
+        vec_env_cls=DummyVecEnv,
+    )
+    kwargs = algo_kwargs(params)
+    kwargs.pop("policy", None)
+    if learner == "learned":
+        if cost_fn is None or budget is None:
+            raise ValueError("The 'learned' learner needs the learned cost_fn and its budget.")
+        # The learner reads the learned cost in info["cost"]; the true one is moved away, for evaluation only
+        venv = LearnedCostVecEnvWrapper(venv, cost_fn)
+        kwargs.update(cost_budget=float(budget), budget_statistic=budget_statistic or kwargs.get("budget_statistic", "step"))
+    if params["normalize"]:
+        venv = VecNormalize(venv, **dict(params.get("normalize_kwargs") or {}))
+    if learner == "ppo":
+        model: Any = PPO(params["policy"], venv, seed=seed, verbose=0, **_ppo_kwargs(kwargs))
+    else:
+        model = PPOLagrangian(params["policy"], venv, seed=seed, verbose=0, **kwargs)
+    model.learn(n_timesteps)
+    return model, venv
+
+
+def evaluate_learner(
+    model: Any,
+    train_env: Any,
+    env_id: str,
+    env_kwargs: dict[str, Any],
+    transition_noise: float,
+    params: dict[str, Any],
+    n_episodes: int,
+    eval_seed: int,
+) -> dict[str, float]:
+    """
+    Held-out episodes of a trained learner against the true cost (``info["cost"]`` of the raw task env).
+
+    :return: ``violation_rate``, ``feasible_reward``, ``reward``, ``mean_cost``, ``n_episodes``
+    """
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    from sb3_icrl.common.evaluation import evaluate_constraint
+
+    venv: Any = make_vec_env(
+        env_id,
+        n_envs=1,
+        seed=eval_seed,
+        env_kwargs=env_kwargs,
+        wrapper_class=_wrapper_class(params, transition_noise),
+        vec_env_cls=DummyVecEnv,
+    )
+    if isinstance(train_env, VecNormalize):
+        venv = VecNormalize(venv, training=False, norm_reward=False, norm_obs=train_env.norm_obs)
+        venv.obs_rms, venv.clip_obs = copy.deepcopy(train_env.obs_rms), train_env.clip_obs
+    evaluation = evaluate_constraint(model, venv, n_episodes, seed=eval_seed)
+    venv.close()
+    return {
+        "violation_rate": evaluation.violation_rate,
+        "feasible_reward": evaluation.mean_feasible_reward,
+        "reward": evaluation.mean_reward,
+        "mean_cost": evaluation.mean_cost,
+        "n_episodes": len(evaluation.violations),
+    }
+
+
+def feasible_reward_ratio(learned: float, oracle: float) -> float:
+    """
+    The learned-cost learner's feasible reward as a share of the oracle's.
+
+    :return: ``learned / oracle``; ``nan`` when the oracle's feasible reward is not positive (no scale to compare to)
+    """
+    return float(learned / oracle) if oracle > 0 else float("nan")
+
+
+def run_transfer(
+    run_folder: str | os.PathLike,
+    task: str,
+    n_timesteps: int | None = None,
+    seed: int = 0,
+    eval_episodes: int = 10,
+    eval_seed: int = 100,
+    references: bool = True,
+    model: str = "final",
+    log: Any = print,
+) -> dict[str, Any]:
+    """
+    Train the learned-cost learner (and the references) on a transfer task, evaluate them and write
+    ``<run>/transfer_<task>.json``.
+
+    :param run_folder: A finished ICRL run folder ``<folder>/<algo>/<EnvName>_<N>``
+    :param task: One of :data:`TASKS`
+    :param n_timesteps: Training steps of each learner (default: the ``ppolag.yml`` entry's)
+    :param seed: Seed of the learners
+    :param eval_episodes: Held-out episodes per learner
+    :param eval_seed: Seed of the held-out episodes
+    :param references: Also train the oracle and unconstrained PPO
+    :param model: The run's model whose constraint is frozen: ``"final"``, ``"best"`` or a path
+    :param log: Where progress lines go
+    :return: The JSON written
+    """
+    from sb3_icrl.metrics.identification import _load_run_policy, read_icrl_run
+    from sb3_icrl.zoo.hyperparams import load_hyperparams, preprocess_hyperparams, resolve_env_id
+
+    run, args = read_icrl_run(run_folder)
+    if n_timesteps is not None and n_timesteps < 1:
+        raise ValueError(f"-n/--n-timesteps must be >= 1, got {n_timesteps}.")
+    if eval_episodes < 1:
+        raise ValueError(f"--eval-episodes must be >= 1, got {eval_episodes}.")
+    source_env = resolve_env_id(args["env"])
+    env_kwargs = dict(args.get("env_kwargs") or {})
+    env_id, noise = transfer_env(source_env, task, float(args.get("transition_noise") or 0.0))
+    icrl_model, _, _ = _load_run_policy(run, model)
+    budget = float(np.asarray(icrl_model.cost_budget).reshape(-1)[0])
+    budget_statistic = str(getattr(icrl_model, "budget_statistic", "step"))
+    entry, key = load_hyperparams("ppolag", source_env)  # the source robot's recipe, for all three learners
+    params = preprocess_hyperparams(entry)
+    steps = int(n_timesteps) if n_timesteps is not None else params["n_timesteps"]
+
+    results: dict[str, dict[str, float]] = {}
+    for learner in LEARNERS if references else ("learned",):
+        start = time.time()
+        log(f"transfer ({task}) on {env_id}: training {learner} for {steps} steps")
+        trained, train_env = train_learner(
+            learner,
+            env_id,
+            env_kwargs,
+            noise,
+            params,
+            steps,
+            seed,
+            cost_fn=icrl_model.constraint_cost if learner == "learned" else None,
+            budget=budget,
+            budget_statistic=budget_statistic,
+        )
+        results[learner] = evaluate_learner(trained, train_env, env_id, env_kwargs, noise, params, eval_episodes, eval_seed)
+        results[learner]["wall_time_min"] = (time.time() - start) / 60.0
+        train_env.close()
+    summary: dict[str, Any] = {
+        "settings": {
+            "version": TRANSFER_VERSION,
+            "task": task,
+            "env": env_id,
+            "source_env": source_env,
+            "env_kwargs": env_kwargs,
+            "transition_noise": noise,
+            "n_timesteps": steps,
+            "seed": seed,
+            "eval_episodes": eval_episodes,
+            "eval_seed": eval_seed,
+            "model": model,
+            "budget": budget,
+            "budget_statistic": budget_statistic,
+            "hyperparams": f"ppolag.yml:{key}",
+        },
+        "results": results,
+        "violation_rate": results["learned"]["violation_rate"],
+        "feasible_reward_ratio": (
+            feasible_reward_ratio(results["learned"]["feasible_reward"], results["oracle"]["feasible_reward"])
+            if "oracle" in results
+            else float("nan")
+        ),
+    }
+    atomic_write_json(run / transfer_file(task), summary, indent=2)
+    return summary
+
+
+def read_transfers(run_folder: str | os.PathLike) -> dict[str, dict[str, Any]]:
+    """
+    The transfer results saved in a run folder.
+
+    :param run_folder: A run folder
+    :return: ``{task: transfer JSON}`` for each task run so far
+    """
+    found = {}
+    for task in TASKS:
+        path = pathlib.Path(run_folder) / transfer_file(task)
+        if path.is_file():
+            with open(path) as file:
+                found[task] = json.load(file)
+    return found
+
+
+def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
+    """The parser of ``sb3-icrl transfer``."""
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("run", help="A finished ICRL run folder <folder>/<algo>/<EnvName>_<N>")
+    parser.add_argument("--task", required=True, choices=TASKS, help="same env, reward toward the constraint, noisy dynamics")
+    parser.add_argument(
+        "-n", "--n-timesteps", type=int, default=None, help="Training steps per learner (default: ppolag.yml's)"
+    )
+    parser.add_argument("--seed", type=int, default=0, help="Seed of the learners")
+    parser.add_argument("--eval-episodes", type=int, default=10, help="Held-out episodes per learner")
+    parser.add_argument("--eval-seed", type=int, default=100, help="Seed of the held-out episodes")
+    parser.add_argument("--model", default="final", help="'final', 'best' or a path: whose constraint is frozen")
+    parser.add_argument("--no-references", action="store_true", help="Train only the learned-cost learner")
+    parser.add_argument("--num-threads", type=int, default=1, help="Torch threads (default 1)")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None, prog: str | None = None) -> int:
+    """
+    ``sb3-icrl transfer``.
+
+    :param argv: Arguments (default: ``sys.argv[1:]``)
+    :param prog: Program name in the usage line
+    :return: Exit status: 0, or 2 after a clear error
+    """
+    args = get_parser(prog).parse_args(argv)
+    th.set_num_threads(max(1, args.num_threads))
+    try:
+        summary = run_transfer(
+            args.run,
+            args.task,
+            n_timesteps=args.n_timesteps,
+            seed=args.seed,
+            eval_episodes=args.eval_episodes,
+            eval_seed=args.eval_seed,
+            references=not args.no_references,
+            model=args.model,
+        )
+    except (FileNotFoundError, ValueError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    for learner, result in summary["results"].items():
+        print(
+            f"{learner:>8}: violation rate {result['violation_rate']:.0%}, feasible reward {result['feasible_reward']:.1f}, "
+            f"reward {result['reward']:.1f} ({result['n_episodes']} episodes)"
+        )
+    print(f"feasible reward / oracle's: {summary['feasible_reward_ratio']:.2f}")
+    print(f"Saved {os.path.join(args.run, transfer_file(args.task))}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

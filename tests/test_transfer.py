@@ -1,0 +1,169 @@
+"""Transfer of learned constraints: the transfer envs' rewards and constraints, and ``sb3-icrl transfer`` end to end."""
+
+import json
+import os
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env as gymnasium_check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+import sb3_icrl.envs  # noqa: F401  (registers the environments)
+from sb3_icrl.benchmark.report import constraint_metrics
+from sb3_icrl.benchmark.suite import RunSpec
+from sb3_icrl.envs import ENV_SPECS, REWARD_TRANSFER_TASKS, TRANSFER_ENV_SPECS
+from sb3_icrl.metrics.transfer import DYNAMICS_NOISE, feasible_reward_ratio, read_transfers, train_learner, transfer_env
+from sb3_icrl.zoo.compare import RunResult
+from sb3_icrl.zoo.hyperparams import load_hyperparams, preprocess_hyperparams
+from sb3_icrl.zoo.train import cli
+from sb3_icrl.zoo.train import main as train_main
+
+# transfer task -> (direction of x that pays, a safe x, an unsafe x)
+DIRECTION = {
+    "BlockedHalfCheetahBackward-v0": (-1.0, 0.0, -3.5),
+    "BlockedAntBackward-v0": (-1.0, 0.0, -3.5),
+    "BlockedWalkerBackward-v0": (-1.0, 0.0, -3.5),
+    "BlockedSwimmerForward-v0": (1.0, 0.0, 0.6),
+}
+
+
+def make(name: str, **kwargs) -> gym.Env:
+    return gym.make(f"sb3_icrl/{name}", **kwargs)
+
+
+def place(env: gym.Env, x: float, x_velocity: float = 0.0) -> None:
+    """Put the robot at ``x`` in its initial pose, at rest apart from ``x_velocity``."""
+    base = env.unwrapped
+    qpos, qvel = base.init_qpos.copy(), np.zeros_like(base.init_qvel)
+    qpos[0], qvel[0] = x, x_velocity
+    base.set_state(qpos, qvel)
+
+
+def test_every_reward_task_is_registered_with_its_source_spaces():
+    assert set(REWARD_TRANSFER_TASKS.values()) == set(TRANSFER_ENV_SPECS)
+    for source, task in REWARD_TRANSFER_TASKS.items():
+        assert source in ENV_SPECS
+        source_env, task_env = make(source), make(task)
+        assert task_env.observation_space == source_env.observation_space
+        assert task_env.action_space == source_env.action_space
+        assert task_env.spec.max_episode_steps == source_env.spec.max_episode_steps
+
+
+@pytest.mark.filterwarnings("ignore:.*(infinity|symmetric and normalized).*:UserWarning")
+@pytest.mark.parametrize("name", sorted(TRANSFER_ENV_SPECS))
+def test_env_checkers(name):
+    env = make(name)
+    gymnasium_check_env(env.unwrapped, skip_render_check=True)
+    sb3_check_env(env)
+
+
+@pytest.mark.filterwarnings("ignore:.*(infinity|symmetric and normalized).*:UserWarning")
+@pytest.mark.parametrize("name", sorted(DIRECTION))
+def test_reward_pulls_toward_the_constrained_side(name):
+    direction, safe_x, _ = DIRECTION[name]
+    env = make(name)
+    action = np.zeros(env.action_space.shape)
+    rewards = {}
+    for sign in (1.0, -1.0):
+        env.reset(seed=0)
+        place(env, safe_x, x_velocity=2.0 * sign)
+        _, reward, _, _, info = env.step(action)
+        rewards[sign] = (reward, info)
+    toward, away = rewards[direction], rewards[-direction]
+    assert toward[0] > away[0]
+    assert toward[1]["reward_forward"] > 0 > away[1]["reward_forward"]
+    # Moving toward the line pays the speed (weight 1), signed
+    assert toward[1]["reward_forward"] == pytest.approx(direction * toward[1]["x_velocity"])
+
+
+@pytest.mark.parametrize("name", sorted(DIRECTION))
+def test_true_constraint_is_the_source_envs(name):
+    _, safe_x, unsafe_x = DIRECTION[name]
+    env = make(name)
+    action = np.zeros(env.action_space.shape)
+    for x, cost in ((safe_x, 0.0), (unsafe_x, 1.0)):
+        env.reset(seed=0)
+        place(env, x)
+        assert env.step(action)[4]["cost"] == cost
+
+
+def test_pendulum_task_pays_most_beyond_the_wall():
+    source, task = make("BiasedPendulum-v0").unwrapped, make("BiasedPendulumFarLeft-v0").unwrapped
+    assert task.cost_threshold == source.cost_threshold
+    # At x = -0.02 (just behind the wall at -0.015) the source already pays in full, the task less than deeper left
+    assert source.biased_reward(-0.02) == source.high_reward
+    assert task.biased_reward(-0.02) < task.biased_reward(-0.05) == task.high_reward
+    assert task.biased_reward(0.0) == source.biased_reward(0.0)
+
+
+def test_transfer_env_of_each_task():
+    env_id = "sb3_icrl/BlockedHalfCheetah-v0"
+    assert transfer_env(env_id, "same", 0.05) == (env_id, 0.05)
+    assert transfer_env(env_id, "dynamics") == (env_id, DYNAMICS_NOISE) == (env_id, 1e-2)
+    assert transfer_env(env_id, "reward") == ("sb3_icrl/BlockedHalfCheetahBackward-v0", 0.0)
+    with pytest.raises(ValueError, match="no reward-transfer task"):
+        transfer_env("sb3_icrl/GridWorldWall-v0", "reward")
+    with pytest.raises(ValueError, match="Unknown transfer task"):
+        transfer_env(env_id, "colour")
+    assert feasible_reward_ratio(50.0, 100.0) == 0.5 and np.isnan(feasible_reward_ratio(10.0, 0.0))
+
+
+def test_learned_cost_learner_reads_only_the_learned_cost():
+    params = preprocess_hyperparams(load_hyperparams("ppolag", "sb3_icrl/GridWorldWall-v0")[0])
+    params.update(n_steps=32, batch_size=32, n_epochs=1)
+    seen = []
+
+    def cost_fn(observations, actions):
+        seen.append(len(observations))
+        return np.full(len(observations), 0.25, dtype=np.float32)
+
+    model, venv = train_learner(
+        "learned", "sb3_icrl/GridWorldWall-v0", {}, 0.0, params, 32, 0, cost_fn=cost_fn, budget=0.1, budget_statistic="step"
+    )
+    assert sum(seen) >= 32 and model.cost_budget[0] == pytest.approx(0.1)
+    np.testing.assert_allclose(model.rollout_buffer.costs, 0.25)  # never the env's own 0/1 cost
+    venv.close()
+    with pytest.raises(ValueError, match="cost_fn"):
+        train_learner("learned", "sb3_icrl/GridWorldWall-v0", {}, 0.0, params, 32, 0)
+
+
+@pytest.fixture(scope="module")
+def grid_run(tmp_path_factory):
+    root = tmp_path_factory.mktemp("logs")
+    argv = ["--algo", "bc2l", "--env", "GridWorldWall-v0", "-n", "256", "-f", str(root), "--seed", "0"]
+    assert train_main([*argv, "--eval-freq", "0", "--save-freq", "0", "--num-threads", "1", "--verbose", "0"]) == 0
+    return str(root / "bc2l" / "GridWorldWall-v0_1")
+
+
+def test_transfer_command_end_to_end(grid_run, capsys):
+    assert cli(["transfer", grid_run, "--task", "same", "-n", "64", "--eval-episodes", "2", "--seed", "1"]) == 0
+    assert "feasible reward / oracle's" in capsys.readouterr().out
+    with open(os.path.join(grid_run, "transfer_same.json")) as file:
+        saved = json.load(file)
+    assert set(saved["results"]) == {"learned", "oracle", "ppo"}
+    for result in saved["results"].values():
+        assert 0.0 <= result["violation_rate"] <= 1.0 and result["n_episodes"] == 2
+    settings = saved["settings"]
+    assert settings["task"] == "same" and settings["n_timesteps"] == 64 and settings["seed"] == 1
+    assert settings["env"] == "sb3_icrl/GridWorldWall-v0" and settings["transition_noise"] == 0.0
+    assert saved["violation_rate"] == saved["results"]["learned"]["violation_rate"]
+    assert read_transfers(grid_run) == {"same": saved}
+    # The benchmark report shows it
+    root = os.path.dirname(os.path.dirname(grid_run))
+    run = RunSpec("smoke", "base", "bc2l", "sb3_icrl/GridWorldWall-v0", 0, 256)
+    result = RunResult(os.path.relpath(grid_run, root), "bc2l", run.env_id, 0, 256, 0.1, 0.0, 1.0, 1.0, 2)
+    columns = constraint_metrics([(run, result)], root, log=lambda line: None)[result.run]
+    assert columns["transfer_same_violation_rate"] == saved["violation_rate"]
+    assert "identification_auroc" in columns
+
+
+def test_transfer_command_refuses_bad_input(grid_run, tmp_path, capsys):
+    assert cli(["transfer", str(tmp_path / "missing"), "--task", "same"]) == 2
+    assert "No run folder" in capsys.readouterr().err
+    assert cli(["transfer", grid_run, "--task", "same", "-n", "0"]) == 2
+    assert "-n/--n-timesteps must be >= 1" in capsys.readouterr().err
+    assert cli(["transfer", grid_run, "--task", "reward", "-n", "64"]) == 2
+    assert "no reward-transfer task" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        cli(["transfer", grid_run, "--task", "colour"])
