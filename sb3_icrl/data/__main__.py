@@ -4,6 +4,8 @@ Command line for demonstrations::
     python -m sb3_icrl.data generate --env BlockedHalfCheetah-v0 --expert expert.zip --vecnormalize vecnormalize.pkl \\
         --n 50 --out BlockedHalfCheetah-v0.npz [--violating-fraction 0.2] [--seed 0] [--no-deterministic]
     python -m sb3_icrl.data generate --env GridWorldWall-v0 --expert pilag --n 50 --out GridWorldWall-v0.npz
+    # the expert of a train.py run: its env, model and VecNormalize statistics ([--model best|final])
+    python -m sb3_icrl.data generate --run logs/ppolag/MyEnv-v0_1 --n 50 --out MyEnv-v0.npz
     python -m sb3_icrl.data shipped   # regenerate the datasets shipped with the package
     python -m sb3_icrl.data list      # list them
     python -m sb3_icrl.data table     # Markdown table of them (the README's)
@@ -11,12 +13,15 @@ Command line for demonstrations::
 """
 
 import argparse
+import glob
 import json
+import os
 import shlex
 import sys
 from collections.abc import Sequence
+from typing import Any
 
-from sb3_icrl.data.generate import EXPERT_ALGORITHMS, build_dataset
+from sb3_icrl.data.generate import EXPERT_ALGORITHMS, build_dataset, resolve_env_id
 from sb3_icrl.data.registry import (
     DEMONSTRATIONS_DIR,
     available_demonstrations,
@@ -32,10 +37,17 @@ def _parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True)
 
     generate = commands.add_parser("generate", help="Run an expert and save the trajectories that respect the constraint.")
-    generate.add_argument("--env", required=True, help="Env id or benchmark name, e.g. BlockedHalfCheetah-v0")
     generate.add_argument(
-        "--expert", required=True, help="'pilag' (train PI-Lagrangian, grid world), a PILagrangian .npz or an SB3 .zip"
+        "--env", default=None, help="Env id or benchmark name, e.g. BlockedHalfCheetah-v0 or MODULE:myns/MyEnv-v0"
     )
+    generate.add_argument(
+        "--expert", default=None, help="'pilag' (train PI-Lagrangian, grid world), a PILagrangian .npz or an SB3 .zip"
+    )
+    generate.add_argument(
+        "--run", default=None, help="A train.py run folder of the expert (instead of --env, --expert, --vecnormalize)"
+    )
+    generate.add_argument("--model", choices=["final", "best"], default="final", help="With --run: the model to use")
+    generate.add_argument("--gym-packages", nargs="+", default=[], help="Modules to import first: they register your own envs")
     generate.add_argument("--algo", default="ppolag", choices=sorted(EXPERT_ALGORITHMS), help="Algorithm of a .zip expert")
     generate.add_argument("--vecnormalize", default=None, help="VecNormalize statistics saved with the expert")
     generate.add_argument("--n", type=int, default=50, help="Trajectories to keep")
@@ -65,6 +77,107 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+def expert_of_run(run: str, model: str = "final") -> dict[str, Any]:
+    """
+    The expert of a ``train.py`` run folder: its env, model, algorithm, ``VecNormalize`` statistics and the modules
+    that register its env.
+
+    :param run: The run folder ``<folder>/<algo>/<EnvName>_<N>``
+    :param model: ``"final"`` (``<EnvName>.zip``) or ``"best"`` (``best_model.zip``)
+    :return: ``env``, ``expert``, ``algo``, ``vecnormalize``, ``env_kwargs`` and ``gym_packages``
+    :raises FileNotFoundError: When the folder, its ``args.yml``, the model or its statistics are missing
+    :raises ValueError: When the run's algorithm cannot be an expert
+    """
+    import yaml
+
+    from sb3_icrl.zoo.hyperparams import env_name, import_gym_packages, resolve_env_id
+    from sb3_icrl.zoo.runs import failure, run_vecnormalize
+
+    if not os.path.isdir(run):
+        raise FileNotFoundError(f"No run folder {run}.")
+    found = sorted(glob.glob(os.path.join(run, "*", "args.yml")))
+    if not found:
+        raise FileNotFoundError(f"{run} is not a train.py run folder: no <EnvName>/args.yml in it.")
+    with open(found[0]) as file:
+        run_args = yaml.safe_load(file) or {}
+    algo = run_args.get("algo")
+    if algo not in EXPERT_ALGORITHMS:
+        raise ValueError(f"{run} is a {algo} run; an expert is one of {', '.join(sorted(EXPERT_ALGORITHMS))}.")
+    gym_packages = list(run_args.get("gym_packages") or [])
+    import_gym_packages(gym_packages)  # a user's env registers itself on import
+    env_id = resolve_env_id(run_args["env"])
+    name = env_name(env_id)
+    path = os.path.join(run, f"{name}.zip" if model == "final" else "best_model.zip")
+    reason = failure(run)
+    if model == "final" and reason is not None:
+        raise ValueError(f"{run} failed ({reason}), so it has no final model: use --model best, or finish the run first.")
+    if not os.path.isfile(path):
+        there = sorted(entry for entry in os.listdir(run) if entry.endswith(".zip"))
+        raise FileNotFoundError(f"No {os.path.basename(path)} in {run}; models there: {', '.join(there) or 'none'}.")
+    return {
+        "env": env_id,
+        "expert": path,
+        "algo": algo,
+        "vecnormalize": run_vecnormalize(run, path, name),
+        "env_kwargs": dict(run_args.get("env_kwargs") or {}),
+        "gym_packages": gym_packages,
+    }
+
+
+def regeneration_command(args: argparse.Namespace, argv: Sequence[str]) -> str:
+    """
+    Complete ``args`` of ``generate`` (from ``--run``, and importing ``--gym-packages``) and return the command that
+    regenerates the file: env, expert and statistics spelled out, with the modules that register the env.
+
+    :param args: Parsed ``generate`` arguments (completed in place)
+    :param argv: The command line as given
+    :return: The command, for the sidecar
+    """
+    from sb3_icrl.zoo.hyperparams import import_gym_packages
+
+    import_gym_packages(args.gym_packages)
+    if args.run is not None:
+        if args.expert is not None or args.vecnormalize is not None:
+            raise ValueError(
+                "--run takes the expert and its statistics from the run folder: leave out --expert and --vecnormalize."
+            )
+        found = expert_of_run(args.run, args.model)
+        if args.env is not None and resolve_env_id(args.env) != found["env"]:
+            raise ValueError(f"{args.run} trained on {found['env']}, not on {args.env}: leave out --env.")
+        args.env, args.expert, args.algo, args.vecnormalize = (
+            found["env"],
+            found["expert"],
+            found["algo"],
+            found["vecnormalize"],
+        )
+        args.env_kwargs = {**found["env_kwargs"], **args.env_kwargs}
+        args.gym_packages = list(dict.fromkeys([*args.gym_packages, *found["gym_packages"]]))
+    elif args.env is None or args.expert is None:
+        raise ValueError("generate needs --env and --expert, or --run with a train.py run folder of the expert.")
+    if args.run is None:  # the command as given names the env's modules already (--gym-packages, MODULE:EnvId)
+        return shlex.join(["python", "-m", "sb3_icrl.data", *argv])
+    words = ["python", "-m", "sb3_icrl.data", "generate", "--env", resolve_env_id(args.env), "--expert", args.expert]
+    words += ["--algo", args.algo] + (["--vecnormalize", args.vecnormalize] if args.vecnormalize else [])
+    words += ["--gym-packages", *args.gym_packages] if args.gym_packages else []
+    words += ["--env-kwargs", json.dumps(args.env_kwargs)] if args.env_kwargs else []
+    words += ["--n", str(args.n), "--out", args.out, "--violating-fraction", f"{args.violating_fraction:g}"]
+    words += ["--random-action-prob", f"{args.random_action_prob:g}", "--seed", str(args.seed)]
+    words += ["--deterministic" if args.deterministic else "--no-deterministic"]
+    words += ["--max-attempts", str(args.max_attempts)] if args.max_attempts is not None else []
+    return shlex.join(words)
+
+
+def _check_output_folder(out: str) -> None:
+    """Fail before any rollout when ``--out`` cannot be written: a file where a folder should be."""
+    folder = os.path.dirname(os.path.abspath(out))
+    while not os.path.exists(folder):
+        folder = os.path.dirname(folder)
+    if not os.path.isdir(folder):
+        raise ValueError(f"--out {out!r} cannot be written: {folder} is a file, not a folder.")
+    if os.path.isdir(out):
+        raise ValueError(f"--out {out!r} is a folder: give the path of the .npz file to write.")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """
     :param argv: Command-line arguments (default: ``sys.argv[1:]``)
@@ -74,6 +187,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     try:
         if args.command == "generate":
+            _check_output_folder(args.out)
+            if args.seed < 0:
+                raise ValueError(f"--seed must be an integer >= 0, got {args.seed}.")
+            command = regeneration_command(args, argv)
             sidecar = build_dataset(
                 args.out,
                 args.env,
@@ -82,7 +199,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 env_kwargs=args.env_kwargs,
                 algo=args.algo,
                 vec_normalize_path=args.vecnormalize,
-                command=shlex.join(["python", "-m", "sb3_icrl.data", *argv]),
+                command=command,
                 violating_fraction=args.violating_fraction,
                 random_action_prob=args.random_action_prob,
                 seed=args.seed,
@@ -106,7 +223,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             demos = load_demonstrations(args.name_or_path, violating_fraction=args.violating_fraction)
             keys = ("env_id", "n_trajectories", "n_transitions", "mean_return", "std_return", "violating_share", "sha256")
             print(json.dumps({key: demos.metadata.get(key) for key in keys}, indent=2))
-    except (DemonstrationError, ValueError, FileNotFoundError, RuntimeError) as error:
+    except (DemonstrationError, ValueError, OSError, RuntimeError) as error:
+        # OSError: e.g. an --out whose folder is a file or not writable
         print(f"error: {error}", file=sys.stderr)
         return 1
     return 0

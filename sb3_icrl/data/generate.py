@@ -215,8 +215,14 @@ def generate_demonstrations(
         raise ValueError(f"`n_trajectories` must be >= 1, got {n_trajectories}.")
     if not 0.0 <= violating_fraction <= 1.0:
         raise ValueError(f"`violating_fraction` is a share of trajectories in [0, 1], got {violating_fraction}.")
-    if not 0.0 < random_action_prob <= 1.0 and violating_fraction > 0:
-        raise ValueError(f"`random_action_prob` must be in (0, 1] to inject violations, got {random_action_prob}.")
+    if not 0.0 <= random_action_prob <= 1.0 or (random_action_prob == 0 and violating_fraction > 0):
+        raise ValueError(
+            f"`random_action_prob` is a probability in [0, 1], > 0 to inject violations; got {random_action_prob}."
+        )
+    if seed is not None and not (isinstance(seed, (int, np.integer)) and seed >= 0):
+        raise ValueError(f"`seed` must be an integer >= 0 or None, got {seed!r}.")
+    if max_attempts is not None and max_attempts < n_trajectories:
+        raise ValueError(f"`max_attempts` ({max_attempts}) must be at least the {n_trajectories} trajectories to keep.")
     max_attempts = 20 * n_trajectories + 100 if max_attempts is None else max_attempts
     made_here = isinstance(env, str)
     env = gym.make(env) if isinstance(env, str) else env
@@ -295,9 +301,14 @@ def _give_up_message(n_kept: int, n_requested: int, attempts: int, counts: dict[
 
 def resolve_env_id(name: str) -> str:
     """
-    :param name: A registered id, or a benchmark name without the namespace (``"GridWorldWall-v0"``)
+    :param name: A registered id, a benchmark name without the namespace (``"GridWorldWall-v0"``), or gymnasium's
+        ``MODULE:EnvId`` (the module is imported: it registers the env)
     :return: The registered id
     """
+    if ":" in name:
+        from sb3_icrl.zoo.hyperparams import resolve_env_id as resolve_zoo_env_id
+
+        return resolve_zoo_env_id(name)
     if name in gym.registry:
         return name
     namespaced = f"{NAMESPACE}/{name}"

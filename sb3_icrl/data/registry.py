@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import gymnasium as gym
 from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_icrl.data.formats import is_imitation_dataset, load_imitation_dataset
 from sb3_icrl.data.generate import build_dataset, portable_path
 from sb3_icrl.data.serialize import DemonstrationError, load
 from sb3_icrl.data.types import Demonstrations
@@ -138,23 +139,35 @@ def load_demonstrations(
     env: gym.Env | VecEnv | str | None = None,
     violating_fraction: float | None = None,
     directory: str | os.PathLike = DEMONSTRATIONS_DIR,
+    allow_env_mismatch: bool = False,
 ) -> Demonstrations:
     """
     Load a shipped dataset by env name, or any file written by :func:`~sb3_icrl.data.serialize.save` by path.
 
-    :param name_or_path: Env name or id (``"GridWorldWall-v0"``, ``"sb3_icrl/GridWorldWall-v0"``) or a path to an ``.npz``
+    :param name_or_path: Env name or id (``"GridWorldWall-v0"``, ``"sb3_icrl/GridWorldWall-v0"``), a path to an ``.npz``,
+        or an ``imitation`` >= 1.0 dataset folder (:func:`~sb3_icrl.data.formats.load_imitation_dataset`)
     :param env: Optional target env whose observation and action spaces the data must fit
     :param violating_fraction: For names: the imperfect-expert variant (e.g. 0.2); ``None`` or 0: clean expert data
     :param directory: Where to look for names (default: the shipped datasets)
+    :param allow_env_mismatch: With ``env``: accept data recorded on another env id whose spaces fit
     :return: The trajectories and their metadata
     """
     text = os.fspath(name_or_path)
+    if os.path.isdir(text):
+        if not is_imitation_dataset(text):
+            raise DemonstrationError(
+                f"{text} is a folder but not a dataset: give an `.npz` file, an imitation >= 1.0 dataset folder (written by "
+                "`imitation.data.serialize.save`), or a shipped dataset's name."
+            )
+        if violating_fraction:
+            raise DemonstrationError("`violating_fraction` picks a shipped variant by name; drop it for a dataset folder.")
+        return load_imitation_dataset(text, env=env, allow_env_mismatch=allow_env_mismatch)
     if text.endswith(".npz") or os.path.isfile(text):
         if violating_fraction:
             raise DemonstrationError(
                 "`violating_fraction` picks a shipped variant by name; a path already names one file: drop the argument."
             )
-        return load(text, env=env)
+        return load(text, env=env, allow_env_mismatch=allow_env_mismatch)
     path = pathlib.Path(directory) / dataset_file_name(text, violating_fraction)
     if not path.is_file():
         raise DemonstrationError(
@@ -162,7 +175,7 @@ def load_demonstrations(
             f"in {directory}. Available: {_describe(available_demonstrations(directory))}. Generate others with "
             "`python -m sb3_icrl.data generate --env NAME --expert PATH --n 50 --out FILE` and load them by path."
         )
-    return load(path, env=env)
+    return load(path, env=env, allow_env_mismatch=allow_env_mismatch)
 
 
 def regenerate_shipped(

@@ -41,6 +41,7 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_icrl.common.utils import atomic_write_bytes
 from sb3_icrl.data.types import Demonstrations, Trajectory
+from sb3_icrl.envs import NAMESPACE
 
 #: Version of the file layout, stored in the sidecar
 FORMAT_VERSION = 1
@@ -151,6 +152,14 @@ def save(
         "indices": np.cumsum(lengths[:-1], dtype=np.int64),
         "costs": np.concatenate([t.costs for t in trajectories]),
     }
+    for key in ("obs", "acts", "rews", "costs"):
+        # load() refuses such a file: refuse to write it
+        _check_finite(key, arrays[key], f"Cannot save the trajectories to {os.fspath(path)}")
+    if np.any(arrays["costs"] < 0):
+        raise DemonstrationError(
+            f"Cannot save the trajectories to {os.fspath(path)}: `costs` holds negative values (min "
+            f"{float(arrays['costs'].min()):g}); a true cost counts violations and must be >= 0."
+        )
     content = _npz_bytes(arrays)
     sidecar = dict(metadata or {})
     sidecar.update(trajectory_statistics(trajectories))
@@ -294,6 +303,7 @@ def load(
     verify_checksum: bool = True,
     require_metadata: bool = True,
     load_infos: bool = False,
+    allow_env_mismatch: bool = False,
 ) -> Demonstrations:
     """
     Load and validate demonstrations written by :func:`save`.
@@ -306,6 +316,7 @@ def load(
     :param verify_checksum: Compare the archive's sha256 with the sidecar's
     :param require_metadata: Refuse an archive without its JSON sidecar
     :param load_infos: Also read ``infos`` (unpickles objects: only for files you trust); otherwise ``infos`` is ``None``
+    :param allow_env_mismatch: With ``env``: accept data whose sidecar names another env id (the spaces must still fit)
     :return: The trajectories and the sidecar's metadata
     """
     path = pathlib.Path(path)
@@ -329,7 +340,7 @@ def load(
             f"{source}: `infos` has {len(infos)} entries, expected one per action ({len(arrays['acts'])})."
         )
     if env is not None:
-        check_spaces(arrays["obs"], arrays["acts"], env, metadata)
+        check_spaces(arrays["obs"], arrays["acts"], env, metadata, allow_env_mismatch)
     trajectories = []
     for index, (start, end) in enumerate(itertools.pairwise(bounds)):
         trajectories.append(
@@ -359,6 +370,8 @@ def _space_mismatch(name: str, data: np.ndarray, space: spaces.Space) -> str | N
             return f"{name} have shape {data.shape[1:]} per step; {space} expects {space.shape}"
         if not np.can_cast(data.dtype, space.dtype, casting="same_kind"):
             return f"{name} are {data.dtype}; {space} holds {space.dtype}"
+        if data.dtype.kind == "f" and not np.all(np.isfinite(data)):
+            return f"{int(np.sum(~np.isfinite(data)))} values of the {name} are NaN or infinite"
         inside = (data >= space.low - _BOUNDS_TOLERANCE) & (data <= space.high + _BOUNDS_TOLERANCE)
         if not np.all(inside):
             return f"{int(np.sum(~inside))} values of the {name} lie outside the bounds of {space}"
@@ -369,27 +382,45 @@ def _space_mismatch(name: str, data: np.ndarray, space: spaces.Space) -> str | N
     return None
 
 
+def _env_id(env: Any) -> str | None:
+    """The registered id of a gymnasium env, a VecEnv's first env or an id (``None`` when it has none)."""
+    if isinstance(env, str):
+        return env
+    try:
+        spec = env.get_attr("spec", indices=[0])[0] if isinstance(env, VecEnv) else getattr(env, "spec", None)
+    except (AttributeError, IndexError):
+        return None
+    return getattr(spec, "id", None)
+
+
+def _same_env(first: str, second: str) -> bool:
+    prefix = f"{NAMESPACE}/"
+    return first.removeprefix(prefix) == second.removeprefix(prefix)
+
+
 def check_spaces(
     obs: np.ndarray,
     acts: np.ndarray,
     env: gym.Env | VecEnv | str,
     metadata: dict[str, Any] | None = None,
+    allow_env_mismatch: bool = False,
 ) -> None:
     """
-    Check that observations and actions fit the spaces of ``env``.
+    Check that observations and actions fit the spaces of ``env``, and that the data was recorded on it.
 
     :param obs: Observations, one row per step
     :param acts: Actions, one row per step
     :param env: A gymnasium env, a VecEnv or a registered id
-    :param metadata: The dataset's metadata (its ``env_id`` goes into the error message)
+    :param metadata: The dataset's metadata: its ``env_id`` must be the env's id (and goes into error messages)
+    :param allow_env_mismatch: Accept data recorded on another env id whose spaces fit (e.g. a variant you registered)
     """
+    recorded = (metadata or {}).get("env_id")
     if isinstance(env, str):
         made = gym.make(env)
         observation_space, action_space = made.observation_space, made.action_space
         made.close()
     else:
         observation_space, action_space = env.observation_space, env.action_space
-    recorded = (metadata or {}).get("env_id")
     for name, data, space in (("observations", obs, observation_space), ("actions", acts, action_space)):
         problem = _space_mismatch(name, data, space)
         if problem is not None:
@@ -397,6 +428,15 @@ def check_spaces(
             raise DemonstrationError(
                 f"The demonstrations do not match the target env: {problem}{origin}. Load the dataset made for this env."
             )
+    target = _env_id(env)
+    # Only a registered id names another env (some files carry a free-form label)
+    registered = bool(recorded) and (str(recorded) in gym.registry or f"{NAMESPACE}/{recorded}" in gym.registry)
+    if registered and target and not allow_env_mismatch and not _same_env(str(recorded), target):
+        # Same shapes, another env (GridWorldWall-v0 data on GridWorldSquare-v0): the expert avoided another constraint
+        raise DemonstrationError(
+            f"The demonstrations were recorded on {recorded!r}, not on the target env {target!r}: load the dataset made "
+            "for this env, or pass `allow_env_mismatch=True` (train.py: --allow-env-mismatch) if the data is meant for it."
+        )
 
 
 def from_imitation(
