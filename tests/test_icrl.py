@@ -292,11 +292,10 @@ def test_bad_arguments_are_refused():
         make_model(BC2L, constraint_net=FeasibilityNet(2, 3, discrete_actions=True))
     with pytest.raises(TypeError, match="subclass of ICRLTrainer"):
         make_model(BC2L, trainer_class=object)
-    # VICRL needs a Beta net: the trainer says so when learning starts
+    # VICRL needs a Beta net: the trainer says so when the model is made
     net = FeasibilityNet(2, 3, discrete_actions=True, hidden_sizes=[8])
-    model = VICRL("MlpPolicy", make_env(), corridor_demonstrations(), constraint_net=net, n_steps=32, batch_size=32)
     with pytest.raises(TypeError, match="VICRLTrainer trains a BetaFeasibilityNet"):
-        model.learn(32)
+        VICRL("MlpPolicy", make_env(), corridor_demonstrations(), constraint_net=net, n_steps=32, batch_size=32)
 
 
 @pytest.mark.parametrize("cls", (MECL, VICRL))

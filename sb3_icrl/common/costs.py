@@ -26,7 +26,11 @@ def as_cost_array(costs: Any, n_envs: int, n_costs: int, source: str) -> np.ndar
     :return: The costs as a float32 array of shape ``(n_envs, n_costs)``
     """
     try:
-        array = np.asarray(costs, dtype=np.float32)
+        # dtype checked first: np.asarray(["0.5"], dtype=np.float32) would silently parse text
+        raw = np.asarray(costs)
+        if raw.dtype.kind not in "biuf":
+            raise TypeError(f"dtype {raw.dtype}")
+        array = np.asarray(raw, dtype=np.float32)
     except (TypeError, ValueError) as error:
         raise CostError(f"{source} returned costs that are not numbers: {costs!r}.") from error
     if array.shape == (n_envs,) and n_costs == 1:
@@ -39,6 +43,8 @@ def as_cost_array(costs: Any, n_envs: int, n_costs: int, source: str) -> np.ndar
         )
     if not np.all(np.isfinite(array)):
         raise CostError(f"{source} returned non-finite costs: {array.tolist()}.")
+    if np.any(array < 0):
+        raise CostError(f"{source} returned negative costs: {array.tolist()}. A cost counts violations and must be >= 0.")
     return array
 
 
@@ -71,4 +77,10 @@ def costs_from_infos(infos: Sequence[dict[str, Any]], key: str, n_costs: int, en
     if not np.all(np.isfinite(costs)):
         bad = int(np.flatnonzero(~np.isfinite(costs).all(axis=1))[0])
         raise CostError(f"Environment {env_names[bad]!r} (env index {bad}) reported a non-finite cost: {costs[bad].tolist()}.")
+    if np.any(costs < 0):
+        bad = int(np.flatnonzero((costs < 0).any(axis=1))[0])
+        raise CostError(
+            f"Environment {env_names[bad]!r} (env index {bad}) reported a negative cost: {costs[bad].tolist()}. A cost "
+            "counts violations and must be >= 0 (shift or clip it in the env)."
+        )
     return costs

@@ -1,5 +1,6 @@
 """Evaluation against the true constraint (for reporting only: never for training or model selection)."""
 
+import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -138,10 +139,12 @@ class EpisodeAccumulator:
 def evaluate_constraint(
     model: BaseAlgorithm,
     env: gym.Env | VecEnv,
-    n_episodes: int = 10,
+    n_eval_episodes: int = 10,
     deterministic: bool = True,
     cost_info_key: str = "cost",
     seed: int | None = None,
+    *,
+    n_episodes: int | None = None,
 ) -> ConstraintEvaluation:
     """
     Run a policy and measure the paper's metrics against the true cost in ``info[cost_info_key]``: the
@@ -152,14 +155,23 @@ def evaluate_constraint(
 
     :param model: Anything with SB3's ``predict``
     :param env: The evaluation env (a gymnasium env is wrapped in a ``DummyVecEnv``)
-    :param n_episodes: Episodes to run (spread over the sub-envs)
+    :param n_eval_episodes: Episodes to run (spread over the sub-envs), as SB3's ``evaluate_policy``
     :param deterministic: Whether to use deterministic actions
     :param cost_info_key: The info key of the true per-step cost
     :param seed: Optional seed for the env resets
+    :param n_episodes: Deprecated name of ``n_eval_episodes``
     :return: Per-episode results
     """
+    if n_episodes is not None:
+        warnings.warn(
+            "evaluate_constraint(n_episodes=...) is deprecated: use n_eval_episodes, as SB3's evaluate_policy.",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+    argument = "n_eval_episodes" if n_episodes is None else "n_episodes"  # the name the caller used
+    n_episodes = n_eval_episodes if n_episodes is None else n_episodes
     if n_episodes < 1:
-        raise ValueError(f"`n_episodes` must be >= 1, got {n_episodes}.")
+        raise ValueError(f"`{argument}` must be >= 1, got {n_episodes}.")
     vec_env = env if isinstance(env, VecEnv) else DummyVecEnv([lambda: env])  # type: ignore[list-item, return-value]
     normalize = vec_env if isinstance(vec_env, VecNormalize) else None
     if normalize is not None:

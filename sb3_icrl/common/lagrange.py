@@ -41,7 +41,7 @@ class LagrangeMultiplier(ABC):
     def __init__(self, cost_budget: float | Sequence[float], n_constraints: int = 1, upper_bound: float | None = None):
         if n_constraints < 1:
             raise ValueError(f"`n_constraints` must be >= 1, got {n_constraints}.")
-        if upper_bound is not None and upper_bound < 0:
+        if upper_bound is not None and not upper_bound >= 0:  # NaN too
             raise ValueError(f"`upper_bound` must be >= 0 or None, got {upper_bound}.")
         self.n_constraints = n_constraints
         self.cost_budget = _as_vector(cost_budget, n_constraints, "cost_budget")
@@ -63,8 +63,13 @@ class LagrangeMultiplier(ABC):
 
     def _initial_multipliers(self, init: float | Sequence[float]) -> np.ndarray:
         init_vector = _as_vector(init, self.n_constraints, "init")
-        if np.any(init_vector < 0):
+        if not np.all(init_vector >= 0):  # NaN too
             raise ValueError(f"Initial multipliers must be >= 0, got {init_vector.tolist()}.")
+        if self.upper_bound is not None and np.any(init_vector > self.upper_bound):
+            raise ValueError(
+                f"Initial multipliers {init_vector.tolist()} exceed `upper_bound` {self.upper_bound}: lower `init` or raise "
+                "the bound."
+            )
         return init_vector
 
     def _check(self, constraint_values: np.ndarray | Sequence[float]) -> np.ndarray:
@@ -105,7 +110,7 @@ class GradientLagrangeMultiplier(LagrangeMultiplier):
         super().__init__(cost_budget, n_constraints, upper_bound)
         if optimizer not in self.optimizer_classes:
             raise ValueError(f"Unknown multiplier optimizer {optimizer!r}: use one of {sorted(self.optimizer_classes)}.")
-        if lr < 0:
+        if not lr >= 0:  # NaN too
             raise ValueError(f"The multiplier learning rate must be >= 0, got {lr}.")
         init_vector = self._initial_multipliers(init)
         self.lr = lr
@@ -181,7 +186,7 @@ class PIDLagrangeMultiplier(LagrangeMultiplier):
         upper_bound: float | None = None,
     ):
         super().__init__(cost_budget, n_constraints, upper_bound)
-        if min(kp, ki, kd) < 0:
+        if not all(gain >= 0 for gain in (kp, ki, kd)):  # NaN too
             raise ValueError(f"PID gains must be >= 0, got kp={kp}, ki={ki}, kd={kd}.")
         if d_delay < 1:
             raise ValueError(f"`d_delay` must be >= 1, got {d_delay}.")

@@ -17,6 +17,8 @@ from gymnasium import spaces
 from stable_baselines3.common.torch_layers import create_mlp
 from torch import nn
 
+from sb3_icrl.common.utils import atomic_write
+
 ArrayLike = np.ndarray | th.Tensor
 SelfConstraintNet = TypeVar("SelfConstraintNet", bound="_ConstraintNet")
 
@@ -143,7 +145,12 @@ class _ConstraintNet(nn.Module):
         self.action_dim = int(action_dim)
         self.discrete_obs = bool(discrete_obs)
         self.discrete_actions = bool(discrete_actions)
-        self.hidden_sizes = [int(size) for size in hidden_sizes]
+        sizes = list(hidden_sizes) if isinstance(hidden_sizes, (list, tuple)) else None
+        if sizes is None or not all(
+            isinstance(size, (int, np.integer)) and not isinstance(size, bool) and size >= 1 for size in sizes
+        ):
+            raise ValueError(f"`hidden_sizes` must be a list of layer widths (integers >= 1), got {hidden_sizes!r}.")
+        self.hidden_sizes = [int(size) for size in sizes]
         self.activation_fn = activation_fn
         self.use_action = bool(use_action)
         self.normalize_input = bool(normalize_input)
@@ -230,7 +237,8 @@ class _ConstraintNet(nn.Module):
         :param path: Destination file
         """
         state_dict = {key: value.detach().cpu() for key, value in self.state_dict().items()}
-        th.save({"class": type(self).__name__, "kwargs": self.constructor_kwargs, "state_dict": state_dict}, path)
+        content = {"class": type(self).__name__, "kwargs": self.constructor_kwargs, "state_dict": state_dict}
+        atomic_write(path, lambda file: th.save(content, file))  # a run killed while saving leaves no partial file
 
     @classmethod
     def load(cls: type[SelfConstraintNet], path: str, device: th.device | str = "cpu") -> SelfConstraintNet:

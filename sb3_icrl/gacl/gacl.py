@@ -47,6 +47,7 @@ class GACL(ICRLAlgorithmMixin, PPO):
     :param n_nominal_trajectories: Most recent learner trajectories per update (default: the number of expert ones)
     :param trainer_class: The trainer class (default :class:`GACLTrainer`)
     :param trainer_kwargs: Further arguments of the trainer
+    :param allow_env_mismatch: Accept demonstrations recorded on another env id whose spaces fit this env's
     :param log_d_eps: Smallest ``D`` inside the log of the reward
     :param kwargs: The other arguments of SB3's ``PPO``
     """
@@ -69,6 +70,7 @@ class GACL(ICRLAlgorithmMixin, PPO):
         n_nominal_trajectories: int | None = None,
         trainer_class: type[ICRLTrainer] | None = None,
         trainer_kwargs: dict[str, Any] | None = None,
+        allow_env_mismatch: bool = False,
         log_d_eps: float = 1e-5,
         _init_setup_model: bool = True,
         **kwargs: Any,
@@ -84,6 +86,7 @@ class GACL(ICRLAlgorithmMixin, PPO):
             n_nominal_trajectories,
             trainer_class,
             trainer_kwargs,
+            allow_env_mismatch,
         )
         self.log_d_eps = log_d_eps
         super().__init__(policy, env, _init_setup_model=False, **kwargs)

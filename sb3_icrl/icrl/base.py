@@ -3,7 +3,9 @@ The shared base of the ICRL algorithms: an SB3 on-policy learner (PPO-Lagrangian
 the wrappers that feed it to the learner and record nominal data, and the :class:`ICRLTrainer` callback.
 """
 
+import io
 import os
+import pathlib
 import warnings
 from collections.abc import Sequence
 from typing import Any, ClassVar, TypeVar
@@ -16,6 +18,7 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
 from sb3_icrl.common.policies import CostActorCriticPolicy
+from sb3_icrl.common.saved import check_saved_algorithm, library_algorithm
 from sb3_icrl.constraints.networks import FeasibilityNet, _ConstraintNet, _space_features
 from sb3_icrl.constraints.wrappers import GACLRewardWrapper, LearnedCostVecEnvWrapper
 from sb3_icrl.data.registry import load_demonstrations
@@ -25,6 +28,7 @@ from sb3_icrl.icrl.callbacks import TrueConstraintLogger
 from sb3_icrl.icrl.recorder import TrajectoryRecorderVecEnvWrapper
 from sb3_icrl.icrl.trainer import ICRLTrainer, install_constraint
 from sb3_icrl.ppo_lagrangian import PPOLagrangian
+from sb3_icrl.ppo_lagrangian.ppo_lagrangian import check_total_timesteps
 
 SelfICRL = TypeVar("SelfICRL", bound="ICRLAlgorithmMixin")
 
@@ -76,6 +80,7 @@ class ICRLAlgorithmMixin:
         n_nominal_trajectories: int | None,
         trainer_class: type[ICRLTrainer] | None,
         trainer_kwargs: dict[str, Any] | None,
+        allow_env_mismatch: bool = False,
     ) -> None:
         if constraint_net is not None and not isinstance(constraint_net, _ConstraintNet):
             raise TypeError(
@@ -102,8 +107,12 @@ class ICRLAlgorithmMixin:
         self.n_nominal_trajectories = n_nominal_trajectories
         self.trainer_class = trainer_class or self.default_trainer_class
         self.trainer_kwargs = dict(trainer_kwargs or {})
+        #: Accept demonstrations whose metadata names another env id than the env's (their spaces must still fit)
+        self.allow_env_mismatch = bool(allow_env_mismatch)
         #: Constraint updates made so far (kept by the trainer, saved with the model)
         self.n_constraint_updates = 0
+        # Saved in the zip: ``load`` of another algorithm's model fails clearly
+        self.sb3_icrl_algorithm = library_algorithm(type(self))
         self.constraint_optimizer: th.optim.Optimizer | None = None
         self.recorder: TrajectoryRecorderVecEnvWrapper | None = None
         self.constraint_wrapper: LearnedCostVecEnvWrapper | GACLRewardWrapper | None = None
@@ -145,7 +154,40 @@ class ICRLAlgorithmMixin:
                     f"Could not reload the demonstrations {self.demonstrations_source!r} ({error}); the model predicts, "
                     "but to train it pass `demonstrations=` to `load` or call `set_demonstrations(...)`."
                 )
+        self._check_trainer_arguments()
         self._wrap_icrl_env()
+
+    def _check_trainer_arguments(self) -> None:
+        """
+        A throwaway trainer: bad trainer settings fail when the model is made, not in ``learn()``. It sees the expert
+        data when it is loaded (settings such as ``expert_episode_lengths`` are checked against it), else one sampled
+        pair.
+        """
+        assert self.constraint_net is not None and self.constraint_optimizer is not None
+        if self.expert_obs is not None and self.expert_acts is not None:
+            obs, acts = self.expert_obs, self.expert_acts
+        else:
+            obs = np.asarray(self.observation_space.sample())[None]
+            acts = np.asarray(self.action_space.sample())[None]
+        update_every = self.update_every if self.update_every is not None else self.n_steps * self.n_envs
+        try:
+            self.trainer_class(
+                self.constraint_net,
+                self.constraint_optimizer,
+                obs,
+                acts,
+                None,
+                None,
+                update_every=update_every,
+                constraint_steps=self.constraint_steps,
+                batch_size=self.constraint_batch_size,
+                n_nominal_trajectories=1 if self.n_nominal_trajectories is None else self.n_nominal_trajectories,
+                **self.trainer_kwargs,
+            )
+        except TypeError as error:
+            if "unexpected keyword argument" not in str(error):
+                raise  # e.g. a constraint net of the wrong kind: the trainer's message says it
+            raise TypeError(f"Bad `trainer_kwargs` for {self.trainer_class.__name__}: {error}") from error
 
     def _check_constraint_net_spaces(self) -> None:
         assert self.constraint_net is not None
@@ -162,16 +204,20 @@ class ICRLAlgorithmMixin:
                 "env.action_space, ...)`."
             )
 
-    def set_demonstrations(self, demonstrations: DemonstrationsLike) -> None:
+    def set_demonstrations(self, demonstrations: DemonstrationsLike, allow_env_mismatch: bool | None = None) -> None:
         """
         Use these expert demonstrations (checked against the env's spaces, or the constraint net's without an env).
         On a new model the constraint net's input normaliser is fitted on them.
 
         :param demonstrations: A :class:`~sb3_icrl.data.Demonstrations`, a list of trajectories, the name of a
             shipped dataset (``"GridWorldWall-v0"``) or the path of an ``.npz`` file
+        :param allow_env_mismatch: Accept data whose metadata names another env id than the env's (spaces must fit);
+            ``None``: the model's ``allow_env_mismatch``
         """
+        if allow_env_mismatch is None:
+            allow_env_mismatch = getattr(self, "allow_env_mismatch", False)
         if isinstance(demonstrations, (str, os.PathLike)):
-            demos = load_demonstrations(demonstrations, env=self.env)
+            demos = load_demonstrations(demonstrations, env=self.env, allow_env_mismatch=allow_env_mismatch)
             self.demonstrations_source = os.fspath(demonstrations)
         elif isinstance(demonstrations, Demonstrations):
             demos = demonstrations
@@ -186,7 +232,8 @@ class ICRLAlgorithmMixin:
             raise DemonstrationError("The demonstrations hold no trajectory.")
         transitions = demos.transitions
         # Without an env (a model loaded for prediction), the spaces saved with the model
-        check_spaces(transitions.obs, transitions.acts, self.env if self.env is not None else self, demos.metadata)  # type: ignore[arg-type]
+        target = self.env if self.env is not None else self
+        check_spaces(transitions.obs, transitions.acts, target, demos.metadata, allow_env_mismatch)  # type: ignore[arg-type]
         self.demonstrations = demos
         self._pending_demonstrations = None
         self.expert_obs, self.expert_acts = transitions.obs, transitions.acts
@@ -273,6 +320,7 @@ class ICRLAlgorithmMixin:
         :param progress_bar: Display a progress bar
         :return: The trained model
         """
+        check_total_timesteps(total_timesteps)
         if self.demonstrations is None:
             raise ValueError(
                 f"{type(self).__name__} has no demonstrations to learn from: pass `demonstrations=` to the constructor or "
@@ -312,6 +360,21 @@ class ICRLAlgorithmMixin:
         return self.constraint_net.cost(observations, actions)
 
     # ------------------------------------------------------------------ saving
+
+    @classmethod
+    def load(  # type: ignore[no-untyped-def]
+        cls,
+        path: str | pathlib.Path | io.BufferedIOBase,
+        env: GymEnv | None = None,
+        device: th.device | str = "auto",
+        custom_objects: dict[str, Any] | None = None,
+        print_system_info: bool = False,
+        force_reset: bool = True,
+        **kwargs: Any,
+    ):
+        """SB3's ``load``, refusing a zip that another algorithm saved (with a message naming both)."""
+        check_saved_algorithm(cls, path, custom_objects)
+        return super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)  # type: ignore[misc]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()  # type: ignore[misc]
@@ -354,6 +417,8 @@ class LagrangianICRL(ICRLAlgorithmMixin, PPOLagrangian):
     :param n_nominal_trajectories: Most recent learner trajectories per update (default: the number of expert ones)
     :param trainer_class: The :class:`~sb3_icrl.icrl.ICRLTrainer` subclass (default: the algorithm's)
     :param trainer_kwargs: Further arguments of the trainer
+    :param allow_env_mismatch: Accept demonstrations recorded on another env id (their metadata's ``env_id``) whose
+        spaces fit this env's; by default such data is refused
     :param cost_budget: Budget on the learned cost (reference: 0), or ``"expert"``: the expert's mean learned cost per
         step, re-set after each constraint update (see ``budget_from_expert`` of :class:`~sb3_icrl.icrl.ICRLTrainer`;
         needs ``budget_statistic="step"``)
@@ -377,6 +442,7 @@ class LagrangianICRL(ICRLAlgorithmMixin, PPOLagrangian):
         n_nominal_trajectories: int | None = None,
         trainer_class: type[ICRLTrainer] | None = None,
         trainer_kwargs: dict[str, Any] | None = None,
+        allow_env_mismatch: bool = False,
         cost_budget: float | str = 0.0,
         budget_statistic: str = "step",
         lagrange_kwargs: dict[str, Any] | None = None,
@@ -406,6 +472,7 @@ class LagrangianICRL(ICRLAlgorithmMixin, PPOLagrangian):
             n_nominal_trajectories,
             trainer_class,
             trainer_kwargs,
+            allow_env_mismatch,
         )
         super().__init__(
             policy,

@@ -220,6 +220,10 @@ class PILagrangian:
         """
         if self.env is None:
             raise ValueError("This model has no environment: call `set_env(env)` before `learn()`.")
+        if isinstance(total_iterations, bool) or not isinstance(total_iterations, (int, np.integer)) or total_iterations < 1:
+            raise ValueError(f"`total_iterations` must be an integer >= 1 (multiplier updates), got {total_iterations!r}.")
+        if not tol >= 0:  # NaN too
+            raise ValueError(f"`tol` must be >= 0, got {tol!r}.")
         for _ in range(total_iterations):
             old_policy = self.policy_table.copy()
             self._policy_iteration(self.lagrange_multiplier)

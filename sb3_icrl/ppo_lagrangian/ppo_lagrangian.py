@@ -1,5 +1,7 @@
 """PPO-Lagrangian: PPO with a cost critic and one Lagrange multiplier per constraint."""
 
+import io
+import pathlib
 from collections import deque
 from collections.abc import Sequence
 from typing import Any, ClassVar, TypeVar
@@ -20,11 +22,13 @@ from sb3_icrl.common.buffers import CostRolloutBuffer
 from sb3_icrl.common.costs import CostFn, as_cost_array, costs_from_infos
 from sb3_icrl.common.lagrange import LagrangeMultiplier, make_lagrange_multiplier
 from sb3_icrl.common.policies import CostActorCriticPolicy
+from sb3_icrl.common.saved import check_saved_algorithm, library_algorithm
 from sb3_icrl.ppo_lagrangian.policies import CnnPolicy, MlpPolicy
 
 SelfPPOLagrangian = TypeVar("SelfPPOLagrangian", bound="PPOLagrangian")
 
 BUDGET_STATISTICS = ("episode", "step")
+TERMINATION_COSTS = ("zero", "bootstrap")
 # Observations per batched critic pass at the end of a rollout
 VALUE_CHUNK = 4096
 
@@ -66,6 +70,12 @@ class PPOLagrangian(PPO):
     :param cost_gamma: Discount factor of the costs (default: ``gamma``)
     :param cost_gae_lambda: GAE lambda of the costs (default: ``gae_lambda``)
     :param cost_vf_coef: Cost value loss coefficient
+    :param termination_cost: What an episode that terminates (as opposed to a time-limit truncation) costs after its
+        last step. ``"zero"``: nothing, the usual convention. ``"bootstrap"``: the cost stream goes on as if the episode
+        had been truncated, bootstrapped with the cost critic's value of the final observation, so a learner cannot
+        escape its costs by ending episodes on purpose (e.g. a robot falling when its learned cost exceeds the budget
+        everywhere it goes). A float ``c >= 0``: the episode enters an absorbing state costing ``c`` per step forever,
+        ``cost_gamma * c / (1 - cost_gamma)`` added to the last step's cost. Rewards are not changed.
     :param lagrange_update: ``"gradient"`` (gradient ascent, SGD or Adam) or ``"pid"`` (Stooke et al. 2020)
     :param lagrange_kwargs: Arguments of the multiplier: ``init``, ``lr``, ``optimizer`` (``"adam"``/``"sgd"``),
         ``upper_bound`` for gradient; ``init``, ``kp``, ``ki``, ``kd``, ``d_delay``, ``delta_p_ema_alpha``,
@@ -116,6 +126,7 @@ class PPOLagrangian(PPO):
         cost_gamma: float | None = None,
         cost_gae_lambda: float | None = None,
         cost_vf_coef: float = 0.5,
+        termination_cost: str | float = "zero",
         lagrange_update: str = "gradient",
         lagrange_kwargs: dict[str, Any] | None = None,
         cost_fn: CostFn | None = None,
@@ -156,11 +167,33 @@ class PPOLagrangian(PPO):
             device=device,
             _init_setup_model=False,
         )
-        budget = np.atleast_1d(np.asarray(cost_budget, dtype=np.float64))
+        try:
+            budget = np.atleast_1d(np.asarray(cost_budget, dtype=np.float64))
+        except (TypeError, ValueError):
+            budget = np.array([np.nan])  # text or a mapping: refused below with the message of any bad budget
         if budget.ndim != 1 or budget.size == 0 or not np.all(np.isfinite(budget)):
             raise ValueError(f"`cost_budget` must be a finite float or a non-empty sequence of floats, got {cost_budget!r}.")
+        for name, value in (
+            ("gamma", gamma),
+            ("gae_lambda", gae_lambda),
+            ("cost_gamma", cost_gamma),
+            ("cost_gae_lambda", cost_gae_lambda),
+        ):
+            if value is not None and not 0.0 <= value <= 1.0:
+                raise ValueError(f"`{name}` must be in [0, 1], got {value!r}.")
+        if cost_vf_coef < 0:
+            raise ValueError(f"`cost_vf_coef` must be >= 0, got {cost_vf_coef!r}.")
+        if not isinstance(cost_info_key, str):
+            raise TypeError(f"`cost_info_key` is the info key of the per-step cost, a string; got {cost_info_key!r}.")
+        if stats_window_size < 1:
+            raise ValueError(f"`stats_window_size` must be >= 1 (episodes in the logged means), got {stats_window_size!r}.")
+        if np.any(budget < 0):
+            raise ValueError(
+                f"`cost_budget` must be >= 0 (costs are non-negative, so no policy could meet it), got {cost_budget!r}."
+            )
         if budget_statistic not in BUDGET_STATISTICS:
             raise ValueError(f"Unknown `budget_statistic` {budget_statistic!r}: use one of {BUDGET_STATISTICS}.")
+        self.termination_cost = _check_termination_cost(termination_cost, gamma if cost_gamma is None else cost_gamma)
         self.cost_budget = budget
         self.n_costs = budget.size
         self.budget_statistic = budget_statistic
@@ -178,6 +211,8 @@ class PPOLagrangian(PPO):
         self._episode_costs_since_update: list[np.ndarray] = []
         self._rollout_mean_step_cost: np.ndarray | None = None
         self._env_names: list[str] = []
+        # Saved in the zip: ``load`` of another algorithm's model fails clearly
+        self.sb3_icrl_algorithm = library_algorithm(type(self))
 
         if _init_setup_model:
             self._setup_model()
@@ -222,8 +257,8 @@ class PPOLagrangian(PPO):
         :param cost_budget: Budget per constraint, in the units of ``budget_statistic``
         """
         budget = np.atleast_1d(np.asarray(cost_budget, dtype=np.float64))
-        if budget.shape != (self.n_costs,) or not np.all(np.isfinite(budget)):
-            raise ValueError(f"Expected {self.n_costs} finite budget(s), one per constraint, got {cost_budget!r}.")
+        if budget.shape != (self.n_costs,) or not np.all(np.isfinite(budget)) or np.any(budget < 0):
+            raise ValueError(f"Expected {self.n_costs} finite budget(s) >= 0, one per constraint, got {cost_budget!r}.")
         self.cost_budget = budget
         if self.lagrange_multiplier is not None:
             self.lagrange_multiplier.cost_budget = budget.copy()
@@ -241,6 +276,21 @@ class PPOLagrangian(PPO):
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         return ["policy", "policy.optimizer", "policy.cost_optimizer"], []
+
+    @classmethod
+    def load(  # type: ignore[override]
+        cls: type[SelfPPOLagrangian],
+        path: str | pathlib.Path | io.BufferedIOBase,
+        env: GymEnv | None = None,
+        device: th.device | str = "auto",
+        custom_objects: dict[str, Any] | None = None,
+        print_system_info: bool = False,
+        force_reset: bool = True,
+        **kwargs: Any,
+    ) -> SelfPPOLagrangian:
+        """SB3's ``load``, refusing a zip that another algorithm saved (with a message naming both)."""
+        check_saved_algorithm(cls, path, custom_objects)
+        return super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
 
     def _excluded_save_params(self) -> list[str]:
         # The cost function may be an arbitrary closure (e.g. over a learned constraint net saved elsewhere)
@@ -314,8 +364,10 @@ class PPOLagrangian(PPO):
             self.policy.reset_noise(env.num_envs)
 
         callback.on_rollout_start()
-        # (step, env index, final observation) of time-limit truncations, bootstrapped after the loop
+        # (step, env index, final observation) of time-limit truncations, bootstrapped after the loop; terminations
+        # too when ``termination_cost`` charges them (their costs only)
         truncations: list[tuple[int, int, np.ndarray]] = []
+        terminations: list[tuple[int, int, np.ndarray]] = []
         no_values = th.zeros(env.num_envs)
 
         while n_steps < n_rollout_steps:
@@ -357,12 +409,12 @@ class PPOLagrangian(PPO):
 
             # Time-limit truncation: bootstrap reward and costs with the values of the final observation (SB3 GH#633)
             for idx, done in enumerate(dones):
-                if (
-                    done
-                    and infos[idx].get("terminal_observation") is not None
-                    and infos[idx].get("TimeLimit.truncated", False)
-                ):
+                if not done or infos[idx].get("terminal_observation") is None:
+                    continue
+                if infos[idx].get("TimeLimit.truncated", False):
                     truncations.append((n_steps - 1, idx, infos[idx]["terminal_observation"]))
+                elif self.termination_cost != "zero":
+                    terminations.append((n_steps - 1, idx, infos[idx]["terminal_observation"]))
 
             rollout_buffer.add(
                 self._last_obs,  # type: ignore[arg-type]
@@ -377,7 +429,9 @@ class PPOLagrangian(PPO):
             self._last_episode_starts = dones
 
         self._rollout_mean_step_cost = rollout_buffer.costs.mean(axis=(0, 1)).astype(np.float64)
-        last_values, last_cost_values = self._finish_values(rollout_buffer, new_obs, truncations)  # type: ignore[arg-type]
+        last_values, last_cost_values = self._finish_values(
+            rollout_buffer, new_obs, truncations, terminations  # type: ignore[arg-type]
+        )
         rollout_buffer.compute_returns_and_advantage(last_values=last_values, dones=dones, last_cost_values=last_cost_values)
 
         callback.update_locals(locals())
@@ -386,17 +440,24 @@ class PPOLagrangian(PPO):
         return True
 
     def _finish_values(
-        self, rollout_buffer: CostRolloutBuffer, last_obs: np.ndarray, truncations: list[tuple[int, int, np.ndarray]]
+        self,
+        rollout_buffer: CostRolloutBuffer,
+        last_obs: np.ndarray,
+        truncations: list[tuple[int, int, np.ndarray]],
+        terminations: Sequence[tuple[int, int, np.ndarray]] = (),
     ) -> tuple[th.Tensor, np.ndarray]:
         """
         One batched pass of both critics over the rollout's observations, the observations after its last step and
         the final observations of truncated episodes: stores the values, bootstraps the truncated rewards and
-        costs, and returns the values of the observations after the last step.
+        costs, charges terminated episodes' costs as ``termination_cost`` says, and returns the values of the
+        observations after the last step.
         """
         obs_shape = rollout_buffer.obs_shape
         stored = rollout_buffer.observations.reshape(-1, *obs_shape)
         batch = [stored, np.asarray(last_obs).reshape(-1, *obs_shape)]
         batch += [np.asarray(final_obs).reshape(-1, *obs_shape) for _, _, final_obs in truncations]
+        if self.termination_cost == "bootstrap":
+            batch += [np.asarray(final_obs).reshape(-1, *obs_shape) for _, _, final_obs in terminations]
         observations = np.concatenate(batch).astype(stored.dtype, copy=False)
         with th.no_grad():
             chunks = [
@@ -413,6 +474,12 @@ class PPOLagrangian(PPO):
             final = n_stored + n_envs + offset
             rollout_buffer.rewards[step, env_idx] += self.gamma * values[final]
             rollout_buffer.costs[step, env_idx] += self.cost_gamma * cost_values[final]
+        first_termination = n_stored + n_envs + len(truncations)
+        for offset, (step, env_idx, _) in enumerate(terminations):
+            if self.termination_cost == "bootstrap":
+                rollout_buffer.costs[step, env_idx] += self.cost_gamma * cost_values[first_termination + offset]
+            else:  # an absorbing state costing termination_cost per step, for ever
+                rollout_buffer.costs[step, env_idx] += self.cost_gamma * float(self.termination_cost) / (1.0 - self.cost_gamma)
         last = slice(n_stored, n_stored + n_envs)
         return th.as_tensor(values[last]), cost_values[last]
 
@@ -564,6 +631,7 @@ class PPOLagrangian(PPO):
         reset_num_timesteps: bool = True,
         progress_bar: bool = False,
     ) -> SelfPPOLagrangian:
+        check_total_timesteps(total_timesteps)
         return super().learn(
             total_timesteps=total_timesteps,
             callback=callback,
@@ -572,6 +640,18 @@ class PPOLagrangian(PPO):
             reset_num_timesteps=reset_num_timesteps,
             progress_bar=progress_bar,
         )
+
+
+def check_total_timesteps(total_timesteps: Any) -> None:
+    """
+    Fail clearly unless ``total_timesteps`` is a finite number >= 0 (SB3 would silently train nothing).
+
+    :param total_timesteps: The argument of ``learn``
+    """
+    if isinstance(total_timesteps, bool) or not isinstance(total_timesteps, (int, float, np.integer, np.floating)):
+        raise TypeError(f"`total_timesteps` must be a number of steps, got {total_timesteps!r}.")
+    if not np.isfinite(total_timesteps) or total_timesteps < 0:
+        raise ValueError(f"`total_timesteps` must be a finite number >= 0, got {total_timesteps!r}.")
 
 
 def _mean(values: list[th.Tensor]) -> float:
@@ -588,3 +668,24 @@ def _env_name(env: VecEnv, idx: int) -> str:
         return type(env.get_attr("unwrapped", indices=[idx])[0]).__name__
     except (AttributeError, IndexError):
         return f"env {idx}"
+
+
+def _check_termination_cost(termination_cost: str | float, cost_gamma: float) -> str | float:
+    """The ``termination_cost`` argument, checked: ``"zero"``, ``"bootstrap"`` or a finite float >= 0."""
+    if isinstance(termination_cost, str):
+        if termination_cost not in TERMINATION_COSTS:
+            raise ValueError(
+                f"Unknown `termination_cost` {termination_cost!r}: use one of {TERMINATION_COSTS} or a float >= 0 "
+                "(the cost per step of the absorbing state a terminated episode enters)."
+            )
+        return termination_cost
+    if isinstance(termination_cost, bool) or not isinstance(termination_cost, (int, float)):
+        raise TypeError(f"`termination_cost` must be 'zero', 'bootstrap' or a float >= 0, got {termination_cost!r}.")
+    if not np.isfinite(termination_cost) or termination_cost < 0:
+        raise ValueError(f"`termination_cost` as a float is a cost per step: finite and >= 0, got {termination_cost!r}.")
+    if cost_gamma >= 1.0:
+        raise ValueError(
+            "A float `termination_cost` charges an absorbing state for ever, which needs cost_gamma < 1 "
+            f"(got {cost_gamma}): lower cost_gamma or use termination_cost='bootstrap'."
+        )
+    return float(termination_cost)

@@ -1,0 +1,110 @@
+"""
+Which sb3-icrl algorithm saved a model zip, so that ``load`` refuses another algorithm's model with a clear error
+instead of rebuilding it as the wrong class (or failing on a missing key deep inside SB3).
+"""
+
+import io
+import os
+import pathlib
+import zipfile
+from typing import Any
+
+from stable_baselines3.common.save_util import json_to_data, open_path
+
+#: The key of a zip's ``data`` that names the sb3-icrl algorithm that saved it (older zips are told by their content)
+SAVED_ALGORITHM_KEY = "sb3_icrl_algorithm"
+# Bases shared by several algorithms: never the algorithm a model is
+_SHARED_BASES = ("ICRLAlgorithmMixin", "LagrangianICRL")
+
+
+def library_algorithm(algorithm_class: type) -> str:
+    """
+    The sb3-icrl algorithm a class is (a user's subclass of ``VICRL`` is a ``VICRL``).
+
+    :param algorithm_class: An algorithm class
+    :return: The name of the first sb3-icrl class in its method resolution order (its own name when there is none)
+    """
+    for base in algorithm_class.__mro__:
+        if base.__module__.startswith("sb3_icrl.") and base.__name__ not in _SHARED_BASES:
+            return base.__name__
+    return algorithm_class.__name__
+
+
+def saved_algorithm(data: dict[str, Any]) -> str | None:
+    """
+    The sb3-icrl algorithm that saved a zip's ``data``: the name it recorded, else what it holds (ICRL models: their
+    constraint model and trainer class; PPO-Lagrangian: its multiplier).
+
+    :param data: The ``data`` part of an SB3 zip
+    :return: ``"PPOLagrangian"``, ``"GACL"``, ``"BC2L"``, ``"MECL"``, ``"VICRL"``, or ``None`` when the zip was not saved
+        by an sb3-icrl algorithm (a plain stable-baselines3 model)
+    """
+    recorded = data.get(SAVED_ALGORITHM_KEY)
+    if isinstance(recorded, str):
+        return recorded
+    if "constraint_net_spec_" in data:
+        from sb3_icrl import BC2L, GACL, MECL, VICRL  # here: the algorithms import this module
+
+        trainer = data.get("trainer_class")
+        if not isinstance(trainer, type):
+            return None
+        candidates = [
+            (trainer.__mro__.index(algorithm.default_trainer_class), algorithm.__name__)
+            for algorithm in (GACL, BC2L, MECL, VICRL)
+            if algorithm.default_trainer_class in trainer.__mro__
+        ]
+        return min(candidates)[1] if candidates else None
+    if "lagrange_multiplier" in data:
+        return "PPOLagrangian"
+    return None
+
+
+def _read_data(path: str | pathlib.Path | io.BufferedIOBase, custom_objects: dict[str, Any] | None) -> dict[str, Any] | None:
+    """The ``data`` of an SB3 zip, or ``None`` when it cannot be read (SB3's own ``load`` then says why)."""
+    try:
+        file = open_path(path, "r", verbose=0, suffix="zip")
+    except (OSError, ValueError):
+        return None
+    start = file.tell()
+    try:
+        with zipfile.ZipFile(file) as archive:
+            if "data" not in archive.namelist():
+                return None
+            return json_to_data(archive.read("data").decode(), custom_objects=custom_objects)
+    except (zipfile.BadZipFile, ValueError, OSError):
+        return None
+    finally:
+        if isinstance(path, (str, pathlib.Path)):
+            file.close()
+        else:
+            file.seek(start)  # the caller's file object: SB3 reads it again
+
+
+def check_saved_algorithm(
+    algorithm_class: type, path: str | pathlib.Path | io.BufferedIOBase, custom_objects: dict[str, Any] | None = None
+) -> None:
+    """
+    Fail clearly when ``path`` holds a model that another algorithm saved.
+
+    :param algorithm_class: The class whose ``load`` was called
+    :param path: The zip (a path or a file object)
+    :param custom_objects: As for ``load``
+    :raises ValueError: When the zip was saved by another sb3-icrl algorithm, or by none
+    """
+    data = _read_data(path, custom_objects)
+    if data is None:
+        return
+    expected = library_algorithm(algorithm_class)
+    found = saved_algorithm(data)
+    where = repr(os.fspath(path)) if isinstance(path, (str, pathlib.Path)) else "The file"
+    if found is None:
+        raise ValueError(
+            f"{where} was not saved by an sb3-icrl algorithm (it holds neither a Lagrange multiplier nor a constraint "
+            f"model), so {algorithm_class.__name__}.load cannot rebuild it: load it with the stable-baselines3 class that "
+            "saved it."
+        )
+    if found != expected:
+        raise ValueError(
+            f"{where} holds a {found} model, not a {expected} one: load it with {found}.load(...) instead of "
+            f"{algorithm_class.__name__}.load(...)."
+        )

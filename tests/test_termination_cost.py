@@ -1,0 +1,110 @@
+"""PPOLagrangian's ``termination_cost``: what an episode that terminates costs after its last step."""
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.callbacks import CallbackList
+from stable_baselines3.common.vec_env import DummyVecEnv
+
+from sb3_icrl import PPOLagrangian
+
+
+class EndsAfterThreeSteps(gym.Env):
+    """Every step costs 0.5 and pays 1; episodes terminate (not truncate) after three steps."""
+
+    observation_space = spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
+    action_space = spaces.Discrete(2)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
+        super().reset(seed=seed)
+        self.t = 0
+        return np.zeros(1, dtype=np.float32), {}
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
+        self.t += 1
+        return np.array([self.t / 3], dtype=np.float32), 1.0, self.t == 3, False, {"cost": 0.5}
+
+
+def collected_costs(termination_cost: str | float, cost_gamma: float = 0.9) -> tuple[np.ndarray, PPOLagrangian]:
+    model = PPOLagrangian(
+        "MlpPolicy",
+        DummyVecEnv([EndsAfterThreeSteps]),
+        n_steps=6,
+        batch_size=6,
+        cost_gamma=cost_gamma,
+        termination_cost=termination_cost,
+        policy_kwargs=dict(net_arch=[8]),
+        seed=0,
+    )
+    model.learn(6)  # one rollout of two episodes, then one update
+    return model.rollout_buffer.costs[:, 0, 0].copy(), model
+
+
+def test_zero_leaves_the_costs_alone():
+    costs, _ = collected_costs("zero")
+    np.testing.assert_allclose(costs, [0.5] * 6)
+
+
+def test_float_charges_an_absorbing_state_for_ever():
+    costs, _ = collected_costs(0.2, cost_gamma=0.9)
+    # The last step of each episode (steps 2 and 5) adds gamma * c / (1 - gamma) = 0.9 * 0.2 / 0.1 = 1.8
+    np.testing.assert_allclose(costs, [0.5, 0.5, 2.3, 0.5, 0.5, 2.3])
+
+
+def test_bootstrap_adds_the_cost_value_of_the_final_observation():
+    model = PPOLagrangian(
+        "MlpPolicy",
+        DummyVecEnv([EndsAfterThreeSteps]),
+        n_steps=6,
+        batch_size=6,
+        cost_gamma=0.9,
+        termination_cost="bootstrap",
+        policy_kwargs=dict(net_arch=[8]),
+        seed=0,
+    )
+    # Value of the final observation [1.0] before the update changes the critic: read it from a rollout only
+    model._setup_learn(6, None)
+    with th.no_grad():
+        _, final_cost_value = model.policy.predict_all_values(th.ones((1, 1)))
+    callback = CallbackList([])
+    callback.init_callback(model)
+    model.collect_rollouts(model.env, callback, model.rollout_buffer, 6)
+    costs = model.rollout_buffer.costs[:, 0, 0]
+    expected = 0.5 + 0.9 * float(final_cost_value.flatten()[0])
+    np.testing.assert_allclose(costs[[2, 5]], [expected, expected], rtol=1e-5)
+    np.testing.assert_allclose(costs[[0, 1, 3, 4]], [0.5] * 4)
+
+
+def test_rewards_are_never_changed():
+    _, model = collected_costs(5.0)
+    np.testing.assert_allclose(model.rollout_buffer.rewards[:, 0], [1.0] * 6)
+
+
+def test_saved_and_loaded(tmp_path):
+    _, model = collected_costs("bootstrap")
+    model.save(tmp_path / "model")
+    assert PPOLagrangian.load(tmp_path / "model").termination_cost == "bootstrap"
+
+
+@pytest.mark.parametrize(
+    "value, error, fragment",
+    [
+        ("forever", ValueError, "Unknown `termination_cost`"),
+        (-1.0, ValueError, ">= 0"),
+        (float("nan"), ValueError, "finite"),
+        (True, TypeError, "'zero', 'bootstrap' or a float"),
+        ([1.0], TypeError, "'zero', 'bootstrap' or a float"),
+    ],
+)
+def test_bad_values_are_refused(value, error, fragment):
+    with pytest.raises(error, match=fragment):
+        PPOLagrangian("MlpPolicy", DummyVecEnv([EndsAfterThreeSteps]), termination_cost=value)
+
+
+def test_a_float_needs_a_discount():
+    with pytest.raises(ValueError, match="cost_gamma < 1"):
+        PPOLagrangian("MlpPolicy", DummyVecEnv([EndsAfterThreeSteps]), cost_gamma=1.0, termination_cost=1.0)
