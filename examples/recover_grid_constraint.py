@@ -3,12 +3,14 @@ Recover a grid-world constraint from the shipped expert demonstrations and save 
 
 MECL or VICRL learn the constraint with the exact PI-Lagrangian forward solver (:func:`sb3_icrl.icrl.tabular.tabular_icrl`,
 as ``benchmarks/icrl_gridworld.py`` and the paper do on their grid worlds); the constraint net sees the cell only, so
-its cost is a map of cells. Prints precision and recall of the recovered unsafe cells against the true ones, for
-cells costing more than ``--threshold`` ("absolute") and for cells costing more than the dearest cell on the expert's
-path ("relative": what a cost-minimising planner avoids). Cells the expert never comes near are expected among the
-recovered ones: nothing in the data says they are safe. ``--nominal-buffer`` keeps the planner's trajectories of all
-iterations for the constraint updates (the reference code's grid-world setting); without it MECL's regulariser keeps
-every cost low and only VICRL's map shows some contrast. About half a minute on 2 busy CPU cores::
+its cost is a map of cells. Prints the learned map beside the true one, with precision and recall of the recovered
+unsafe cells against the true ones, for cells costing more than ``--threshold`` and for cells costing more than the
+dearest cell on the expert's path (what a cost-minimising planner avoids). Cells the expert never comes near are
+expected among the recovered ones: nothing in the data says they are safe. ``--nominal-buffer`` keeps the planner's
+trajectories of all iterations for the constraint updates (the reference code's grid-world setting); without it MECL's
+regulariser keeps every cost low and only VICRL's map shows some contrast. About half a minute on 2 busy CPU cores.
+``train.py --algo mecl --env GridWorldBigSquare-v0`` runs the same loop through the zoo (``forward_solver:
+pi_lagrangian``)::
 
     python examples/recover_grid_constraint.py --algo mecl --env GridWorldBigSquare-v0 -o docs/images/grid_constraint.png
     python examples/recover_grid_constraint.py --algo vicrl --nominal-buffer 0 -o vicrl.png
@@ -17,16 +19,16 @@ every cost low and only VICRL's map shows some contrast. About half a minute on 
 import argparse
 
 import gymnasium as gym
-import numpy as np
 import torch as th
 
 from sb3_icrl.constraints import BetaFeasibilityNet, FeasibilityNet
 from sb3_icrl.data import load_demonstrations
 from sb3_icrl.icrl import ICRLTrainer
-from sb3_icrl.icrl.tabular import precision_recall, tabular_icrl
+from sb3_icrl.icrl.tabular import tabular_icrl
 from sb3_icrl.mecl import MECLTrainer
 from sb3_icrl.plots.figures import grid_constraint_figure, grid_cost_map, save_figure
 from sb3_icrl.vicrl import VICRLTrainer
+from sb3_icrl.zoo.summary import demonstration_cells, grid_constraint_report
 
 #: algo -> (trainer class, constraint net class)
 ALGOS: dict[str, tuple[type[ICRLTrainer], type]] = {
@@ -69,16 +71,12 @@ def main() -> None:
 
     grid = env.unwrapped
     costs = grid_cost_map(net, grid)
-    endpoints = np.zeros_like(grid.unsafe_mask)
-    endpoints[grid.start_cell] = endpoints[grid.goal_cell] = True
-    visited = np.zeros(grid.n_states, dtype=bool)
-    visited[np.concatenate([t.obs[:-1] for t in demonstrations]).astype(int)] = True
-    visited = visited.reshape(grid.n_rows, grid.n_cols)
-    absolute = (costs > args.threshold) & ~endpoints
-    relative = (costs > costs[visited].max()) & ~endpoints
-    for name, recovered in ((f"cost > {args.threshold:g}", absolute), ("cost > expert path's max", relative)):
-        precision, recall = precision_recall(recovered, grid.unsafe_mask)
-        print(f"{args.algo.upper()} on {args.env}, {name}: precision {precision:.2f} recall {recall:.2f}")
+    visited = demonstration_cells(demonstrations, grid.n_rows, grid.n_cols)
+    # The map train.py prints at the end of a grid-world run: learned beside true, precision and recall
+    report, _, _ = grid_constraint_report(
+        costs, grid.unsafe_mask, grid.start_cell, grid.goal_cell, visited, threshold=args.threshold
+    )
+    print(f"{args.algo.upper()} on {args.env}:\n{report}")
 
     title = (
         f"{args.algo.upper()} on {args.env}: PI-Lagrangian solver, {args.iterations} iterations, "

@@ -125,27 +125,30 @@ def test_latest_run_and_clear_errors(logs: pathlib.Path, tmp_path: pathlib.Path,
 
 @pytest.mark.parametrize("backend", ["pillow", "matplotlib"])
 def test_record_without_moviepy(backend: str, logs: pathlib.Path, tmp_path: pathlib.Path, monkeypatch, capsys) -> None:
-    """--record: a GIF (Pillow) or PNG frames (matplotlib) of every rendered frame, in the run's videos folder."""
+    """--record: a GIF (Pillow) or PNG frames (matplotlib) per episode of every rendered frame, in the run's videos folder."""
     from PIL import Image, ImageSequence
 
     shutil.copytree(logs / "ppolag", tmp_path / "ppolag")
     monkeypatch.setattr(enjoy_module, "recording_backend", lambda: backend)
     assert enjoy_main(_enjoy(tmp_path, "-n", "30", "--record", "--stochastic")) == 0
-    assert "Recorded 31 frames" in capsys.readouterr().out  # the reset frame and one per step
+    out = capsys.readouterr().out
+    assert "Recorded 31 frames, one file per episode" in out  # the reset frame and one per step
     videos = tmp_path / "ppolag" / f"{ENV}_1" / "videos"
     if backend == "pillow":
-        gif = Image.open(videos / f"ppolag-{ENV}-{ENV}.gif")
-        assert gif.size == (176, 16)
-        assert sum(frame.info["duration"] for frame in ImageSequence.Iterator(gif)) == 31 * 250  # 4 fps
+        gifs = sorted(videos.glob(f"ppolag-{ENV}-{ENV}-episode-*.gif"))
+        # Pillow merges repeated frames into one longer frame: the durations still add up to 31 frames at 4 fps
+        durations = [frame.info["duration"] for gif in gifs for frame in ImageSequence.Iterator(Image.open(gif))]
+        assert len(gifs) >= 2 and sum(durations) == 31 * 250 and Image.open(gifs[0]).size == (176, 16)
     else:
-        frames = sorted((videos / f"ppolag-{ENV}-{ENV}").glob("frame_*.png"))
+        frames = sorted(videos.glob(f"ppolag-{ENV}-{ENV}-episode-*/frame_*.png"))
         assert len(frames) == 31 and np.asarray(Image.open(frames[0])).shape[:2] == (16, 176)
+    assert len(list(videos.glob(".*"))) == 0  # no temporary file left
 
 
 def test_record_errors(logs: pathlib.Path, monkeypatch, capsys) -> None:
     monkeypatch.setattr(enjoy_module, "recording_backend", lambda: None)
     assert enjoy_main(_enjoy(logs, "-n", "5", "--record")) == 2
-    assert "--record needs moviepy (mp4), Pillow (GIF) or matplotlib (PNG frames)" in capsys.readouterr().err
+    assert "--record needs imageio-ffmpeg (mp4), Pillow (GIF) or matplotlib (PNG frames)" in capsys.readouterr().err
     monkeypatch.setattr(enjoy_module, "render_modes", lambda env_id: ["ansi"])
     assert enjoy_main(_enjoy(logs, "-n", "5", "--record")) == 2
     assert "cannot render rgb_array frames" in capsys.readouterr().err

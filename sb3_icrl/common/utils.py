@@ -6,24 +6,29 @@ import os
 import pathlib
 import pickle
 import tempfile
-from typing import Any
+from collections.abc import Callable, Mapping
+from typing import IO, Any
+
+import numpy as np
+import yaml
 
 
-def atomic_write_bytes(path: str | pathlib.Path, data: bytes, mode: int = 0o644) -> None:
+def atomic_write(path: str | pathlib.Path, write: Callable[[IO[bytes]], Any], mode: int = 0o644) -> None:
     """
-    Write ``data`` to ``path`` through a temporary file in the same folder and an atomic rename, so that readers
-    never see a half-written file and a failed write leaves the old file intact.
+    Write ``path`` through a temporary file in the same folder and an atomic rename, so that readers never see a
+    half-written file and a failed write leaves the old file intact. Every file the library writes goes through here.
 
     :param path: Destination file (its folder is created if needed)
-    :param data: The bytes to write
+    :param write: Called with the temporary file, opened in binary mode, to write the content
     :param mode: File permissions (temporary files are created private, 0600; results are meant to be shared)
     """
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    # The name remove_temporaries looks for
     file_descriptor, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(file_descriptor, "wb") as file:
-            file.write(data)
+            write(file)
             file.flush()
             # On disk before the rename: after a power cut the name holds the old file or the whole new one
             os.fsync(file.fileno())
@@ -32,6 +37,92 @@ def atomic_write_bytes(path: str | pathlib.Path, data: bytes, mode: int = 0o644)
     except BaseException:
         os.unlink(temporary)
         raise
+    _fsync_folder(path.parent)
+
+
+def remove_temporaries(folder: str | pathlib.Path) -> list[str]:
+    """
+    Delete the temporary files that writes cut short by a kill left in ``folder`` and its sub-folders
+    (``.<name>.<random>.tmp``, see :func:`atomic_write`). Call it only while no other process writes there.
+
+    :param folder: A folder (nothing happens when it does not exist)
+    :return: The paths removed
+    """
+    removed = []
+    for path in sorted(pathlib.Path(folder).rglob(".*.tmp")):
+        if path.is_file():
+            path.unlink()
+            removed.append(str(path))
+    return removed
+
+
+def _fsync_folder(folder: pathlib.Path) -> None:
+    # The rename itself on disk too (POSIX); folders cannot be opened this way on Windows
+    try:
+        descriptor = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(descriptor)
+    except OSError:
+        pass
+    finally:
+        os.close(descriptor)
+
+
+def atomic_write_bytes(path: str | pathlib.Path, data: bytes, mode: int = 0o644) -> None:
+    """
+    Write ``data`` to ``path`` atomically (see :func:`atomic_write`).
+
+    :param path: Destination file (its folder is created if needed)
+    :param data: The bytes to write
+    :param mode: File permissions
+    """
+    if not isinstance(data, (bytes, bytearray, memoryview)):
+        raise TypeError(f"atomic_write_bytes writes bytes, got {type(data).__name__}: use atomic_write_text for text.")
+    atomic_write(path, lambda file: file.write(data), mode=mode)
+
+
+def atomic_write_text(path: str | pathlib.Path, text: str, append: bool = False) -> None:
+    """
+    Write ``text`` (UTF-8) to ``path`` atomically (see :func:`atomic_write`).
+
+    :param path: Destination file
+    :param text: The text
+    :param append: Keep the file's current content and add ``text`` after it (a small log such as ``command.txt``)
+    """
+    path = pathlib.Path(path)
+    data = text.encode()
+    if append and path.is_file():
+        data = path.read_bytes() + data
+    atomic_write_bytes(path, data)
+
+
+def atomic_write_yaml(path: str | pathlib.Path, data: Any) -> None:
+    """
+    Write ``data`` as YAML (``yaml.safe_dump``) to ``path`` atomically.
+
+    :param path: Destination file
+    :param data: Plain data (dicts, lists, strings, numbers)
+    """
+    atomic_write_text(path, yaml.safe_dump(data))
+
+
+def atomic_save_npz(path: str | pathlib.Path, arrays: Mapping[str, Any], compressed: bool = False) -> str:
+    """
+    ``np.savez`` (or ``np.savez_compressed``) atomically.
+
+    :param path: Destination (``.npz`` is added when missing, as numpy does)
+    :param arrays: The arrays, by name
+    :param compressed: Compress the arrays
+    :return: The path written
+    """
+    path = str(path)
+    if not path.endswith(".npz"):
+        path += ".npz"
+    save = np.savez_compressed if compressed else np.savez
+    atomic_write(path, lambda file: save(file, **arrays))
+    return path
 
 
 def atomic_write_json(path: str | pathlib.Path, data: Any, **json_kwargs: Any) -> None:
@@ -57,6 +148,7 @@ def atomic_save_model(model: Any, path: str | pathlib.Path) -> str:
     path = str(path)
     if not path.endswith(".zip"):
         path += ".zip"
+    # SB3 writes its zip to a buffer first: a model that fails to serialise leaves no file at all
     buffer = io.BytesIO()
     model.save(buffer)
     atomic_write_bytes(path, buffer.getvalue())
@@ -70,4 +162,4 @@ def atomic_save_pickle(obj: Any, path: str | pathlib.Path) -> None:
     :param obj: A picklable object
     :param path: Destination file
     """
-    atomic_write_bytes(path, pickle.dumps(obj))
+    atomic_write(path, lambda file: pickle.dump(obj, file))

@@ -3,8 +3,15 @@ ICRL on a tabular env (the grid world) with PI-Lagrangian as the forward solver,
 worlds ("we replace the policy gradient algorithm in the baseline algorithms with policy iteration"): the constraint
 model is the same and is updated by the same :class:`~sb3_icrl.icrl.ICRLTrainer` as with PPO-Lagrangian; only the
 policy step is exact planning on the learned cost table.
+
+:func:`tabular_icrl` runs the loop on its own; :func:`learn_with_planner` runs it for a built ICRL model of the zoo
+(``forward_solver: pi_lagrangian`` in ``zoo_hyperparams/<algo>.yml``), with SB3's callbacks, so ``train.py`` writes its
+usual run folder (evaluations, checkpoints, the model whose policy acts as planned).
 """
 
+import functools
+import inspect
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -180,3 +187,293 @@ def tabular_icrl(
     planner.set_cost_table(planning_costs())
     planner.learn()
     return TabularICRLResult(planner, constraint_net, trainer, history)
+
+
+# ---------------------------------------------------------------------- the zoo's forward solver for tabular envs
+
+#: ``forward_solver`` values of the zoo's hyper-parameter files: the algorithm's own policy-gradient learner, or exact
+#: planning on the learned cost (tabular envs only)
+FORWARD_SOLVERS = ("policy_gradient", "pi_lagrangian")
+#: Keys of ``planner_kwargs`` read by :func:`learn_with_planner` itself; the others go to :class:`PILagrangian`
+PLANNER_LOOP_KEYS = ("nominal_buffer_size", "label_trajectories", "distill_steps", "planner_iterations")
+
+
+def learned_planning_costs(model: Any, n_states: int, n_actions: int) -> np.ndarray:
+    """
+    The cost table a planner minimises for an ICRL model: the learned cost ``1 - phi`` (BC2L, MECL, VICRL), or for
+    GACL ``-log D``, so that planning on ``R - 1 * C`` is planning on GACL's reward ``r + log D``.
+
+    :param model: An ICRL model (its ``constraint_net``; GACL's ``log_d_eps``)
+    :param n_states: Number of states
+    :param n_actions: Number of actions
+    :return: ``C[s, a]``, shape ``(n_states, n_actions)``
+    """
+    costs = cost_table(model.constraint_net, n_states, n_actions)
+    if hasattr(model, "log_d_eps"):  # GACL: D is the feasibility, its reward adds log D
+        return -np.log(np.clip(1.0 - costs, model.log_d_eps, 1.0))
+    return costs
+
+
+def absorbing_states(planner: PILagrangian) -> np.ndarray:
+    """
+    :param planner: A planner with its transition table
+    :return: Boolean mask of the states no action leaves (the goal): a learned cost there is never paid
+    """
+    n_states = planner.rewards.shape[0]
+    return np.all(planner.transitions[np.arange(n_states), :, np.arange(n_states)] == 1.0, axis=1)
+
+
+def distill_planner(policy: Any, planner: PILagrangian, max_steps: int = 2000, learning_rate: float = 1e-2) -> int:
+    """
+    Teach an SB3 policy over ``Discrete`` states to act as the planner: cross-entropy on every state's planned action,
+    until the policy's deterministic action is the planner's in every state (the saved model then acts as planned, in
+    ``enjoy`` and ``compare``). Only the actor (shared layers and action head) moves.
+
+    :param policy: An SB3 ``ActorCriticPolicy`` for the planner's env
+    :param planner: The planner
+    :param max_steps: Most gradient steps
+    :param learning_rate: Adam learning rate
+    :return: The gradient steps taken
+    :raises RuntimeError: When the policy still disagrees with the planner after ``max_steps``
+    """
+    n_states = planner.rewards.shape[0]
+    states = th.as_tensor(np.arange(n_states), device=policy.device)
+    targets = th.as_tensor(planner.policy_table, dtype=th.long, device=policy.device)
+    parameters = [p for name, p in policy.named_parameters() if not name.startswith(("value_net", "cost_value_net"))]
+    optimizer = th.optim.Adam(parameters, lr=learning_rate)
+    for step in range(max_steps + 1):
+        distribution = policy.get_distribution(policy.obs_to_tensor(states.cpu().numpy())[0])
+        logits = distribution.distribution.logits
+        # A margin keeps float noise from flipping a nearly tied action after saving and loading
+        top2 = logits.topk(2, dim=1).values
+        chosen = logits.gather(1, targets[:, None])[:, 0]
+        if bool((chosen >= top2[:, 0]).all()) and bool((chosen - top2[:, 1] > 1.0).all()):
+            return step
+        if step == max_steps:
+            break
+        loss = th.nn.functional.cross_entropy(logits, targets)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+    raise RuntimeError(f"The policy did not learn the planner's actions in {max_steps} steps: give it more capacity.")
+
+
+def learn_with_planner(
+    model: Any,
+    total_timesteps: int,
+    callback: Any = None,
+    planner_kwargs: dict[str, Any] | None = None,
+    tb_log_name: str = "run",
+    reset_num_timesteps: bool = True,
+    progress_bar: bool = False,
+) -> PILagrangian:
+    """
+    Train an ICRL model of the zoo (BC2L, MECL, VICRL, GACL) with exact planning as its forward solver, on a tabular
+    env: the paper's grid-world setting, driven like SB3's ``learn`` (steps counted in the env, callbacks called at
+    every step, so evaluation, checkpoints and the progress bar work as usual).
+
+    Each iteration plans with :class:`~sb3_icrl.PILagrangian` on the learned cost (GACL: on ``r + log D``, a cost
+    ``-log D`` with the multiplier fixed at 1), runs the plan in the model's env (random tie-breaks) until
+    ``n_nominal_trajectories`` episodes have ended, and updates the constraint model with the model's own trainer
+    class and settings on expert vs those trajectories. The learner reads nothing but the raw states and actions of
+    its episodes. After each planning, the model's policy is taught the planned actions (:func:`distill_planner`), so
+    evaluations and the saved model act as planned; the multiplier of a Lagrangian model is set to the planner's.
+
+    :param model: A built ICRL model with its env and demonstrations
+    :param total_timesteps: Env steps to run
+    :param callback: SB3 callback(s), as for ``learn``
+    :param planner_kwargs: :class:`~sb3_icrl.PILagrangian` arguments (``gamma``, ``cost_budget``, ``lagrange_init``,
+        ``lagrange_lr``...), plus ``nominal_buffer_size`` (as in :func:`tabular_icrl`; default 0),
+        ``label_trajectories`` (BC2L and GACL classify whole trajectories, as the reference code on its grid worlds;
+        default ``False``), ``planner_iterations`` (most multiplier updates per planning, ``PILagrangian.learn``'s
+        ``total_iterations``; the planner and its multiplier carry over from one planning to the next; default 1000)
+        and ``distill_steps`` (most steps of :func:`distill_planner`; default 2000)
+    :param tb_log_name: TensorBoard run name
+    :param reset_num_timesteps: Whether to reset the step count (``False``: a resumed run)
+    :param progress_bar: Display a progress bar
+    :return: The planner on the final learned cost
+    """
+    from sb3_icrl.bc2l import BC2LTrainer  # the trainers import this module's package
+
+    if model.demonstrations is None or model.constraint_net is None or model.constraint_optimizer is None:
+        raise ValueError(f"{type(model).__name__} needs its demonstrations and constraint model to learn.")
+    env = model.get_env()
+    if env is None:
+        raise ValueError("This model has no env: call `set_env(env)` first.")
+    options = dict(planner_kwargs or {})
+    loop = {key: options.pop(key) for key in PLANNER_LOOP_KEYS if key in options}
+    buffer_size = int(loop.get("nominal_buffer_size", 0))
+    if buffer_size < 0:
+        raise ValueError(f"`nominal_buffer_size` must be >= 0 (0: no buffer), got {buffer_size}.")
+    try:
+        planner = PILagrangian(env, seed=model.seed, **options)
+    except TypeError as error:
+        raise ValueError(
+            f"planner_kwargs: {error}. PILagrangian takes gamma, cost_budget, lagrange_init, lagrange_lr, "
+            f"lagrange_upper_bound, horizon, max_policy_iterations; the loop takes {', '.join(PLANNER_LOOP_KEYS)}."
+        ) from error
+    n_states, n_actions = planner.rewards.shape
+    absorbing = absorbing_states(planner)
+    trainer_kwargs = {key: value for key, value in model.trainer_kwargs.items() if key != "budget_from_expert"}
+    if loop.get("label_trajectories", False):
+        if not issubclass(model.trainer_class, BC2LTrainer):
+            raise ValueError(f"label_trajectories is for BC2L and GACL, not {model.trainer_class.__name__}.")
+        trainer_kwargs["expert_episode_lengths"] = [len(trajectory) for trajectory in model.demonstrations]
+    n_nominal = model.n_nominal_trajectories or len(model.demonstrations)
+    trainer = model.trainer_class(
+        model.constraint_net,
+        model.constraint_optimizer,
+        model.expert_obs,
+        model.expert_acts,
+        None,
+        None,
+        update_every=1,
+        constraint_steps=model.constraint_steps,
+        batch_size=model.constraint_batch_size,
+        n_nominal_trajectories=n_nominal,
+        seed=model.seed,
+        **trainer_kwargs,
+    )
+    trainer.n_updates = int(getattr(model, "n_constraint_updates", 0))
+
+    total_timesteps, callback = model._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
+    callback.on_training_start(locals(), globals())
+    recorder = model.recorder
+    recorder.pop_trajectories()  # nothing from before this run
+    buffer: list[NominalTrajectory] = []
+    buffer_rng = np.random.default_rng(model.seed)
+    # The planner reads no cost from the env: step below the learned-cost wrapper when nothing else sits above it
+    stepper = recorder if model.env is model.constraint_wrapper else env
+    planner_iterations = int(loop.get("planner_iterations", 1000))
+    observations = model._last_obs
+    distilled: np.ndarray | None = None
+    keep_going = True
+    while keep_going and model.num_timesteps < total_timesteps:
+        costs = learned_planning_costs(model, n_states, n_actions)
+        costs[absorbing] = 0.0
+        if trainer.n_updates == 0:
+            # Before any update the learner is the nominal (unconstrained) planner: every shortest path ties, and the
+            # random tie-breaks spread its first trajectories over all of them, not over the one an untrained net favours
+            costs[:] = 0.0
+        planner.set_cost_table(costs)
+        if hasattr(model, "log_d_eps"):  # GACL: r + log D, no multiplier to learn
+            planner.lagrange_multiplier, planner.lagrange_lr = 1.0, 0.0
+        planner.learn(total_iterations=planner_iterations)
+        if distilled is None or not np.array_equal(distilled, planner.policy_table):
+            distill_planner(model.policy, planner, max_steps=int(loop.get("distill_steps", 2000)))
+            distilled = planner.policy_table.copy()
+        _set_multiplier(model, planner.lagrange_multiplier)
+        callback.on_rollout_start()
+        finished = 0
+        while finished < n_nominal and model.num_timesteps < total_timesteps:
+            actions = planner.predict(np.asarray(observations).reshape(-1), deterministic=False)[0]
+            observations, rewards, dones, infos = stepper.step(actions)
+            model.num_timesteps += env.num_envs
+            finished += int(np.sum(dones))
+            callback.update_locals(locals())
+            if not callback.on_step():
+                keep_going = False
+                break
+        model._last_obs = observations
+        trajectories = recorder.pop_trajectories(n_nominal)
+        if keep_going and trajectories and model.num_timesteps <= total_timesteps:
+            if buffer_size > 0:
+                for trajectory in trajectories:
+                    if len(buffer) >= buffer_size:
+                        buffer.pop(int(buffer_rng.integers(len(buffer))))
+                    buffer.append(trajectory)
+                trajectories = [buffer[index] for index in buffer_rng.integers(0, len(buffer), size=n_nominal)]
+            stats = trainer.update(NominalData.from_trajectories(trajectories))
+            model.n_constraint_updates = trainer.n_updates
+            planned_reward, planned_cost = planner.episode_returns()
+            stats.update(
+                planned_reward=planned_reward, planned_cost=planned_cost, planner_multiplier=planner.lagrange_multiplier
+            )
+            for key, value in stats.items():
+                model.logger.record(f"constraint/{key}", value)
+        callback.on_rollout_end()
+        model.logger.record("time/total_timesteps", model.num_timesteps, exclude="tensorboard")
+        model.logger.dump(model.num_timesteps)
+    # The returned planner and the saved policy act on the final learned cost
+    costs = learned_planning_costs(model, n_states, n_actions)
+    costs[absorbing] = 0.0
+    planner.set_cost_table(costs)
+    planner.learn(total_iterations=planner_iterations)
+    if distilled is None or not np.array_equal(distilled, planner.policy_table):
+        distill_planner(model.policy, planner, max_steps=int(loop.get("distill_steps", 2000)))
+    _set_multiplier(model, planner.lagrange_multiplier)
+    callback.on_training_end()
+    return planner
+
+
+def _set_multiplier(model: Any, value: float) -> None:
+    """Give a Lagrangian model the planner's multiplier (both price a whole episode's cost against a budget of 0)."""
+    multiplier = getattr(model, "lagrange_multiplier", None)
+    if multiplier is None:
+        return
+    parameter = getattr(multiplier, "_multiplier", None)
+    if isinstance(parameter, th.nn.Parameter):
+        with th.no_grad():
+            parameter.fill_(float(value))
+    elif hasattr(multiplier, "_value"):
+        multiplier._value = np.full_like(multiplier._value, float(value))
+
+
+def forward_solver(algo: str, params: dict[str, Any], env_id: str) -> str:
+    """
+    The forward solver a zoo run asks for (``forward_solver`` in its hyper-parameters; default ``"policy_gradient"``),
+    checked: ``"pi_lagrangian"`` needs an ICRL algorithm and a tabular env (one that exposes ``P``, ``R``, ``C`` and
+    ``start_state``, as :class:`~sb3_icrl.envs.GridWorldEnv`).
+
+    :param algo: Command-line algorithm name
+    :param params: The run's hyper-parameters
+    :param env_id: The registered env id
+    :return: One of :data:`FORWARD_SOLVERS`
+    :raises ValueError: For an unknown solver, or a planner asked for where it cannot plan
+    """
+    from sb3_icrl.zoo.hyperparams import ICRL_ALGOS
+
+    solver = params.get("forward_solver", "policy_gradient")
+    if solver not in FORWARD_SOLVERS:
+        raise ValueError(f"forward_solver must be one of {', '.join(FORWARD_SOLVERS)}, got {solver!r}.")
+    if solver == "policy_gradient":
+        return solver  # a recipe's planner_kwargs stay unused (-params forward_solver:policy_gradient on a grid entry)
+    if algo not in ICRL_ALGOS:
+        raise ValueError(
+            f"forward_solver: pi_lagrangian is the forward solver of the ICRL algorithms ({', '.join(ICRL_ALGOS)}); "
+            f"{algo} trains its own policy (use sb3_icrl.PILagrangian directly to plan on the true cost)."
+        )
+    unwrapped = gym.make(env_id).unwrapped
+    missing = [name for name in ("P", "R", "C", "start_state") if not hasattr(unwrapped, name)]
+    if missing:
+        raise ValueError(
+            f"forward_solver: pi_lagrangian plans on tables, and {env_id} has no {', '.join(missing)} (tabular envs such as "
+            "the grid worlds have them): pass -params forward_solver:policy_gradient."
+        )
+    planner_kwargs = params.get("planner_kwargs") or {}
+    if not isinstance(planner_kwargs, dict):
+        raise ValueError(f'planner_kwargs must be a dict, e.g. "dict(nominal_buffer_size=500)", got {planner_kwargs!r}.')
+    accepted = set(inspect.signature(PILagrangian).parameters) - {"env", "cost_table", "seed", "verbose"}
+    unknown = sorted(set(planner_kwargs) - accepted - set(PLANNER_LOOP_KEYS))
+    if unknown:
+        raise ValueError(
+            f"planner_kwargs: unknown {', '.join(unknown)}. PILagrangian takes {', '.join(sorted(accepted))}; the ICRL loop "
+            f"takes {', '.join(PLANNER_LOOP_KEYS)}."
+        )
+    if int(planner_kwargs.get("nominal_buffer_size", 0)) < 0:
+        raise ValueError(f"nominal_buffer_size must be >= 0 (0: no buffer), got {planner_kwargs['nominal_buffer_size']}.")
+    return solver
+
+
+def learn_function(model: Any, solver: str, planner_kwargs: dict[str, Any] | None = None) -> Callable[..., Any]:
+    """
+    The ``learn`` a zoo run calls: the model's own, or :func:`learn_with_planner` bound to it.
+
+    :param model: The model
+    :param solver: One of :data:`FORWARD_SOLVERS` (see :func:`forward_solver`)
+    :param planner_kwargs: The planner's settings (``pi_lagrangian`` only)
+    :return: A function with ``learn``'s arguments
+    """
+    if solver == "pi_lagrangian":
+        return functools.partial(learn_with_planner, model, planner_kwargs=planner_kwargs)
+    return model.learn

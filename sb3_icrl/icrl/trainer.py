@@ -78,7 +78,8 @@ class ICRLTrainer(BaseCallback):
         the reference's MuJoCo runs). Once full, a random one makes room for each new one, as in the reference code's
         ``IRLDataQueue``, so old behaviour thins out instead of vanishing. Without it, a model fitted only to the
         learner's latest trajectories can forget a region the learner stopped visiting, and the learner comes back
-        to it (seen on BlockedHalfCheetah, ``benchmarks/RESULTS.md``). Kept in memory only: not saved with the model
+        to it (seen on BlockedHalfCheetah, ``benchmarks/RESULTS.md``). Not in the model zip: it travels with the rest
+        of the trainer's state (:meth:`state_dict`), which ``train.py`` checkpoints save beside the model
     :param learning_rate_decay: Factor applied to the optimiser's learning rate after each update (1: constant). The
         reference code anneals the constraint learning rate by 0.9 per outer iteration (``anneal_clr_by_factor``), so
         that late updates, when the learner already looks like the expert, move the constraint less. The rate travels
@@ -169,6 +170,8 @@ class ICRLTrainer(BaseCallback):
         self.n_updates = 0
         self._last_update = 0
         self._rng = np.random.default_rng(seed)
+        # Set by load_state_dict: the next _init_callback keeps the restored counters and random state
+        self._restored = False
 
     # ------------------------------------------------------------------ callback hooks
 
@@ -179,10 +182,14 @@ class ICRLTrainer(BaseCallback):
                 f"budget_statistic='step', got {type(self.model).__name__} with "
                 f"budget_statistic={getattr(self.model, 'budget_statistic', None)!r}."
             )
-        self._last_update = self.num_timesteps
-        if self.model.seed is not None and self.n_updates == 0:
-            # Seeded once: a later learn() call continues the sequence
-            self._rng = np.random.default_rng(self.model.seed)
+        if self._restored:
+            # A resumed run: the step of the last update and the sampling sequence go on from the checkpoint
+            self._restored = False
+        else:
+            self._last_update = self.num_timesteps
+            if self.model.seed is not None and self.n_updates == 0:
+                # Seeded once: a later learn() call continues the sequence
+                self._rng = np.random.default_rng(self.model.seed)
         # The update count lives on the model too, so that it is saved with it
         self.n_updates = max(self.n_updates, int(getattr(self.model, "n_constraint_updates", 0)))
         self.install()
@@ -218,6 +225,48 @@ class ICRLTrainer(BaseCallback):
             stats["cost_budget"] = float(self.model.cost_budget[0])  # type: ignore[attr-defined]
         for key, value in stats.items():
             self.logger.record(f"constraint/{key}", value)
+
+    # ------------------------------------------------------------------ checkpoint state
+
+    def state_dict(self) -> dict[str, Any]:
+        """
+        What a resumed run needs beyond the model zip (which holds the constraint net, its optimiser and the update
+        count): the remembered nominal trajectories (``nominal_memory``), the trajectories finished since the last
+        update and not used yet, the step of the last update and the state of the minibatch sampler. Plain numpy
+        arrays and numbers only, so that it pickles with any version of the class.
+
+        :return: The state, for :meth:`load_state_dict`
+        """
+        pending = list(self.recorder.finished) if self.recorder is not None else []
+        return {
+            "n_updates": int(self.n_updates),
+            "last_update": int(self._last_update),
+            "rng": self._rng.bit_generator.state,
+            "remembered": [(trajectory.obs, trajectory.acts) for trajectory in self.remembered],
+            "pending": [(trajectory.obs, trajectory.acts) for trajectory in pending],
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """
+        Go on from a :meth:`state_dict`: the next ``learn()`` keeps these counters instead of starting them afresh.
+
+        :param state: From :meth:`state_dict` (of a trainer of the same model)
+        """
+        missing = {"n_updates", "last_update", "rng", "remembered", "pending"} - set(state)
+        if missing:
+            raise ValueError(f"Not an ICRL trainer state: {sorted(missing)} missing (saved by ICRLTrainer.state_dict?).")
+        self.n_updates = int(state["n_updates"])
+        self._last_update = int(state["last_update"])
+        self._rng = np.random.default_rng()
+        self._rng.bit_generator.state = state["rng"]
+        self.remembered = [NominalTrajectory(np.asarray(obs), np.asarray(acts)) for obs, acts in state["remembered"]]
+        if self.recorder is not None:
+            self.recorder.finished.clear()
+            pending = (NominalTrajectory(np.asarray(obs), np.asarray(acts)) for obs, acts in state["pending"])
+            self.recorder.finished.extend(pending)
+        self._restored = True
+
+    # ------------------------------------------------------------------ nominal data
 
     def feasibility_gap(self, nominal: NominalData) -> float:
         """

@@ -1,7 +1,7 @@
 """Evaluation callback with the benchmark's metrics; model selection sees only what the learner knows."""
 
-import io
 import os
+import pickle
 import warnings
 from collections.abc import Callable, Sequence
 from copy import deepcopy
@@ -15,7 +15,9 @@ from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, unwrap_vec_n
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 
 from sb3_icrl.common.evaluation import evaluate_constraint
-from sb3_icrl.common.utils import atomic_save_model, atomic_save_pickle, atomic_write_bytes
+from sb3_icrl.common.utils import atomic_save_model, atomic_save_npz, atomic_save_pickle
+from sb3_icrl.zoo.runs import CHECKPOINT_PATTERN
+from sb3_icrl.zoo.summary import evaluation_line, model_multiplier
 
 
 @dataclass
@@ -167,12 +169,16 @@ class ConstraintEvalCallback(EvalCallback):
     did not yet forbid thus loses its place once the constraint learns better.
 
     :param eval_env: The evaluation env; wrap its bottom in :class:`LearnedCostRecorder` for the learned metrics
+    :param recorder: The :class:`LearnedCostRecorder` at the bottom of ``eval_env``
+    :param summary: Print one line per evaluation (step, return, true violation rate, feasible reward, multiplier)
+        when ``verbose`` is 0; with ``verbose >= 1`` every metric is printed instead
     :param kwargs: :class:`~stable_baselines3.common.callbacks.EvalCallback`'s arguments
     """
 
-    def __init__(self, eval_env: VecEnv, recorder: LearnedCostRecorder | None = None, **kwargs: Any):
+    def __init__(self, eval_env: VecEnv, recorder: LearnedCostRecorder | None = None, summary: bool = False, **kwargs: Any):
         super().__init__(eval_env, **kwargs)
         self.recorder = recorder
+        self.summary = summary
         self.history: dict[str, list] = {}
         self.best_score = -np.inf
         self.best_episodes: list[RecordedEpisode] = []  # the best model's recorded episodes, priced again later
@@ -193,7 +199,30 @@ class ConstraintEvalCallback(EvalCallback):
             self.history = {key: [row for row, kept in zip(saved[key], keep, strict=True) if kept] for key in saved.files}
         scores = [float(score) for score in self.history.get("selection_score", [])]
         if scores and os.path.isfile(os.path.join(self.best_model_save_path or "", "best_model.zip")):
+            # Without the checkpoint's own state (load_state_dict), the best score as recorded
             self.best_score = max(scores)
+
+    def state_dict(self) -> dict[str, Any]:
+        """
+        The model selection's state, saved with each checkpoint so that a resumed run goes on choosing as the
+        interrupted one would have: the best score and the best model's recorded episodes, priced again at each
+        evaluation (the evaluations themselves are in ``evaluations.npz``, see :meth:`resume_history`).
+
+        :return: Plain numbers and numpy arrays, for :meth:`load_state_dict`
+        """
+        episodes = [(episode.observations, episode.actions, episode.rewards) for episode in self.best_episodes]
+        return {"best_score": float(self.best_score), "best_episodes": episodes}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """
+        Go on from a :meth:`state_dict` (call after :meth:`resume_history`, whose best score it replaces).
+
+        :param state: From :meth:`state_dict`
+        """
+        if not {"best_score", "best_episodes"} <= set(state):
+            raise ValueError("Not a ConstraintEvalCallback state: expected 'best_score' and 'best_episodes'.")
+        self.best_score = float(state["best_score"])
+        self.best_episodes = [RecordedEpisode(*(np.asarray(part) for part in parts)) for parts in state["best_episodes"]]
 
     def _init_callback(self) -> None:
         # The eval env is built like the training one, but the ICRL models add their own wrappers to theirs
@@ -213,6 +242,16 @@ class ConstraintEvalCallback(EvalCallback):
         eval_normalize.obs_rms = deepcopy(train_normalize.obs_rms)
         eval_normalize.ret_rms = deepcopy(train_normalize.ret_rms)
 
+    def _on_training_end(self) -> None:
+        # A run shorter than eval_freq, or not a multiple of it, still ends with an evaluation of its final model
+        evaluated = self.history.get("timesteps", [])
+        if self.eval_freq > 0 and self.n_calls > 0 and (not evaluated or evaluated[-1] != self.num_timesteps):
+            eval_freq, self.eval_freq = self.eval_freq, 1
+            try:
+                self._on_step()
+            finally:
+                self.eval_freq = eval_freq
+
     def _selection_score(self, metrics: dict[str, float]) -> float:
         for learned_score in ("learned_penalised_reward", "learned_feasible_reward"):
             if learned_score in metrics:
@@ -230,7 +269,7 @@ class ConstraintEvalCallback(EvalCallback):
             self.recorder.recording = constraint_net is not None
             self.recorder.episodes = []
         result = evaluate_constraint(
-            self.model, self.eval_env, n_episodes=self.n_eval_episodes, deterministic=self.deterministic
+            self.model, self.eval_env, n_eval_episodes=self.n_eval_episodes, deterministic=self.deterministic
         )
         metrics = {
             "mean_reward": result.mean_reward,
@@ -259,6 +298,8 @@ class ConstraintEvalCallback(EvalCallback):
         self.logger.dump(self.num_timesteps)
         if self.verbose >= 1:
             print(f"Eval num_timesteps={self.num_timesteps}, " + ", ".join(f"{k}={v:.3g}" for k, v in metrics.items()))
+        elif self.summary:
+            print(evaluation_line(self.num_timesteps, metrics, model_multiplier(self.model)), flush=True)
 
         self.history.setdefault("timesteps", []).append(self.num_timesteps)
         self.history.setdefault("results", []).append(result.episode_rewards)
@@ -273,10 +314,7 @@ class ConstraintEvalCallback(EvalCallback):
         score = self._selection_score(metrics)
         self.history.setdefault("selection_score", []).append(score)
         if self.log_path is not None:
-            arrays: dict[str, Any] = {key: np.array(value) for key, value in self.history.items()}
-            buffer = io.BytesIO()
-            np.savez(buffer, **arrays)
-            atomic_write_bytes(self.log_path if self.log_path.endswith(".npz") else self.log_path + ".npz", buffer.getvalue())
+            atomic_save_npz(self.log_path, {key: np.array(value) for key, value in self.history.items()})
 
         if score > self.best_score:
             self.best_score = score
@@ -290,24 +328,107 @@ class ConstraintEvalCallback(EvalCallback):
         return True
 
 
+#: Version of the training-state files (:func:`save_training_state`)
+TRAINING_STATE_FORMAT = 1
+
+
+def training_state_path(model_path: str, name: str) -> str:
+    """
+    Where the training state of a saved model goes: ``<prefix>_training_state_<steps>_steps.pkl`` beside a checkpoint
+    ``<prefix>_<steps>_steps.zip``, else ``<EnvName>/training_state.pkl`` in the model's folder (the final model).
+
+    :param model_path: The model zip
+    :param name: The env name (folder name of the run's parameters)
+    """
+    folder, base = os.path.split(os.path.abspath(model_path))
+    match = CHECKPOINT_PATTERN.match(base)
+    if match:
+        return os.path.join(folder, f"{match['prefix']}_training_state_{match['steps']}_steps.pkl")
+    return os.path.join(folder, name, "training_state.pkl")
+
+
+def save_training_state(model: Any, path: str, evaluation: ConstraintEvalCallback | None = None) -> None:
+    """
+    Save, atomically, what a resumed run needs beyond the model zip: the ICRL trainer's state
+    (:meth:`~sb3_icrl.icrl.ICRLTrainer.state_dict`: nominal memory, unused trajectories, last update step, sampler)
+    and the model selection's (:meth:`ConstraintEvalCallback.state_dict`). Write it before the model it goes with.
+
+    :param model: The learner (an ICRL model has ``icrl_trainer``)
+    :param path: Destination (:func:`training_state_path`)
+    :param evaluation: The run's evaluation callback, if any
+    """
+    trainer = getattr(model, "icrl_trainer", None)
+    state = {
+        "format": TRAINING_STATE_FORMAT,
+        "num_timesteps": int(model.num_timesteps),
+        "icrl_trainer": trainer.state_dict() if trainer is not None else None,
+        "evaluation": evaluation.state_dict() if evaluation is not None else None,
+    }
+    atomic_save_pickle(state, path)
+
+
+def load_training_state(model: Any, path: str, evaluation: ConstraintEvalCallback | None = None) -> bool:
+    """
+    Restore a :func:`save_training_state` file into ``model`` (its ICRL trainer, built here if it has none yet) and
+    ``evaluation``. A state saved at another step count than the model's is not used, with a warning.
+
+    :param model: The learner, loaded from the model the state was saved with
+    :param path: The state file (:func:`training_state_path`)
+    :param evaluation: The evaluation callback to restore (``None``: leave the model selection to start afresh)
+    :return: Whether a state was restored (``False``: no file)
+    """
+    if not os.path.isfile(path):
+        return False
+    with open(path, "rb") as file:
+        state = pickle.load(file)  # as trusted as the VecNormalize pickles beside it
+    if not isinstance(state, dict) or state.get("format") != TRAINING_STATE_FORMAT:
+        raise ValueError(f"{path} is not a training state of this sb3-icrl version (format {TRAINING_STATE_FORMAT}).")
+    if state["num_timesteps"] != model.num_timesteps:
+        warnings.warn(
+            f"{path} was saved at {state['num_timesteps']} steps, the model at {model.num_timesteps}: not used (the ICRL "
+            "trainer and the model selection start afresh)."
+        )
+        return False
+    if state["icrl_trainer"] is not None and hasattr(model, "icrl_trainer"):
+        if model.icrl_trainer is None or model.icrl_trainer.recorder is not model.recorder:
+            model.icrl_trainer = model._make_trainer()  # the trainer learn() would build, so that it keeps this one
+        model.icrl_trainer.load_state_dict(state["icrl_trainer"])
+    if evaluation is not None and state["evaluation"] is not None:
+        evaluation.load_state_dict(state["evaluation"])
+    return True
+
+
 class AtomicCheckpointCallback(CheckpointCallback):
     """
-    Checkpoints (model, and ``VecNormalize`` statistics) every ``save_freq`` timesteps, taken where a run can be
-    continued exactly: at the start of a rollout, after the previous update, so a resumed run (``train.py --resume``)
-    collects the same rollouts the interrupted one had left. Each file is written atomically, statistics first: a run
-    killed at any moment leaves whole checkpoints only, each with its statistics beside it.
+    Checkpoints (model, ``VecNormalize`` statistics and training state) every ``save_freq`` timesteps, taken where a
+    run can be continued exactly: at the start of a rollout, after the previous update, so a resumed run
+    (``train.py --resume`` or ``-i``) collects the same rollouts the interrupted one had left. Each file is written
+    atomically, the model last: a run killed at any moment leaves whole checkpoints only, each with its statistics
+    and state beside it.
 
     :param save_freq: Timesteps between checkpoints (the first rollout start at or past each multiple)
     :param save_path: Folder of the checkpoints
     :param name_prefix: File prefix: ``<prefix>_<timesteps>_steps.zip``
     :param save_vecnormalize: Also save the ``VecNormalize`` statistics (``<prefix>_vecnormalize_<timesteps>_steps.pkl``)
+    :param save_training_state: Also save the training state (``<prefix>_training_state_<timesteps>_steps.pkl``,
+        see :func:`save_training_state`)
+    :param evaluation: The run's evaluation callback, whose model selection goes into the training state
     :param verbose: Verbosity level
     """
 
     def __init__(
-        self, save_freq: int, save_path: str, name_prefix: str = "rl_model", save_vecnormalize: bool = False, verbose: int = 0
+        self,
+        save_freq: int,
+        save_path: str,
+        name_prefix: str = "rl_model",
+        save_vecnormalize: bool = False,
+        save_training_state: bool = False,
+        evaluation: ConstraintEvalCallback | None = None,
+        verbose: int = 0,
     ):
         super().__init__(save_freq, save_path, name_prefix=name_prefix, save_vecnormalize=save_vecnormalize, verbose=verbose)
+        self.save_training_state = save_training_state
+        self.evaluation = evaluation
         self._last_saved = 0
 
     def _init_callback(self) -> None:
@@ -321,6 +442,8 @@ class AtomicCheckpointCallback(CheckpointCallback):
         vec_normalize = self.model.get_vec_normalize_env()
         if self.save_vecnormalize and vec_normalize is not None:
             atomic_save_pickle(vec_normalize, self._checkpoint_path("vecnormalize_", extension="pkl"))
+        if self.save_training_state:
+            save_training_state(self.model, self._checkpoint_path("training_state_", extension="pkl"), self.evaluation)
         model_path = atomic_save_model(self.model, self._checkpoint_path(extension="zip"))
         if self.verbose >= 2:
             print(f"Saving model checkpoint to {model_path}")

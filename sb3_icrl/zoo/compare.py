@@ -10,6 +10,10 @@ steps trained, the training wall time (the monitor's clock), the true violation 
 algorithm it then gives the mean and std (``ddof=0``) over seeds and, against ``--reference``, the Wilcoxon
 signed-rank test of the per-seed feasible rewards (pairs: runs with the same training seed). The true constraint is
 read here only to report.
+
+Variants of one algorithm (two recipes, say, trained with ``-f logs/a`` and ``-f logs/b``) compare as their own rows
+when the same seed comes twice: each is labelled by the part of its folder that tells them apart (``mecl (a)``,
+``mecl (b)``), and ``--reference`` takes such a label.
 """
 
 import argparse
@@ -27,6 +31,8 @@ from stable_baselines3.common.save_util import load_from_zip_file
 from sb3_icrl.common.utils import atomic_write_json
 from sb3_icrl.zoo import enjoy
 from sb3_icrl.zoo.hyperparams import ALGOS, env_name, import_gym_packages
+from sb3_icrl.zoo.runs import FINISHED_FILE, failure, is_finished
+from sb3_icrl.zoo.train import non_negative_int, positive_int
 
 
 class RunFolderError(ValueError):
@@ -48,6 +54,7 @@ class RunResult:
     :param feasible_reward: Mean reward summed until the first true violation
     :param reward: Mean episode reward
     :param n_episodes: Held-out episodes run
+    :param label: Row label when it is not the algorithm (a variant: see :func:`run_labels`)
     """
 
     run: str
@@ -60,6 +67,12 @@ class RunResult:
     feasible_reward: float
     reward: float
     n_episodes: int
+    label: str = ""
+
+    @property
+    def name(self) -> str:
+        """The row label: :attr:`label`, else the algorithm."""
+        return self.label or self.algo
 
 
 def describe_run(run: str) -> tuple[str, str, int, str]:
@@ -143,9 +156,9 @@ def summarise(results: list[RunResult], reference: str | None = None) -> dict[st
     """
     by_algo: dict[str, dict[int, RunResult]] = {}
     for result in results:
-        runs = by_algo.setdefault(result.algo, {})
+        runs = by_algo.setdefault(result.name, {})
         if result.seed in runs:
-            raise _same_seed_error(result.algo, result.seed, runs[result.seed].run, result.run)
+            raise _same_seed_error(result.name, result.seed, runs[result.seed].run, result.run)
         runs[result.seed] = result
     if reference is not None and reference not in by_algo:
         raise RunFolderError(f"--reference {reference!r} has no run among the runs given ({sorted(by_algo)}).")
@@ -179,15 +192,103 @@ def check_runs(runs: list[str]) -> None:
     envs = {env_id for _, _, env_id, _ in described}
     if len(envs) > 1:
         raise RunFolderError(f"The runs trained on different envs ({sorted(envs)}): compare one env at a time.")
+    labels = run_labels(runs)
     seen: dict[tuple[str, int], str] = {}
-    for run, algo, _, seed in described:
-        if (algo, seed) in seen:
-            raise _same_seed_error(algo, seed, seen[algo, seed], run)
-        seen[algo, seed] = run
+    for run, _, _, seed in described:
+        label = labels[run]
+        if (label, seed) in seen:
+            raise _same_seed_error(label, seed, seen[label, seed], run)
+        seen[label, seed] = run
+        reason = failure(run)
+        if reason is not None:
+            raise RunFolderError(f"{run} failed ({reason}): finish it with train.py --resume, or leave it out.")
+        if not is_finished(run):
+            print(
+                f"warning: {run} did not finish its training (no {FINISHED_FILE}): it is compared as it stands",
+                file=sys.stderr,
+            )
+
+
+def check_reference(runs: list[str], reference: str | None) -> None:
+    """
+    Fail before any evaluation unless ``reference`` is the algorithm of one of ``runs``.
+
+    :param runs: Run folders
+    :param reference: ``--reference`` (``None``: no test)
+    """
+    if reference is None:
+        return
+    algos = sorted(set(run_labels(runs).values()))
+    if reference not in algos:
+        raise RunFolderError(f"--reference {reference!r} has no run among the runs given ({', '.join(algos)}).")
+
+
+#: Fewest pairs with which a two-sided Wilcoxon signed-rank test can reach p < 0.05 (its smallest p is 2 / 2**n)
+WILCOXON_MIN_PAIRS = 6
+
+
+def wilcoxon_warnings(summary: dict[str, dict[str, Any]], reference: str | None) -> list[str]:
+    """
+    The tests with too few pairs to mean anything (one pair gives p = 1 whatever the difference).
+
+    :param summary: From :func:`summarise`
+    :param reference: The reference algorithm
+    :return: One warning per such test
+    """
+    messages = []
+    for algo, entry in sorted(summary.items()):
+        pairs = entry.get("wilcoxon_pairs")
+        if pairs is not None and pairs < WILCOXON_MIN_PAIRS:
+            messages.append(
+                f"{algo} vs {reference}: {pairs} seed pair(s); a two-sided Wilcoxon test needs at least "
+                f"{WILCOXON_MIN_PAIRS} to reach p < 0.05 (its smallest p with {pairs} is {2 / 2**pairs if pairs else 1:.3g}): "
+                "train more seeds before reading the p-value."
+            )
+    return messages
 
 
 def _same_seed_error(algo: str, seed: int, first: str, second: str) -> RunFolderError:
-    return RunFolderError(f"Two {algo} runs trained with seed {seed} ({first} and {second}): pass one per algorithm and seed.")
+    return RunFolderError(
+        f"Two {algo} runs trained with seed {seed} ({first} and {second}): pass one per algorithm and seed, or variants "
+        "from different folders (train.py -f), which are labelled by folder."
+    )
+
+
+def _distinct_parts(paths: list[str]) -> list[str]:
+    """Each path less the leading and trailing components all ``paths`` share (``.`` when nothing is left)."""
+    parts = [os.path.normpath(os.path.abspath(path)).split(os.sep) for path in paths]
+    prefix = 0
+    while all(len(p) > prefix for p in parts) and len({p[prefix] for p in parts}) == 1:
+        prefix += 1
+    suffix = 0
+    while all(len(p) - prefix > suffix for p in parts) and len({p[len(p) - 1 - suffix] for p in parts}) == 1:
+        suffix += 1
+    return ["/".join(p[prefix : len(p) - suffix]) or "." for p in parts]
+
+
+def run_labels(runs: list[str]) -> dict[str, str]:
+    """
+    The row label of each run: its algorithm, or, for an algorithm that comes with the same seed more than once
+    (variants), ``"<algo> (<folder>)"`` where ``<folder>`` is the part of the run's log folder (``train.py -f``) that
+    differs between them (its run folder's name when they share the log folder).
+
+    :param runs: Run folders
+    :return: ``{run: label}``
+    """
+    described = {run: describe_run(run) for run in runs}
+    labels = {run: algo for run, (algo, _, _, _) in described.items()}
+    for algo in sorted(set(labels.values())):
+        mine = [run for run in runs if described[run][0] == algo]
+        seeds = [described[run][2] for run in mine]
+        if len(set(seeds)) == len(seeds) or len({os.path.abspath(run) for run in mine}) < len(mine):
+            continue  # no variants, or one run given twice (an error for check_runs)
+        folders = [described[run][3] for run in mine]
+        by_folder = dict(zip(mine, _distinct_parts(folders), strict=True))
+        if len({(by_folder[run], described[run][2]) for run in mine}) < len(mine):  # same log folder: by run folder
+            by_folder = dict(zip(mine, _distinct_parts([os.path.normpath(run) for run in mine]), strict=True))
+        for run in mine:
+            labels[run] = f"{algo} ({by_folder[run]})"
+    return labels
 
 
 def recipe_differences(runs: list[str]) -> dict[str, dict[str, list[str]]]:
@@ -199,12 +300,13 @@ def recipe_differences(runs: list[str]) -> dict[str, dict[str, list[str]]]:
     :return: ``{algo: {key: [value of each run, as text]}}``, only for keys that differ
     """
     configs: dict[str, list[dict[str, Any]]] = {}
+    labels = run_labels(runs)  # variants of an algorithm differ on purpose
     for run in runs:
-        algo, env_id, _, _ = describe_run(run)
+        _, env_id, _, _ = describe_run(run)
         with open(os.path.join(run, env_name(env_id), "config.yml")) as file:
             config = yaml.safe_load(file) or {}
         config.pop("n_timesteps", None)
-        configs.setdefault(algo, []).append(config)
+        configs.setdefault(labels[run], []).append(config)
     differences: dict[str, dict[str, list[str]]] = {}
     for algo, entries in configs.items():
         keys = sorted(set().union(*entries))
@@ -228,9 +330,9 @@ def format_table(results: list[RunResult], summary: dict[str, dict[str, Any]], r
         "| algo | seed | steps | wall time (min) | violation rate | feasible reward | reward | episodes | run |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
-    for r in sorted(results, key=lambda result: (result.algo, result.seed)):
+    for r in sorted(results, key=lambda result: (result.name, result.seed)):
         lines.append(
-            f"| {r.algo} | {r.seed} | {r.timesteps} | {r.wall_time_min:.1f} | {r.violation_rate:.0%} | "
+            f"| {r.name} | {r.seed} | {r.timesteps} | {r.wall_time_min:.1f} | {r.violation_rate:.0%} | "
             f"{r.feasible_reward:.0f} | {r.reward:.0f} | {r.n_episodes} | {r.run} |"
         )
     test_column = f" Wilcoxon p vs {reference} (pairs) |" if reference else ""
@@ -247,6 +349,15 @@ def format_table(results: list[RunResult], summary: dict[str, dict[str, Any]], r
     return "\n".join(lines)
 
 
+def _check_json_path(path: str) -> None:
+    """Fail before the evaluations when ``--json`` cannot be written (its folder missing, or a file)."""
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder) or os.path.isdir(path):
+        raise RunFolderError(
+            f"--json {path!r} cannot be written: {folder} must be an existing folder and the path a file name."
+        )
+
+
 def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
     """
     The command-line parser.
@@ -255,10 +366,15 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
     """
     parser = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("runs", nargs="+", help="Run folders <folder>/<algo>/<EnvName>_<N>")
-    parser.add_argument("-n", "--n-timesteps", type=int, default=20000, help="Evaluation steps per run")
-    parser.add_argument("--seed", type=int, default=100, help="Seed of the held-out evaluation episodes")
+    parser.add_argument("-n", "--n-timesteps", type=positive_int, default=20000, help="Evaluation steps per run")
+    parser.add_argument("--seed", type=non_negative_int, default=100, help="Seed of the held-out evaluation episodes")
     parser.add_argument("--model", choices=["final", "best"], default="final", help="Model to evaluate")
-    parser.add_argument("--reference", type=str, default=None, help="Algorithm to test the others against (Wilcoxon)")
+    parser.add_argument(
+        "--reference",
+        type=str,
+        default=None,
+        help="Algorithm (or variant label, e.g. 'mecl (a)') to test the others against (Wilcoxon)",
+    )
     parser.add_argument("--json", type=str, default=None, help="Also write the runs and the summary to this JSON file")
     return parser
 
@@ -274,18 +390,26 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     args = get_parser(prog).parse_args(list(sys.argv[1:] if argv is None else argv))
     try:
         check_runs(args.runs)
+        check_reference(args.runs, args.reference)
+        if args.json:
+            _check_json_path(args.json)
         for algo, differing in recipe_differences(args.runs).items():
             listed = "; ".join(f"{key}: {', '.join(values)}" for key, values in differing.items())
             print(f"warning: the {algo} runs do not share one recipe ({listed})", file=sys.stderr)
         results = []
+        labels = run_labels(args.runs)
         for run in args.runs:
             print(f"Evaluating {run}")
-            results.append(evaluate_run(run, args.n_timesteps, args.seed, args.model == "best"))
+            result = evaluate_run(run, args.n_timesteps, args.seed, args.model == "best")
+            result.label = labels[run] if labels[run] != result.algo else ""
+            results.append(result)
         summary = summarise(results, args.reference)
     except (FileNotFoundError, RunFolderError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
     print(format_table(results, summary, args.reference))
+    for warning in wilcoxon_warnings(summary, args.reference):
+        print(f"warning: {warning}", file=sys.stderr)
     if args.json:
         payload = {"runs": [asdict(result) for result in results], "summary": summary, "eval_seed": args.seed}
         atomic_write_json(args.json, payload, indent=2)

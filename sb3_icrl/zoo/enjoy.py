@@ -8,12 +8,12 @@ Loads ``<folder>/<algo>/<EnvName>_<exp-id>/<EnvName>.zip`` (``--load-best``: ``b
 ``rl_model_<N>_steps.zip``) with the run's env settings (``config.yml``, ``args.yml``) and its ``VecNormalize``
 statistics, frozen. Prints, per finished episode, the reward, the true cost, whether the constraint was violated and
 the feasible reward (summed until the first violation), then the violation rate and the mean feasible reward.
-``--record`` writes the ``rgb_array`` frames into ``<run>/videos/``: an mp4 through gymnasium's ``RecordVideo`` when
-moviepy is installed, else a GIF (Pillow), else PNG frames (matplotlib).
+``--record`` writes the ``rgb_array`` frames into ``<run>/videos/`` as they come, one file per episode: an mp4 when
+imageio-ffmpeg is installed, else a GIF (Pillow), else PNG frames (matplotlib); without a display, MuJoCo renders
+off screen (``MUJOCO_GL=egl``, else ``osmesa``, unless ``MUJOCO_GL`` is set).
 """
 
 import argparse
-import importlib.util
 import os
 import sys
 from typing import Any
@@ -35,8 +35,9 @@ from sb3_icrl.zoo.hyperparams import (
     preprocess_hyperparams,
     resolve_env_id,
 )
-from sb3_icrl.zoo.runs import CHECKPOINT_PATTERN, TrainedAgentError, check_trained_agent, find_vecnormalize
-from sb3_icrl.zoo.train import StoreDict, create_env, get_latest_run_id
+from sb3_icrl.zoo.recording import FrameWriter, configure_headless_rendering, has_display, recording_backend
+from sb3_icrl.zoo.runs import CHECKPOINT_PATTERN, TrainedAgentError, check_trained_agent, failure, find_vecnormalize
+from sb3_icrl.zoo.train import StoreDict, create_env, get_latest_run_id, non_negative_int, positive_int
 
 
 class RecordingError(RuntimeError):
@@ -63,14 +64,14 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
     parser.add_argument("--load-best", action="store_true", default=False, help="Load best_model.zip")
     parser.add_argument("--load-checkpoint", type=int, help="Load the checkpoint rl_model_<N>_steps.zip")
     parser.add_argument("--load-last-checkpoint", action="store_true", default=False, help="Load the latest checkpoint")
-    parser.add_argument("-n", "--n-timesteps", type=int, default=1000, help="Steps to run")
+    parser.add_argument("-n", "--n-timesteps", type=positive_int, default=1000, help="Steps to run")
     group = parser.add_mutually_exclusive_group()
     group.add_argument("--deterministic", dest="deterministic", action="store_true", help="Deterministic actions (default)")
     group.add_argument("--stochastic", dest="deterministic", action="store_false", help="Sample the actions")
     parser.set_defaults(deterministic=True)
     parser.add_argument("--no-render", action="store_true", default=False, help="Do not render on screen")
     parser.add_argument("--record", action="store_true", default=False, help="Save a video (or frames) in <run>/videos")
-    parser.add_argument("--seed", type=int, default=0, help="Random seed of the env and the policy")
+    parser.add_argument("--seed", type=non_negative_int, default=0, help="Random seed of the env and the policy")
     parser.add_argument("--env-kwargs", type=str, nargs="+", action=StoreDict, help="Env keyword arguments (override)")
     parser.add_argument("--num-threads", type=int, default=1, help="torch threads (<= 0: torch's default)")
     parser.add_argument("--device", type=str, default="auto", help="torch device")
@@ -117,6 +118,12 @@ def model_path(run: str, name: str, load_best: bool, checkpoint: int | None, las
         filename = checkpoints[max(checkpoints)]
     else:
         filename = f"{name}.zip"
+        reason = failure(run)
+        if reason is not None:
+            raise FileNotFoundError(
+                f"{run} failed ({reason}), so it has no final model: evaluate its best model (--load-best) or a checkpoint "
+                "(--load-last-checkpoint), or finish it with train.py --exp-id N --resume."
+            )
     path = os.path.join(run, filename)
     if not os.path.isfile(path):
         available = sorted(entry for entry in os.listdir(run) if entry.endswith(".zip"))
@@ -125,44 +132,15 @@ def model_path(run: str, name: str, load_best: bool, checkpoint: int | None, las
 
 
 def _metadata(env_id: str) -> dict[str, Any]:
-    creator = load_env_creator(gym.spec(env_id).entry_point)  # type: ignore[arg-type]
+    entry_point = gym.spec(env_id).entry_point
+    # Registered as "module:Class" or as the class (or function) itself
+    creator = load_env_creator(entry_point) if isinstance(entry_point, str) else entry_point
     return dict(getattr(creator, "metadata", None) or {})
 
 
 def render_modes(env_id: str) -> list[str]:
     """The render modes the env class declares."""
     return list(_metadata(env_id).get("render_modes", []))
-
-
-def recording_backend() -> str | None:
-    """How ``--record`` writes: ``"moviepy"`` (mp4 via RecordVideo), ``"pillow"`` (GIF), ``"matplotlib"`` (PNGs)."""
-    for module, backend in (("moviepy", "moviepy"), ("PIL", "pillow"), ("matplotlib", "matplotlib")):
-        if importlib.util.find_spec(module) is not None:
-            return backend
-    return None
-
-
-def save_frames(frames: list[np.ndarray], folder: str, stem: str, backend: str, fps: float) -> str:
-    """
-    Write ``frames`` as ``<folder>/<stem>.gif`` (Pillow) or ``<folder>/<stem>/frame_<i>.png`` (matplotlib).
-
-    :return: The GIF or the frames' folder
-    """
-    os.makedirs(folder, exist_ok=True)
-    if backend == "pillow":
-        from PIL import Image
-
-        path = os.path.join(folder, f"{stem}.gif")
-        images = [Image.fromarray(np.asarray(frame, dtype=np.uint8)) for frame in frames]
-        images[0].save(path, save_all=True, append_images=images[1:], duration=int(1000 / max(fps, 1)), loop=0)
-        return path
-    import matplotlib.pyplot as plt
-
-    path = os.path.join(folder, stem)
-    os.makedirs(path, exist_ok=True)
-    for index, frame in enumerate(frames):
-        plt.imsave(os.path.join(path, f"frame_{index:05d}.png"), np.asarray(frame, dtype=np.uint8))
-    return path
 
 
 def enjoy(args: argparse.Namespace) -> ConstraintEvaluation:
@@ -199,22 +177,21 @@ def enjoy(args: argparse.Namespace) -> ConstraintEvaluation:
         raise FileNotFoundError(f"{run} was trained with VecNormalize, but its statistics (vecnormalize.pkl) are missing.")
 
     modes = render_modes(env_id)
-    video_folder = os.path.join(run, "videos")
-    stem = f"{args.algo}-{name}-{os.path.splitext(os.path.basename(path))[0]}"
     backend = None
     if args.record:
         if "rgb_array" not in modes:
             raise RecordingError(f"{name} cannot render rgb_array frames (render modes: {modes or 'none'}).")
         backend = recording_backend()
         if backend is None:
-            raise RecordingError("--record needs moviepy (mp4), Pillow (GIF) or matplotlib (PNG frames): none is installed.")
+            raise RecordingError(
+                "--record needs imageio-ffmpeg (mp4), Pillow (GIF) or matplotlib (PNG frames): none is installed."
+            )
         env_kwargs["render_mode"] = "rgb_array"
-        if backend == "moviepy":
-            record_kwargs = {"video_folder": video_folder, "name_prefix": stem, "episode_trigger": _every_episode}
-            wrapper = (gym.wrappers.RecordVideo, record_kwargs)
-            params = {**params, "env_wrapper": [*params["env_wrapper"], wrapper]}
+        _headless_rendering()
     elif not args.no_render:
-        if "human" in modes:
+        if not has_display():
+            print("No display: nothing is shown on screen (--record saves a video, --no-render silences this).")
+        elif "human" in modes:
             env_kwargs["render_mode"] = "human"
         else:
             print(f"{name} has no on-screen rendering (render modes: {modes or 'none'}): use --record or --no-render.")
@@ -227,38 +204,54 @@ def enjoy(args: argparse.Namespace) -> ConstraintEvaluation:
     model.set_random_seed(args.seed)
     if args.verbose:
         print(f"Loaded {path}" + (f" with {stats_path}" if stats_path else ""))
-    frames: list[np.ndarray] = []
-    try:
-        evaluation = _run(model, env, args.n_timesteps, args.deterministic, args.verbose, frames if backend else None)
-    finally:
-        env.close()  # RecordVideo writes its last video on close
-    if backend == "moviepy":
-        print(f"Videos in {video_folder}")
-    elif backend is not None and frames:
+    writer = None
+    if backend is not None:
+        stem = f"{args.algo}-{name}-{os.path.splitext(os.path.basename(path))[0]}"
         fps = float(_metadata(env_id).get("render_fps") or 30)
-        print(f"Recorded {len(frames)} frames: {save_frames(frames, video_folder, stem, backend, fps)}")
+        writer = FrameWriter(backend, os.path.join(run, "videos"), stem, fps)
+    try:
+        evaluation = _run(model, env, args.n_timesteps, args.deterministic, args.verbose, writer)
+    finally:
+        env.close()
+        written = writer.close() if writer is not None else []
+    if writer is not None and written:
+        print(f"Recorded {writer.n_frames} frames, one file per episode: {', '.join(written)}")
     return evaluation
 
 
-def _every_episode(episode_id: int) -> bool:
-    return True
+#: Whether :func:`_headless_rendering` has said which backend it chose (once per process)
+_HEADLESS_SAID = False
+
+
+def _headless_rendering() -> None:
+    """Without a display, render MuJoCo off screen (:func:`configure_headless_rendering`), and say so once."""
+    global _HEADLESS_SAID
+    backend = configure_headless_rendering()
+    if backend is not None and not _HEADLESS_SAID:
+        _HEADLESS_SAID = True
+        print(f"No display: MuJoCo renders off screen with MUJOCO_GL={backend} (set MUJOCO_GL to choose another)")
 
 
 def _run(
-    model: Any, env: VecEnv, n_timesteps: int, deterministic: bool, verbose: int, frames: list[np.ndarray] | None
+    model: Any, env: VecEnv, n_timesteps: int, deterministic: bool, verbose: int, writer: FrameWriter | None
 ) -> ConstraintEvaluation:
-    """Step the single env ``n_timesteps`` times; per episode the same metrics as :func:`evaluate_constraint`."""
+    """
+    Step the single env ``n_timesteps`` times; per episode the same metrics as :func:`evaluate_constraint`. With a
+    ``writer``, each rendered frame is written as it comes, one file per episode.
+    """
     normalize = env if isinstance(env, VecNormalize) else None
     episodes = EpisodeAccumulator(1)
     obs = env.reset()
-    if frames is not None:
-        frames.append(env.render())  # type: ignore[arg-type]
+    if writer is not None:
+        writer.append(env.render())  # type: ignore[arg-type]
     state, episode_start = None, np.ones(1, dtype=bool)
     for _ in range(n_timesteps):
         action, state = model.predict(obs, state=state, episode_start=episode_start, deterministic=deterministic)
         obs, rewards, dones, infos = env.step(action)
-        if frames is not None:
-            frames.append(env.render())  # type: ignore[arg-type]
+        if writer is not None:
+            if dones[0]:
+                writer.end_episode()  # the env has reset itself: this frame starts the next episode
+            writer.append(env.render())  # type: ignore[arg-type]
         episodes.add(0, float((normalize.get_original_reward() if normalize is not None else rewards)[0]), infos[0])
         if dones[0]:
             reward, cost, feasible, violated, length = episodes.end_episode(0, infos[0])

@@ -8,8 +8,11 @@ string, ``env_wrapper`` and ``callback`` as import paths (optionally ``{path: kw
 """
 
 import importlib
+import json
 import os
 import pathlib
+import re
+import warnings
 from collections.abc import Sequence
 from typing import Any
 
@@ -32,18 +35,87 @@ ALGOS: dict[str, type[BaseAlgorithm]] = {
 }
 #: Algorithms that learn a constraint from demonstrations
 ICRL_ALGOS = ("gacl", "bc2l", "mecl", "vicrl")
-#: Keys handled by the zoo itself, not passed to the algorithm
-ZOO_KEYS = ("n_timesteps", "n_envs", "normalize", "normalize_kwargs", "env_wrapper", "callback", "policy")
+#: Keys handled by the zoo itself, not passed to the algorithm (``forward_solver`` and ``planner_kwargs``: the ICRL
+#: algorithms' exact planner on tabular envs, see :func:`sb3_icrl.icrl.tabular.learn_with_planner`)
+ZOO_KEYS = (
+    "n_timesteps",
+    "n_envs",
+    "normalize",
+    "normalize_kwargs",
+    "env_wrapper",
+    "callback",
+    "policy",
+    "forward_solver",
+    "planner_kwargs",
+)
 #: Dict-valued arguments that may be written as strings
-EVAL_KEYS = ("policy_kwargs", "constraint_net_kwargs", "lagrange_kwargs", "trainer_kwargs", "normalize_kwargs")
+EVAL_KEYS = (
+    "policy_kwargs",
+    "constraint_net_kwargs",
+    "lagrange_kwargs",
+    "trainer_kwargs",
+    "normalize_kwargs",
+    "planner_kwargs",
+)
 #: Where the shipped hyper-parameter files live: ``sb3_icrl/zoo_hyperparams`` (package data, so installed wheels have
 #: them too); the repository root's ``zoo_hyperparams`` is a link to it, where rl-zoo users look for them
 DEFAULT_HYPERPARAMS_DIR = pathlib.Path(__file__).resolve().parents[1] / "zoo_hyperparams"
 NAMESPACE = "sb3_icrl"
 
 
+#: What BC2L, MECL and VICRL use on an env the shipped yml does not know, instead of the ``default`` entry's budget 0
+#: (a cost ``1 - phi`` never reaches 0, so that multiplier only grows): the budget is the expert's own mean learned cost
+#: per step, with the PID multiplier of the BlockedHalfCheetah recipes, which can fall again
+UNKNOWN_ENV_ICRL_DEFAULTS: dict[str, Any] = {
+    "cost_budget": "expert",
+    "budget_statistic": "step",
+    "lagrange_update": "pid",
+    "lagrange_kwargs": "dict(init=1.0, kp=5.0, ki=0.005, kd=0.0)",
+}
+#: Top-level keys of a hyper-parameter file that name entries (``default``, ``MyEnv-v0``), not hyper-parameters
+_ENTRY_KEY = re.compile(r"^default$|-v\d+$")
+#: Algorithms whose fallback to ``default`` has been announced in this process
+_ANNOUNCED_DEFAULTS: set[str] = set()
+
+
 class HyperparameterError(ValueError):
     """A hyper-parameter file, entry or override that cannot be used."""
+
+
+def read_mapping(text: str, what: str = "-params") -> dict[str, Any]:
+    """
+    A mapping given on the command line as a JSON string (``'{"constraint_net_kwargs": {"hidden_sizes": [32]}}'``) or
+    as the path of a yml/JSON file.
+
+    :param text: The JSON text or the file path
+    :param what: The option, for error messages
+    :return: The mapping
+    :raises HyperparameterError: When it is neither, or not a mapping
+    """
+    if text.lstrip().startswith("{"):
+        try:
+            content = json.loads(text)
+        except json.JSONDecodeError as error:
+            raise HyperparameterError(f"{what}: {text!r} is not valid JSON ({error}).") from error
+    elif os.path.isfile(text):
+        with open(text) as file:
+            try:
+                content = yaml.safe_load(file)  # JSON is yml too
+            except yaml.YAMLError as error:
+                raise HyperparameterError(f"{what}: cannot read {text} ({error}).") from error
+    else:
+        raise HyperparameterError(f"{what}: {text!r} is neither a JSON object ('{{\"key\": value}}') nor an existing file.")
+    if not isinstance(content, dict):
+        raise HyperparameterError(f"{what}: {text!r} must hold a mapping of names to values, got {type(content).__name__}.")
+    return content
+
+
+def is_mapping_argument(values: Sequence[str]) -> bool:
+    """Whether command-line values are one JSON object or one yml/JSON file (rather than ``key:value`` pairs)."""
+    if len(values) != 1:
+        return False
+    text = values[0]
+    return text.lstrip().startswith("{") or (text.endswith((".yml", ".yaml", ".json")) and os.path.isfile(text))
 
 
 def import_gym_packages(packages: Sequence[str] | None) -> None:
@@ -86,7 +158,15 @@ def resolve_env_id(env_id: str) -> str:
 
 
 def env_name(env_id: str) -> str:
-    """The id without the ``sb3_icrl/`` namespace, as used for yml keys and folder names (other ``/`` become ``-``)."""
+    """
+    The one name of an env in run folders, ``VecNormalize`` folders, yml keys and dataset names: the id without the
+    ``sb3_icrl/`` namespace or a ``MODULE:`` prefix, other namespaces joined by ``-``
+    (``mymodule:myns/MyEnv-v0`` -> ``myns-MyEnv-v0``).
+
+    :param env_id: A registered id, as typed or as resolved
+    :return: The name
+    """
+    env_id = env_id.rpartition(":")[2]  # gymnasium's MODULE:EnvId: the module is not part of the name
     return env_id.split("/", 1)[1] if env_id.startswith(f"{NAMESPACE}/") else env_id.replace("/", "-")
 
 
@@ -137,8 +217,10 @@ def read_hyperparams_file(algo: str, directory: str | os.PathLike | None = None,
 
     :param algo: Command-line algorithm name
     :param directory: Folder of the yml files (default: :data:`DEFAULT_HYPERPARAMS_DIR`)
-    :param conf_file: Explicit file, as rl-zoo's ``-conf``
+    :param conf_file: Explicit file, as rl-zoo's ``-conf`` (or a JSON object: see :func:`read_mapping`)
     """
+    if conf_file and conf_file.lstrip().startswith("{"):
+        return read_mapping(conf_file, "--conf-file")
     path = pathlib.Path(conf_file) if conf_file else pathlib.Path(directory or DEFAULT_HYPERPARAMS_DIR) / f"{algo}.yml"
     if not path.is_file():
         raise HyperparameterError(f"No hyper-parameter file {path}.")
@@ -159,22 +241,46 @@ def load_hyperparams(
     """
     The raw entry for ``env_id`` (falling back to ``default``) with ``overrides`` applied, as saved in ``config.yml``.
 
+    On an env the shipped file has no entry for, BC2L, MECL and VICRL take :data:`UNKNOWN_ENV_ICRL_DEFAULTS` over the
+    ``default`` entry (said once per process). ``conf_file`` is either a whole file (env names or ``default`` mapped
+    to entries), which replaces the shipped one, or a single entry (hyper-parameters at the top level, a yml file or a
+    JSON object), applied over the shipped entry as ``overrides`` are.
+
     :param algo: Command-line algorithm name
     :param env_id: Registered or short env id
     :param overrides: ``-params`` values (replace the file's)
     :param directory: Folder of the yml files
-    :param conf_file: Explicit file
+    :param conf_file: Explicit file, or a JSON object
     :return: The entry (strings not yet evaluated) and the key it came from
     """
     if algo not in ALGOS:
         raise HyperparameterError(f"Unknown algo {algo!r}: use one of {', '.join(ALGOS)}.")
-    content = read_hyperparams_file(algo, directory, conf_file)
+    partial: dict[str, Any] = {}
+    if conf_file:
+        conf = read_hyperparams_file(algo, directory, conf_file)
+        if any(_ENTRY_KEY.search(str(key)) for key in conf):
+            content, shipped = conf, False
+        else:  # a single entry: what changes from the shipped one
+            partial, content, shipped = conf, read_hyperparams_file(algo, directory), True
+    else:
+        content, shipped = read_hyperparams_file(algo, directory), True
     for key in (env_name(env_id), env_id, "default"):
         if key in content:
             entry = dict(content[key] or {})
             break
     else:
         raise HyperparameterError(f"No entry for {env_name(env_id)!r} and no `default` in the {algo} hyper-parameters.")
+    if key == "default" and shipped and algo in ("bc2l", "mecl", "vicrl"):
+        entry.update(UNKNOWN_ENV_ICRL_DEFAULTS)
+        if algo not in _ANNOUNCED_DEFAULTS:
+            _ANNOUNCED_DEFAULTS.add(algo)
+            used = ", ".join(f"{name}={value}" for name, value in UNKNOWN_ENV_ICRL_DEFAULTS.items())
+            warnings.warn(
+                f"No {algo} entry for {env_name(env_id)}: the `default` entry with {used} (the BlockedHalfCheetah "
+                "recipes' budget and multiplier); change them with -params or --conf-file.",
+                stacklevel=2,
+            )
+    entry.update(partial)
     entry.update(overrides or {})
     return entry, key
 

@@ -2,12 +2,15 @@
 Saved models of zoo runs: which algorithm a zip holds, and the ``VecNormalize`` statistics that go with it.
 
 A run folder ``<folder>/<algo>/<EnvName>_<N>/`` holds ``<EnvName>.zip`` (final), ``best_model.zip``,
-``rl_model_<steps>_steps.zip`` checkpoints with their ``rl_model_vecnormalize_<steps>_steps.pkl`` statistics, and
-``<EnvName>/vecnormalize.pkl`` (the statistics at the end of the run).
+``rl_model_<steps>_steps.zip`` checkpoints with their ``rl_model_vecnormalize_<steps>_steps.pkl`` statistics and
+``rl_model_training_state_<steps>_steps.pkl`` training state, and ``<EnvName>/vecnormalize.pkl`` and
+``<EnvName>/training_state.pkl`` (those of the final model).
 """
 
+import json
 import os
 import re
+import warnings
 import zipfile
 from typing import Any
 
@@ -95,8 +98,64 @@ def find_vecnormalize(model_path: str, name: str) -> str | None:
     return next((path for path in candidates if os.path.isfile(path)), None)
 
 
+def run_vecnormalize(run: str, model_path: str, name: str) -> str | None:
+    """
+    The ``VecNormalize`` statistics that go with a model of a run folder, when the run normalised (its
+    ``<EnvName>/config.yml``): a model of a normalising run must never run without them.
+
+    :param run: The run folder ``<folder>/<algo>/<EnvName>_<N>``
+    :param model_path: The model zip (final, best or a checkpoint)
+    :param name: The env's folder name (:func:`~sb3_icrl.zoo.hyperparams.env_name`)
+    :return: The statistics, or ``None`` when the run did not normalise
+    :raises FileNotFoundError: When the run normalised and the statistics are missing
+    """
+    import yaml
+
+    from sb3_icrl.zoo.hyperparams import preprocess_hyperparams
+
+    stats_path = find_vecnormalize(model_path, name)
+    config = os.path.join(run, name, "config.yml")
+    if not os.path.isfile(config):
+        if stats_path is None:
+            warnings.warn(
+                f"No {config}: cannot tell whether {run} trained with VecNormalize; running its model without "
+                "normalisation statistics.",
+                stacklevel=2,
+            )
+        return stats_path
+    with open(config) as file:
+        normalize = preprocess_hyperparams(yaml.safe_load(file) or {})["normalize"]
+    if not normalize:
+        return None
+    if stats_path is None:
+        raise FileNotFoundError(
+            f"{run} was trained with VecNormalize, but the statistics of {os.path.basename(model_path)} are missing "
+            f"(looked for a checkpoint's own, {os.path.join(name, 'vecnormalize.pkl')} and vecnormalize.pkl)."
+        )
+    return stats_path
+
+
 #: Written (atomically) into a run folder once its training has run to the end; a run folder without it is unfinished
 FINISHED_FILE = "finished.json"
+
+
+#: Written (atomically) into a run folder whose training raised an error; such a run has no final model
+FAILED_FILE = "failed.json"
+
+
+def failure(run: str) -> str | None:
+    """
+    :param run: A run folder
+    :return: The error its training stopped on (``failed.json``), or ``None`` when it did not fail
+    """
+    path = os.path.join(run, FAILED_FILE)
+    if not os.path.isfile(path):
+        return None
+    try:
+        with open(path) as file:
+            return str(json.load(file).get("error", "unknown error"))
+    except (OSError, ValueError, AttributeError):
+        return "unknown error (unreadable failed.json)"
 
 
 def is_finished(run: str) -> bool:

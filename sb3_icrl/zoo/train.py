@@ -9,12 +9,21 @@ Hyper-parameters come from ``zoo_hyperparams/<algo>.yml`` (the one source of tru
 A run writes ``<folder>/<algo>/<EnvName>_<N>/``: the final model ``<EnvName>.zip``, ``best_model.zip``, periodic
 ``rl_model_<steps>_steps.zip`` (with ``rl_model_vecnormalize_<steps>_steps.pkl`` when normalising),
 ``evaluations.npz``, monitor files, ``<EnvName>/{config,args,versions}.yml``, ``<EnvName>/vecnormalize.pkl`` when
-normalising, and ``command.txt``. ``-i PATH.zip`` continues a saved model in a new run folder: its timestep count,
-hyper-parameters, multiplier and constraint net go on, with the ``VecNormalize`` statistics saved with it.
+normalising, and ``command.txt``. Every file is written atomically: a run killed at any moment leaves whole files only.
+
+Resuming. ``-i PATH.zip`` continues a saved model for ``-n`` more steps: its timestep count, hyper-parameters,
+multiplier and constraint net go on, with the ``VecNormalize`` statistics and the training state saved with it (the
+ICRL trainer's nominal memory, sampler and last update step; the model selection's best score and episodes). A model
+of a run folder (a checkpoint, or the final model) goes on in that same folder: monitor files, ``evaluations.npz``
+and TensorBoard curves continue, so plots and ``compare`` see one run. ``--new-folder`` writes the continuation to a
+new run folder instead (needed to branch from an earlier checkpoint). ``--exp-id N --resume`` continues run N from its
+latest checkpoint for the steps it had left (skipped once ``finished.json`` is there).
 """
 
 import argparse
 import difflib
+import inspect
+import json
 import os
 import platform
 import shlex
@@ -22,6 +31,8 @@ import shutil
 import subprocess
 import sys
 import time
+import types
+import typing
 import warnings
 from typing import Any
 
@@ -29,19 +40,37 @@ import gymnasium as gym
 import numpy as np
 import stable_baselines3
 import torch as th
-import yaml
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.env_util import make_vec_env, unwrap_wrapper
+from stable_baselines3.common.logger import configure as configure_logger
+from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.save_util import load_from_zip_file
+from stable_baselines3.common.utils import get_latest_run_id as sb3_latest_run_id
 from stable_baselines3.common.utils import set_random_seed
-from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper, VecNormalize
 
 import sb3_icrl
-from sb3_icrl.common.utils import atomic_save_model, atomic_save_pickle, atomic_write_json
+from sb3_icrl.common.utils import (
+    atomic_save_model,
+    atomic_save_pickle,
+    atomic_write_json,
+    atomic_write_text,
+    atomic_write_yaml,
+    remove_temporaries,
+)
 from sb3_icrl.data import load_demonstrations
 from sb3_icrl.envs.wrappers import TransitionNoiseWrapper
+from sb3_icrl.icrl.tabular import forward_solver, learn_function
 from sb3_icrl.plots import ConstraintFigureCallback
-from sb3_icrl.zoo.callbacks import AtomicCheckpointCallback, ConstraintEvalCallback, LearnedCostRecorder
+from sb3_icrl.zoo.callbacks import (
+    AtomicCheckpointCallback,
+    ConstraintEvalCallback,
+    LearnedCostRecorder,
+    load_training_state,
+    save_training_state,
+    training_state_path,
+)
 from sb3_icrl.zoo.hyperparams import (
     ALGOS,
     EVAL_KEYS,
@@ -51,11 +80,15 @@ from sb3_icrl.zoo.hyperparams import (
     algo_kwargs,
     env_name,
     import_gym_packages,
+    is_mapping_argument,
     load_hyperparams,
     preprocess_hyperparams,
+    read_mapping,
     resolve_env_id,
 )
 from sb3_icrl.zoo.runs import (
+    CHECKPOINT_PATTERN,
+    FAILED_FILE,
     FINISHED_FILE,
     TrainedAgentError,
     check_trained_agent,
@@ -63,13 +96,23 @@ from sb3_icrl.zoo.runs import (
     is_finished,
     latest_checkpoint,
 )
+from sb3_icrl.zoo.summary import print_recovered_constraint, show_progress_bar
 
 
 class StoreDict(argparse.Action):
-    """rl-zoo's ``-params k:v k2:v2``: each value is evaluated as a Python literal/expression, else kept as a string."""
+    """
+    rl-zoo's ``-params k:v k2:v2``: each value is evaluated as a Python literal/expression, else kept as a string.
+    One JSON object (``-params '{"constraint_net_kwargs": {"hidden_sizes": [32]}}'``) or one yml/JSON file works too.
+    """
 
     def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any, option_string=None):
         result: dict[str, Any] = {}
+        if is_mapping_argument(values):
+            try:
+                setattr(namespace, self.dest, read_mapping(values[0], str(option_string)))
+            except HyperparameterError as error:
+                parser.error(str(error))
+            return
         for item in values:
             key, sep, value = item.partition(":")
             if not sep or not key:
@@ -82,6 +125,46 @@ class StoreDict(argparse.Action):
             except Exception:
                 result[key] = value  # plain strings such as lin_3e-4 or MlpPolicy
         setattr(namespace, self.dest, result)
+
+
+def _number(text: str, kind: type, condition: str) -> Any:
+    try:
+        value = kind(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {condition}, got {text!r}") from None
+    return value
+
+
+def positive_int(text: str) -> int:
+    """argparse type: an integer > 0."""
+    value = _number(text, int, "an integer > 0")
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"expected an integer > 0, got {text!r}")
+    return value
+
+
+def non_negative_int(text: str) -> int:
+    """argparse type: an integer >= 0 (seeds: gymnasium refuses negative ones)."""
+    value = _number(text, int, "an integer >= 0")
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
+    return value
+
+
+def non_negative_float(text: str) -> float:
+    """argparse type: a finite float >= 0."""
+    value = _number(text, float, "a finite number >= 0")
+    if not np.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
+    return value
+
+
+def fraction(text: str) -> float:
+    """argparse type: a share in [0, 1)."""
+    value = _number(text, float, "a fraction in [0, 1)")
+    if not 0 <= value < 1:
+        raise argparse.ArgumentTypeError(f"expected a fraction in [0, 1), got {text!r}")
+    return value
 
 
 def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
@@ -98,32 +181,62 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
     parser.add_argument(
         "--gym-packages", type=str, nargs="+", default=[], help="Modules to import first: they register your own envs"
     )
-    parser.add_argument("-n", "--n-timesteps", type=int, default=-1, help="Timesteps (default: the yml's n_timesteps)")
+    parser.add_argument(
+        "-n", "--n-timesteps", type=positive_int, default=None, help="Timesteps (default: the yml's n_timesteps)"
+    )
     parser.add_argument(
         "-i",
         "--trained-agent",
         type=str,
         default="",
-        help="Continue training this saved model (.zip of --algo; keeps its hyper-parameters and timestep count)",
+        help="Continue training this saved model for -n more steps (.zip of --algo; keeps its hyper-parameters, timestep "
+        "count and training state). A model of a run folder goes on in that folder (logs, evaluations and TensorBoard "
+        "continue); see --new-folder",
     )
-    parser.add_argument("--seed", type=int, default=-1, help="Random seed (default: drawn at random, then saved)")
+    parser.add_argument(
+        "--seed", type=non_negative_int, default=None, help="Random seed (default: drawn at random, then saved)"
+    )
     parser.add_argument("-f", "--log-folder", type=str, default="logs", help="Log folder")
     parser.add_argument("-tb", "--tensorboard-log", type=str, default="", help="TensorBoard log dir")
     parser.add_argument("--eval-freq", type=int, default=25000, help="Evaluate every n steps (<= 0: never)")
-    parser.add_argument("--eval-episodes", type=int, default=5, help="Episodes per evaluation")
+    parser.add_argument("--eval-episodes", type=positive_int, default=5, help="Episodes per evaluation")
     parser.add_argument("--save-freq", type=int, default=-1, help="Checkpoint every n steps (<= 0: never)")
     parser.add_argument("-params", "--hyperparams", type=str, nargs="+", action=StoreDict, help="Overrides: k:v")
-    parser.add_argument("-conf", "--conf-file", type=str, default=None, help="Custom yml file (replaces <algo>.yml)")
+    parser.add_argument(
+        "-conf",
+        "--conf-file",
+        type=str,
+        default=None,
+        help="yml file of entries by env name (replaces <algo>.yml), or one entry: a small yml file or a JSON object, "
+        "applied over the shipped entry",
+    )
     parser.add_argument("--env-kwargs", type=str, nargs="+", action=StoreDict, help="Env keyword arguments: k:v")
-    parser.add_argument("--progress", action="store_true", default=False, help="Show a progress bar")
-    parser.add_argument("--verbose", type=int, default=1, help="Verbose mode (0: none, 1: training info)")
+    parser.add_argument(
+        "--progress", action="store_true", default=False, help="Show a progress bar (default: on a terminal, with -v 0)"
+    )
+    parser.add_argument(
+        "-v",
+        "--verbose",
+        type=int,
+        default=0,
+        help="0: a progress bar on a terminal, one line per evaluation, the recovered constraint at the end; "
+        "1: also SB3's training tables and every evaluation metric; 2: debug",
+    )
     parser.add_argument("--num-threads", type=int, default=1, help="torch threads (<= 0: torch's default)")
     parser.add_argument("--device", type=str, default="auto", help="torch device")
     parser.add_argument("--demonstrations", type=str, default=None, help="Shipped dataset name or .npz path (ICRL)")
     parser.add_argument(
-        "--violating-fraction", type=float, default=None, help="Shipped imperfect-expert variant (0.2, 0.5, 0.8)"
+        "--violating-fraction", type=fraction, default=None, help="Shipped imperfect-expert variant (0.2, 0.5, 0.8)"
     )
-    parser.add_argument("--transition-noise", type=float, default=0.0, help="Std of N(0, sigma) next-state noise")
+    parser.add_argument(
+        "--transition-noise", type=non_negative_float, default=0.0, help="Std of N(0, sigma) next-state noise (0: none)"
+    )
+    parser.add_argument(
+        "--allow-env-mismatch",
+        action="store_true",
+        default=False,
+        help="Accept --demonstrations recorded on another env id whose spaces fit (ICRL)",
+    )
     parser.add_argument(
         "--exp-id",
         type=int,
@@ -137,6 +250,13 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
         default=False,
         help="With --exp-id: skip the run if it finished, continue it from its latest checkpoint if it has one, else "
         "start it afresh in that folder",
+    )
+    parser.add_argument(
+        "--new-folder",
+        action="store_true",
+        default=False,
+        help="With -i: write the continuation to a new run folder (the next free N, or --exp-id) instead of the model's "
+        "own run folder; needed to branch from a checkpoint that later ones follow",
     )
     return parser
 
@@ -245,8 +365,9 @@ def _demonstrations(algo: str, env_id: str, args: argparse.Namespace, env: VecEn
             )
         return None
     name = args.demonstrations if args.demonstrations is not None else env_name(env_id)
+    allow = getattr(args, "allow_env_mismatch", False)
     try:
-        return load_demonstrations(name, env=env, violating_fraction=args.violating_fraction)
+        return load_demonstrations(name, env=env, violating_fraction=args.violating_fraction, allow_env_mismatch=allow)
     except Exception as error:
         if args.demonstrations is None:
             raise ValueError(
@@ -279,13 +400,150 @@ def _resume_checkpoint(args: argparse.Namespace, save_path: str) -> str | None:
         shutil.rmtree(save_path, ignore_errors=True)
         return None
     args.trained_agent = resume_from
+    if os.path.isfile(os.path.join(save_path, FAILED_FILE)):
+        os.remove(os.path.join(save_path, FAILED_FILE))  # tried again: failed.json comes back only if it fails again
     if args.verbose:
         print(f"Resuming {save_path} from {os.path.basename(resume_from)}")
     return resume_from
 
 
+def _in_place_folder(args: argparse.Namespace, name: str) -> str | None:
+    """
+    The run folder ``-i`` continues in: the model's own, when it lies in one of this algorithm and env
+    (``.../<algo>/<EnvName>_<N>/`` with its ``<EnvName>/`` parameters folder) and ``--new-folder`` is not given.
+    """
+    if not args.trained_agent or args.new_folder:
+        return None
+    folder = os.path.dirname(os.path.normpath(args.trained_agent)) or "."
+    stem, _, number = os.path.basename(os.path.abspath(folder)).rpartition("_")
+    in_run = stem == name and number.isdigit() and os.path.basename(os.path.dirname(os.path.abspath(folder))) == args.algo
+    return folder if in_run and os.path.isdir(os.path.join(folder, name)) else None
+
+
+def _check_latest_state(trained_agent: str, save_path: str) -> None:
+    """
+    Refuse to continue ``trained_agent`` in its run folder when the folder went further (a later checkpoint, or a
+    finished run with more steps): the continuation would overwrite that run's later files.
+    """
+    steps = int((load_from_zip_file(trained_agent, device="cpu")[0] or {}).get("num_timesteps", 0))
+    later = sorted(
+        int(match["steps"])
+        for match in map(CHECKPOINT_PATTERN.match, os.listdir(save_path))
+        if match and match["prefix"] == "rl_model" and int(match["steps"]) > steps
+    )
+    finished_file = os.path.join(save_path, FINISHED_FILE)
+    if os.path.isfile(finished_file):
+        with open(finished_file) as file:
+            finished_steps = int(json.load(file).get("num_timesteps", 0))
+        if finished_steps > steps:
+            later.append(finished_steps)
+    if later:
+        raise ValueError(
+            f"{trained_agent} ({steps} steps) is not the latest state of its run folder {save_path}, which went on to "
+            f"{max(later)} steps: pass --new-folder to continue it in a new run folder, or -i the latest checkpoint."
+        )
+
+
+def _continue_monitor_clocks(venv: VecEnv) -> None:
+    """
+    Appended Monitor files keep their first header, whose ``t_start`` ``load_results`` adds to every row's time:
+    start each Monitor's clock there too, so that the rows of the resumed run come after the earlier ones.
+    """
+    while isinstance(venv, VecEnvWrapper):
+        venv = venv.venv
+    for env in getattr(venv, "envs", []):
+        monitor = unwrap_wrapper(env, Monitor)
+        if not isinstance(monitor, Monitor) or monitor.results_writer is None:
+            continue
+        with open(monitor.results_writer.file_handler.name) as file:
+            header = file.readline()
+        if header.startswith("#"):
+            monitor.t_start = float(json.loads(header[1:]).get("t_start", monitor.t_start))
+
+
+def _continue_in_place(args: argparse.Namespace, name: str, save_path: str) -> bool:
+    """
+    Whether ``-i`` continues a model of the run folder ``save_path`` in place (as ``--resume`` does): then the folder
+    must not have gone further than the model, and its ``finished.json`` (or ``failed.json``) goes until the
+    continuation ends.
+    """
+    if args.resume or not args.trained_agent or save_path != _in_place_folder(args, name):
+        return False
+    _check_latest_state(args.trained_agent, save_path)
+    for marker in (FINISHED_FILE, FAILED_FILE):
+        if os.path.isfile(os.path.join(save_path, marker)):
+            os.remove(os.path.join(save_path, marker))
+    if args.verbose:
+        print(f"Continuing {save_path} from {os.path.basename(args.trained_agent)} in place (--new-folder: in a new one)")
+    return True
+
+
+def _go_on(args: argparse.Namespace, model: BaseAlgorithm, callbacks: list[BaseCallback], name: str, resuming: bool) -> None:
+    """
+    Before ``learn`` of a run that continues a model: restore the training state saved with it; in the same run
+    folder, also the evaluation history and model selection, with the callbacks' step counts where the run was.
+    """
+    evaluation = _evaluation(callbacks) if resuming else None
+    if resuming:
+        if evaluation is not None:
+            evaluation.resume_history(model.num_timesteps)
+        for callback in callbacks:
+            # Evaluations (and figures) at the same steps as in an uninterrupted run
+            callback.n_calls = model.num_timesteps // model.n_envs
+    if args.trained_agent:
+        _restore_training_state(model, args.trained_agent, name, evaluation)
+
+
+def _restore_training_state(
+    model: BaseAlgorithm, trained_agent: str, name: str, evaluation: ConstraintEvalCallback | None
+) -> None:
+    """The training state saved with ``trained_agent`` (ICRL trainer, and model selection when resuming in place)."""
+    path = training_state_path(trained_agent, name)
+    if os.path.isfile(path):
+        load_training_state(model, path, evaluation)  # warns when it belongs to another step count
+    elif getattr(model, "icrl_trainer", "absent") != "absent":
+        warnings.warn(
+            f"No training state with {trained_agent} ({path}): the ICRL trainer's nominal memory, unused trajectories "
+            "and update schedule start afresh."
+        )
+
+
+def _pin_tensorboard(args: argparse.Namespace, model: BaseAlgorithm, params_path: str, name: str, resuming: bool) -> None:
+    """
+    Give the run one TensorBoard folder, recorded in ``<EnvName>/tensorboard.txt``: a resumed run writes its curves
+    there (SB3 would pick the latest folder of the TensorBoard log dir, which may be another run's).
+    """
+    if not args.tensorboard_log:
+        return
+    record = os.path.join(params_path, "tensorboard.txt")
+    folder = ""
+    if resuming and os.path.isfile(record):
+        with open(record) as file:
+            folder = file.read().strip()
+    if not folder:
+        root, tb_log_name = os.path.join(args.tensorboard_log, name), f"{args.algo}_{name}"
+        folder = os.path.join(root, f"{tb_log_name}_{sb3_latest_run_id(root, tb_log_name) + 1}")
+        atomic_write_text(record, folder + "\n")
+    model.set_logger(configure_logger(folder, ["stdout", "tensorboard"] if args.verbose >= 1 else ["tensorboard"]))
+
+
 def _run_folder(args: argparse.Namespace, name: str) -> str:
-    """``<folder>/<algo>/<EnvName>_<N>``: N from ``--exp-id``, else the next free one (as rl-zoo)."""
+    """
+    ``<folder>/<algo>/<EnvName>_<N>``: N from ``--exp-id``, else the next free one (as rl-zoo); with ``-i``, the run
+    folder of the model (see :func:`_in_place_folder`).
+    """
+    if args.new_folder and not args.trained_agent:
+        raise ValueError("--new-folder says where -i continues a model: pass -i MODEL.zip too, or leave it out.")
+    in_place = _in_place_folder(args, name)
+    if in_place is not None:
+        if args.exp_id is not None and os.path.abspath(in_place) != os.path.abspath(
+            os.path.join(args.log_folder, args.algo, f"{name}_{args.exp_id}")
+        ):
+            raise ValueError(
+                f"-i continues {args.trained_agent} in its own run folder {in_place}, but --exp-id {args.exp_id} names "
+                "another: leave out --exp-id, or pass --new-folder to write the continuation to run N."
+            )
+        return in_place
     log_path = os.path.join(args.log_folder, args.algo)
     if args.exp_id is None:
         if args.resume:
@@ -310,25 +568,32 @@ def _setup(
     """Envs, model and callbacks of a run (``resuming``: its own checkpoint in ``args.trained_agent``)."""
     env_kwargs = args.env_kwargs or {}
     stats_path = _resume_statistics(args.trained_agent, env_id, params) if args.trained_agent else None
-    env, _ = create_env(
-        env_id,
-        params,
-        params["n_envs"],
-        args.seed,
-        env_kwargs,
-        args.transition_noise,
-        save_path,
-        stats_path=stats_path,
-        append_monitor=resuming,
-    )
+    try:
+        env, _ = create_env(
+            env_id,
+            params,
+            params["n_envs"],
+            args.seed,
+            env_kwargs,
+            args.transition_noise,
+            save_path,
+            stats_path=stats_path,
+            append_monitor=resuming,
+        )
+    except TypeError as error:  # an env keyword it does not take, or a wrong type
+        raise ValueError(f"Cannot make {env_id} with --env-kwargs {env_kwargs} and the yml's wrappers: {error}") from error
+    if resuming:
+        _continue_monitor_clocks(env)
     demonstrations = _demonstrations(args.algo, env_id, args, env)
     if demonstrations is not None:
         kwargs["demonstrations"] = demonstrations
+        if getattr(args, "allow_env_mismatch", False):
+            kwargs["allow_env_mismatch"] = True
     algo_class = ALGOS[args.algo]
     tensorboard_log = os.path.join(args.tensorboard_log, env_name(env_id)) if args.tensorboard_log else None
     if args.trained_agent:
-        model = _load_trained_agent(args, env, demonstrations, tensorboard_log, warn_overrides=not resuming)
-        return model, _callbacks(args, env_id, params, save_path)
+        model = _load_trained_agent(args, env, demonstrations, tensorboard_log, warn_overrides=not args.resume)
+        return model, _callbacks(args, env_id, params, save_path, resuming)
     try:
         model = algo_class(
             params["policy"],
@@ -341,7 +606,7 @@ def _setup(
         )
     except TypeError as error:
         raise HyperparameterError(f"{algo_class.__name__} rejects the hyper-parameters {sorted(kwargs)}: {error}") from error
-    return model, _callbacks(args, env_id, params, save_path)
+    return model, _callbacks(args, env_id, params, save_path, resuming)
 
 
 def _resume_statistics(trained_agent: str, env_id: str, params: dict[str, Any]) -> str | None:
@@ -378,13 +643,19 @@ def _load_trained_agent(
     return model
 
 
-def _callbacks(args: argparse.Namespace, env_id: str, params: dict[str, Any], save_path: str) -> list[BaseCallback]:
+def _callbacks(
+    args: argparse.Namespace, env_id: str, params: dict[str, Any], save_path: str, resuming: bool = False
+) -> list[BaseCallback]:
     """The yml's callbacks, checkpoints (with the normalisation statistics), the evaluation and constraint-figure callbacks."""
     env_kwargs = args.env_kwargs or {}
     callbacks: list[BaseCallback] = [callback(**cb_kwargs) for callback, cb_kwargs in params["callback"]]
     n_envs = params["n_envs"]
     if args.save_freq > 0:
-        callbacks.append(AtomicCheckpointCallback(args.save_freq, save_path, name_prefix="rl_model", save_vecnormalize=True))
+        callbacks.append(
+            AtomicCheckpointCallback(
+                args.save_freq, save_path, name_prefix="rl_model", save_vecnormalize=True, save_training_state=True
+            )
+        )
     if args.eval_freq > 0:
         eval_env, recorder = create_env(
             env_id,
@@ -395,7 +666,10 @@ def _callbacks(args: argparse.Namespace, env_id: str, params: dict[str, Any], sa
             args.transition_noise,
             os.path.join(save_path, "eval"),
             eval_env=True,
+            append_monitor=resuming,
         )
+        if resuming:
+            _continue_monitor_clocks(eval_env)
         callbacks.append(
             ConstraintEvalCallback(
                 eval_env,
@@ -406,6 +680,7 @@ def _callbacks(args: argparse.Namespace, env_id: str, params: dict[str, Any], sa
                 best_model_save_path=save_path,
                 deterministic=True,
                 verbose=args.verbose,
+                summary=True,
             )
         )
         if args.algo in ICRL_ALGOS and args.tensorboard_log:
@@ -413,7 +688,71 @@ def _callbacks(args: argparse.Namespace, env_id: str, params: dict[str, Any], sa
             callbacks.append(
                 ConstraintFigureCallback(eval_freq=max(args.eval_freq // n_envs, 1), env_id=env_id, env_kwargs=env_kwargs)
             )
+    for callback in callbacks:
+        if isinstance(callback, AtomicCheckpointCallback):
+            callback.evaluation = _evaluation(callbacks)  # checkpoints save its model selection too
     return callbacks
+
+
+def _evaluation(callbacks: list[BaseCallback]) -> ConstraintEvalCallback | None:
+    """The run's evaluation callback, if it has one."""
+    return next((callback for callback in callbacks if isinstance(callback, ConstraintEvalCallback)), None)
+
+
+def check_writable_folder(path: str, option: str) -> None:
+    """
+    Fail clearly unless ``path`` is, or can be made, a folder this process can write to.
+
+    :param path: The folder
+    :param option: The command-line option that named it (for the message)
+    """
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise ValueError(f"{option} {path!r} is a file, not a folder: pass a folder.")
+    try:
+        os.makedirs(path, exist_ok=True)
+    except OSError as error:
+        raise ValueError(f"{option} {path!r} cannot be created ({error.strerror or error}): pass a writable folder.") from None
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise ValueError(f"{option} {path!r} is not writable: pass a writable folder.")
+
+
+def _accepts_text(annotation: Any) -> bool:
+    """Whether a parameter annotated ``annotation`` may receive a string (unknown annotations: yes)."""
+    if annotation is inspect.Parameter.empty or annotation is Any or annotation is str:
+        return True
+    if isinstance(annotation, str):  # postponed annotation
+        return "str" in annotation or "Any" in annotation
+    arguments = typing.get_args(annotation)
+    if typing.get_origin(annotation) in (typing.Union, types.UnionType):
+        return any(_accepts_text(argument) for argument in arguments)
+    return False
+
+
+def check_hyperparameter_types(algo_class: type, kwargs: dict[str, Any]) -> None:
+    """
+    Fail clearly when a hyper-parameter that is not text was given as text (``-params n_steps:abc``: the value could
+    not be evaluated, so it stayed a string that the algorithm would reject deep inside).
+
+    :param algo_class: The algorithm class
+    :param kwargs: Its constructor arguments
+    """
+    parameters: dict[str, inspect.Parameter] = {}
+    for klass in reversed(algo_class.__mro__):
+        if "__init__" in vars(klass):
+            try:
+                parameters.update(inspect.signature(vars(klass)["__init__"]).parameters)
+            except (TypeError, ValueError):
+                continue
+    for key, value in kwargs.items():
+        parameter = parameters.get(key)
+        if not isinstance(value, str) or parameter is None or _accepts_text(parameter.annotation):
+            continue
+        expected = getattr(parameter.annotation, "__name__", None) or str(parameter.annotation)
+        expected = expected.replace("typing.", "").replace("collections.abc.", "")
+        raise HyperparameterError(
+            f"Hyper-parameter {key}={value!r} is text, but {algo_class.__name__} expects {expected} "
+            f"(default {parameter.default!r}): give a Python value, e.g. -params {key}:{parameter.default!r}."
+        )
 
 
 def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
@@ -429,7 +768,14 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
     name = env_name(env_id)
     if args.num_threads > 0:
         th.set_num_threads(args.num_threads)
-    if args.seed < 0:
+    if args.device != "auto":
+        try:
+            th.device(args.device)
+        except RuntimeError as error:
+            raise ValueError(
+                f"--device {args.device!r} is not a torch device ({error}): use auto, cpu, cuda or cuda:N."
+            ) from None
+    if args.seed is None:
         args.seed = int(np.random.randint(2**31 - 1))
     set_random_seed(args.seed)
 
@@ -439,9 +785,14 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
         check_trained_agent(args.trained_agent, args.algo)
     raw_params, source = load_hyperparams(args.algo, env_id, args.hyperparams, conf_file=args.conf_file)
     params = preprocess_hyperparams(raw_params)
-    n_timesteps = args.n_timesteps if args.n_timesteps > 0 else params["n_timesteps"]
+    n_timesteps = args.n_timesteps if args.n_timesteps is not None else params["n_timesteps"]
     kwargs = algo_kwargs(params)
+    solver = forward_solver(args.algo, params, env_id)
     _warn_without_constraint_updates(args, params, n_timesteps, source)
+    check_hyperparameter_types(ALGOS[args.algo], kwargs)
+    check_writable_folder(args.log_folder, "-f/--log-folder")
+    if args.tensorboard_log:
+        check_writable_folder(args.tensorboard_log, "-tb/--tensorboard-log")
 
     save_path = _run_folder(args, name)
     if args.resume and is_finished(save_path):
@@ -449,55 +800,67 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
             print(f"{save_path} has finished: nothing to do")
         return save_path
     resume_from = _resume_checkpoint(args, save_path)
+    resuming = resume_from is not None or _continue_in_place(args, name, save_path)
+    if resuming:
+        remove_temporaries(save_path)  # of writes cut short when the run was killed
     params_path = os.path.join(save_path, name)
     os.makedirs(params_path, exist_ok=True)
-    if resume_from is None:
-        with open(os.path.join(params_path, "config.yml"), "w") as file:
-            yaml.safe_dump({**raw_params, "n_timesteps": n_timesteps}, file)
-        with open(os.path.join(params_path, "args.yml"), "w") as file:
-            yaml.safe_dump({**vars(args), "env": env_id, "hyperparams_entry": source}, file)
-        with open(os.path.join(params_path, "versions.yml"), "w") as file:
-            yaml.safe_dump(versions(), file)
-    with open(os.path.join(save_path, "command.txt"), "a" if resume_from else "w") as file:
-        file.write(shlex.join(["python", sys.argv[0], *(argv if argv is not None else sys.argv[1:])]) + "\n")
+    if not resuming:
+        atomic_write_yaml(os.path.join(params_path, "config.yml"), {**raw_params, "n_timesteps": n_timesteps})
+        atomic_write_yaml(os.path.join(params_path, "args.yml"), {**vars(args), "env": env_id, "hyperparams_entry": source})
+        atomic_write_yaml(os.path.join(params_path, "versions.yml"), versions())
+    command = shlex.join(["python", sys.argv[0], *(argv if argv is not None else sys.argv[1:])])
+    atomic_write_text(os.path.join(save_path, "command.txt"), command + "\n", append=resuming)
 
     try:
-        model, callbacks = _setup(args, env_id, params, kwargs, save_path, resuming=resume_from is not None)
+        model, callbacks = _setup(args, env_id, params, kwargs, save_path, resuming=resuming)
     except Exception:
-        if resume_from is None:
+        if not resuming:
             shutil.rmtree(save_path, ignore_errors=True)  # no half-made run folder for a run that never started
         raise
     if resume_from is not None:
         # The same total as the interrupted run: only the steps it had left
         n_timesteps = max(n_timesteps - model.num_timesteps, 0)
-        for callback in callbacks:
-            if isinstance(callback, ConstraintEvalCallback):
-                callback.resume_history(model.num_timesteps)
+    evaluation = _evaluation(callbacks)
+    _go_on(args, model, callbacks, name, resuming)
+    _pin_tensorboard(args, model, params_path, name, resuming)
     start = time.time()
     finished = False
     try:
-        model.learn(
+        learn_function(model, solver, params.get("planner_kwargs"))(
             n_timesteps,
             callback=callbacks,
             tb_log_name=f"{args.algo}_{name}",
-            progress_bar=args.progress,
+            progress_bar=args.progress or show_progress_bar(args.verbose),
             reset_num_timesteps=not args.trained_agent,
         )
         finished = True
     except KeyboardInterrupt:
         print("Interrupted: saving the model")
-    finally:
-        atomic_save_model(model, os.path.join(save_path, name))
-        vec_normalize = model.get_vec_normalize_env()
-        if vec_normalize is not None:
-            atomic_save_pickle(vec_normalize, os.path.join(params_path, "vecnormalize.pkl"))
+    except Exception as error:
+        # No final model: enjoy and compare would take it for a trained one; the checkpoints stay for --resume
+        atomic_write_json(
+            os.path.join(save_path, FAILED_FILE),
+            {"error": f"{type(error).__name__}: {error}", "num_timesteps": int(model.num_timesteps)},
+        )
+        raise
+    final_model = os.path.join(save_path, f"{name}.zip")
+    save_training_state(model, training_state_path(final_model, name), evaluation)  # before the model it goes with
+    atomic_save_model(model, final_model)
+    vec_normalize = model.get_vec_normalize_env()
+    if vec_normalize is not None:
+        atomic_save_pickle(vec_normalize, os.path.join(params_path, "vecnormalize.pkl"))
     if finished:
         atomic_write_json(
             os.path.join(save_path, FINISHED_FILE),
-            {"num_timesteps": int(model.num_timesteps), "wall_time_s": time.time() - start, "resumed_from": resume_from},
+            {
+                "num_timesteps": int(model.num_timesteps),
+                "wall_time_s": time.time() - start,
+                "resumed_from": args.trained_agent if resuming else None,
+            },
         )
-    if args.verbose:
-        print(f"Saved {save_path} ({time.time() - start:.1f} s)")
+    print_recovered_constraint(model, env_id, args.env_kwargs)
+    print(f"Saved {save_path} ({time.time() - start:.1f} s)")
     return save_path
 
 
@@ -529,7 +892,8 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
 def cli(argv: list[str] | None = None) -> int:
     """
     ``sb3-icrl <command>``: ``train`` (this module), ``enjoy`` (:mod:`sb3_icrl.zoo.enjoy`), ``compare``
-    (:mod:`sb3_icrl.zoo.compare`) or ``benchmark`` (:mod:`sb3_icrl.benchmark.cli`).
+    (:mod:`sb3_icrl.zoo.compare`), ``benchmark`` (:mod:`sb3_icrl.benchmark.cli`) or ``transfer``
+    (:mod:`sb3_icrl.metrics.transfer`).
 
     :param argv: Arguments, the command first (default: ``sys.argv[1:]``)
     :return: Exit status
@@ -549,11 +913,16 @@ def cli(argv: list[str] | None = None) -> int:
         from sb3_icrl.benchmark import cli as benchmark_cli
 
         return benchmark_cli.main(argv[1:], prog="sb3-icrl benchmark")
+    if argv and argv[0] == "transfer":
+        from sb3_icrl.metrics import transfer
+
+        return transfer.main(argv[1:], prog="sb3-icrl transfer")
     print(
         "usage: sb3-icrl train --algo ALGO --env ENV [options] (see sb3-icrl train --help)\n"
         "       sb3-icrl enjoy --algo ALGO --env ENV [options] (see sb3-icrl enjoy --help)\n"
         "       sb3-icrl compare RUN [RUN ...] [options] (see sb3-icrl compare --help)\n"
-        "       sb3-icrl benchmark run|report|list SUITE [options] (see sb3-icrl benchmark --help)",
+        "       sb3-icrl benchmark run|report|list SUITE [options] (see sb3-icrl benchmark --help)\n"
+        "       sb3-icrl transfer RUN --task same|reward|dynamics [options] (see sb3-icrl transfer --help)",
         file=sys.stderr,
     )
     return 2

@@ -32,6 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from sb3_icrl.common.utils import atomic_save_npz
+
 #: Shipped recordings: ``scenarios/<density>_<split>_<index>.npz``
 SCENARIO_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "scenarios")
 SPLITS = ("train", "test")
@@ -141,16 +143,16 @@ class Scenario:
         """
         :param path: ``.npz`` file to write (compressed)
         """
-        np.savez_compressed(
-            path,
-            format_version=np.int64(FORMAT_VERSION),
-            meta=np.array([self.dt, self.n_lanes, self.lane_width, self.road_length, self.density, self.seed]),
-            lengths=self.lengths,
-            widths=self.widths,
-            frame_offsets=self.frame_offsets,
-            car_ids=self.car_ids,
-            states=self.states,
-        )
+        arrays = {
+            "format_version": np.int64(FORMAT_VERSION),
+            "meta": np.array([self.dt, self.n_lanes, self.lane_width, self.road_length, self.density, self.seed]),
+            "lengths": self.lengths,
+            "widths": self.widths,
+            "frame_offsets": self.frame_offsets,
+            "car_ids": self.car_ids,
+            "states": self.states,
+        }
+        atomic_save_npz(path, arrays, compressed=True)
 
     @classmethod
     def load(cls, path: str) -> "Scenario":
