@@ -287,6 +287,26 @@ def test_benchmark_suite_with_gym_packages(declared_runs, tmp_path):
     assert (tmp_path / "logs" / "mine" / "tiny" / "ppolag" / "myns-ShortCorridor-v0_0" / "finished.json").is_file()
 
 
+def test_benchmark_and_transfer_take_gym_packages(declared_runs, tmp_path, capsys):
+    import argparse
+
+    from sb3_icrl.benchmark.cli import _load_suite
+    from sb3_icrl.metrics.transfer import main as transfer_main
+
+    suite_file = tmp_path / "mine.yml"
+    suite_file.write_text(
+        yaml.safe_dump({"description": "A user env", "envs": [SHORT], "algos": ["ppolag"], "seeds": [0], "steps": 64})
+    )
+    module = declared_runs["module"]
+    suite = _load_suite(argparse.Namespace(suite=str(suite_file), gym_packages=[module]))
+    assert suite.gym_packages == (module,)
+    # every run of the suite imports the module before it makes the env
+    argv = suite.runs()[0].train_argv("logs")
+    assert argv[argv.index("--gym-packages") + 1] == module
+    assert transfer_main([str(declared_runs["expert"]), "--task", "same", "--gym-packages", "no_such_module_here"]) == 2
+    assert "no_such_module_here" in capsys.readouterr().err
+
+
 # ------------------------------------------------------------------------------------------------ the how-to, end to end
 
 GUIDE = pathlib.Path(__file__).resolve().parents[1] / "docs" / "guide" / "custom_env.md"

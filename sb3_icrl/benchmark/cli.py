@@ -13,6 +13,7 @@ again skips the finished runs and resumes the others from their last checkpoint.
 """
 
 import argparse
+import dataclasses
 import os
 import sys
 import time
@@ -27,7 +28,8 @@ from sb3_icrl.benchmark.report import (
     write_report,
 )
 from sb3_icrl.benchmark.runner import BACKENDS, RunOutcome, make_backend, run_all
-from sb3_icrl.benchmark.suite import SUITES_DIR, SuiteError, load_suite
+from sb3_icrl.benchmark.suite import SUITES_DIR, Suite, SuiteError, load_suite
+from sb3_icrl.zoo.hyperparams import import_gym_packages
 
 
 def _only(values: list[str] | None) -> dict[str, list[str]]:
@@ -49,6 +51,12 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
         sub.add_argument("suite", help="a shipped suite (table3, noise, imperfect, multi, experts, smoke) or a .yml path")
         sub.add_argument("-f", "--log-folder", default="logs", help="log root (runs go to <root>/<suite>/...)")
         sub.add_argument("--only", nargs="+", default=None, help="filters key=value[,value]: env, algo, seed, variant")
+        sub.add_argument(
+            "--gym-packages",
+            nargs="+",
+            default=[],
+            help="modules to import first: they register your own envs (added to the suite's gym_packages)",
+        )
     run.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="runs at a time (default: one per core)")
     run.add_argument("--backend", choices=BACKENDS, default="local", help="local process pool, or Ray tasks")
     run.add_argument("--address", default=None, help="Ray cluster address (--backend ray; default: start one here)")
@@ -107,8 +115,17 @@ class Display:
             self.live.stop()
 
 
-def run_command(args: argparse.Namespace) -> int:
+def _load_suite(args: argparse.Namespace) -> Suite:
+    """The suite, with the modules of ``--gym-packages`` imported first and passed on to every run."""
+    packages = list(getattr(args, "gym_packages", None) or [])
+    import_gym_packages(packages)
     suite = load_suite(args.suite)
+    extra = tuple(package for package in packages if package not in suite.gym_packages)
+    return dataclasses.replace(suite, gym_packages=(*suite.gym_packages, *extra)) if extra else suite
+
+
+def run_command(args: argparse.Namespace) -> int:
+    suite = _load_suite(args)
     runs = suite.select(_only(args.only))
     print(
         f"suite {suite.name}: {len(runs)} runs in {os.path.join(args.log_folder, suite.name)} "
@@ -132,7 +149,7 @@ def run_command(args: argparse.Namespace) -> int:
 
 
 def report_command(args: argparse.Namespace) -> int:
-    suite = load_suite(args.suite)
+    suite = _load_suite(args)
     runs = suite.select(_only(args.only))
     results = evaluate_finished(runs, args.log_folder, suite)
     if not results and args.command == "report":

@@ -32,6 +32,7 @@ import numpy as np
 import torch as th
 
 from sb3_icrl.common.utils import atomic_write_json
+from sb3_icrl.zoo.hyperparams import import_gym_packages
 
 #: The transfer tasks
 TASKS = ("same", "reward", "dynamics")
@@ -343,6 +344,12 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
     parser.add_argument("--model", default="final", help="'final', 'best' or a path: whose constraint is frozen")
     parser.add_argument("--no-references", action="store_true", help="Train only the learned-cost learner")
     parser.add_argument("--num-threads", type=int, default=1, help="Torch threads (default 1)")
+    parser.add_argument(
+        "--gym-packages",
+        nargs="+",
+        default=[],
+        help="Modules to import first: they register your own envs (those recorded in the run's args.yml are imported too)",
+    )
     return parser
 
 
@@ -357,6 +364,7 @@ def main(argv: Sequence[str] | None = None, prog: str | None = None) -> int:
     args = get_parser(prog).parse_args(argv)
     th.set_num_threads(max(1, args.num_threads))
     try:
+        import_gym_packages(args.gym_packages)
         summary = run_transfer(
             args.run,
             args.task,
