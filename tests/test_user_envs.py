@@ -307,6 +307,30 @@ def test_benchmark_and_transfer_take_gym_packages(declared_runs, tmp_path, capsy
     assert "no_such_module_here" in capsys.readouterr().err
 
 
+def test_user_env_pipeline_through_the_cli_only(tmp_path):
+    """A user's whole pipeline in one shell, tiny step counts: expert -> demonstrations -> MECL -> compare -> plot."""
+    module = f"pipeline_envs_{os.getpid()}"
+    (tmp_path / f"{module}.py").write_text(DECLARED_MODULE)
+    tiny = "--eval-freq 64 --eval-episodes 1 --seed 0"
+    script = f"""
+    sb3-icrl train --algo ppolag --env {SHORT} --gym-packages {module} -n 128 -params n_steps:64 batch_size:32 {tiny} -f logs
+    python -m sb3_icrl.data generate --run logs/ppolag/myns-ShortCorridor-v0_1 --n 3 --out demos.npz
+    sb3-icrl train --algo mecl --env {SHORT} --gym-packages {module} --demonstrations demos.npz -n 128 {tiny} -f logs \\
+        -params '{{"n_steps": 64, "batch_size": 32, "update_every": 64}}'
+    sb3-icrl compare logs/mecl/myns-ShortCorridor-v0_1 -n 12
+    python -m sb3_icrl.plots constraint logs/mecl/myns-ShortCorridor-v0_1 -o constraint.png
+    """
+    bin_dir = os.path.dirname(sys.executable)  # the venv's sb3-icrl
+    env = {**os.environ, "PATH": os.pathsep.join([bin_dir, os.environ.get("PATH", "")]), "PYTHONPATH": str(tmp_path)}
+    result = subprocess.run(
+        ["bash", "-e", "-c", textwrap.dedent(script)], cwd=tmp_path, capture_output=True, text=True, env=env, timeout=600
+    )
+    assert result.returncode == 0, (result.stdout + result.stderr)[-3000:]
+    assert (tmp_path / "logs" / "mecl" / "myns-ShortCorridor-v0_1" / "finished.json").is_file()
+    assert "| mecl | 0 |" in result.stdout  # compare's table, seed 0
+    assert (tmp_path / "constraint.png").stat().st_size > 0
+
+
 # ------------------------------------------------------------------------------------------------ the how-to, end to end
 
 GUIDE = pathlib.Path(__file__).resolve().parents[1] / "docs" / "guide" / "custom_env.md"
