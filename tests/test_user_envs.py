@@ -287,11 +287,12 @@ def test_benchmark_suite_with_gym_packages(declared_runs, tmp_path):
     assert (tmp_path / "logs" / "mine" / "tiny" / "ppolag" / "myns-ShortCorridor-v0_0" / "finished.json").is_file()
 
 
-def test_benchmark_and_transfer_take_gym_packages(declared_runs, tmp_path, capsys):
+def test_benchmark_transfer_and_compare_take_gym_packages(declared_runs, tmp_path, capsys):
     import argparse
 
     from sb3_icrl.benchmark.cli import _load_suite
     from sb3_icrl.metrics.transfer import main as transfer_main
+    from sb3_icrl.zoo.compare import main as compare_main
 
     suite_file = tmp_path / "mine.yml"
     suite_file.write_text(
@@ -305,6 +306,8 @@ def test_benchmark_and_transfer_take_gym_packages(declared_runs, tmp_path, capsy
     assert argv[argv.index("--gym-packages") + 1] == module
     assert transfer_main([str(declared_runs["expert"]), "--task", "same", "--gym-packages", "no_such_module_here"]) == 2
     assert "no_such_module_here" in capsys.readouterr().err
+    assert compare_main([str(declared_runs["expert"]), "--gym-packages", "no_such_module_either"]) == 2
+    assert "no_such_module_either" in capsys.readouterr().err
 
 
 def test_user_env_pipeline_through_the_cli_only(tmp_path):

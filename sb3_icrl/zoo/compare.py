@@ -376,6 +376,13 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
         help="Algorithm (or variant label, e.g. 'mecl (a)') to test the others against (Wilcoxon)",
     )
     parser.add_argument("--json", type=str, default=None, help="Also write the runs and the summary to this JSON file")
+    parser.add_argument(
+        "--gym-packages",
+        type=str,
+        nargs="+",
+        default=[],
+        help="Modules to import first: they register your own envs (those in each run's args.yml are imported too)",
+    )
     return parser
 
 
@@ -389,6 +396,7 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     """
     args = get_parser(prog).parse_args(list(sys.argv[1:] if argv is None else argv))
     try:
+        import_gym_packages(args.gym_packages)
         check_runs(args.runs)
         check_reference(args.runs, args.reference)
         if args.json:
