@@ -100,6 +100,25 @@ def rollout(
     return trajectories
 
 
+def mix_with_buffer(trajectories: list, buffer: list, buffer_size: int, n_nominal: int, rng: np.random.Generator) -> list:
+    """
+    Add new trajectories to a bounded buffer of earlier ones (a random one makes room once it is full) and draw the
+    update's nominal data from the whole buffer, with replacement.
+
+    :param trajectories: The newest trajectories
+    :param buffer: The buffer, changed in place
+    :param buffer_size: Most trajectories the buffer keeps
+    :param n_nominal: Trajectories drawn for the update
+    :param rng: Random generator of the buffer
+    :return: The drawn trajectories
+    """
+    for trajectory in trajectories:
+        if len(buffer) >= buffer_size:
+            buffer.pop(int(rng.integers(len(buffer))))
+        buffer.append(trajectory)
+    return [buffer[index] for index in rng.integers(0, len(buffer), size=n_nominal)]
+
+
 def tabular_icrl(
     trainer_class: type[ICRLTrainer],
     constraint_net: _ConstraintNet,
@@ -177,11 +196,7 @@ def tabular_icrl(
         episode_reward, episode_cost = planner.episode_returns()
         trajectories = rollout(planner, env, n_nominal, deterministic_rollouts, seed + iteration * n_nominal)
         if nominal_buffer_size > 0:
-            for trajectory in trajectories:
-                if len(buffer) >= nominal_buffer_size:
-                    buffer.pop(int(buffer_rng.integers(len(buffer))))
-                buffer.append(trajectory)
-            trajectories = [buffer[index] for index in buffer_rng.integers(0, len(buffer), size=n_nominal)]
+            trajectories = mix_with_buffer(trajectories, buffer, nominal_buffer_size, n_nominal, buffer_rng)
         stats = trainer.update(NominalData.from_trajectories(trajectories))
         history.append({"iteration": iteration, "planned_reward": episode_reward, "planned_cost": episode_cost, **stats})
     planner.set_cost_table(planning_costs())
@@ -378,11 +393,7 @@ def learn_with_planner(
         trajectories = recorder.pop_trajectories(n_nominal)
         if keep_going and trajectories and model.num_timesteps <= total_timesteps:
             if buffer_size > 0:
-                for trajectory in trajectories:
-                    if len(buffer) >= buffer_size:
-                        buffer.pop(int(buffer_rng.integers(len(buffer))))
-                    buffer.append(trajectory)
-                trajectories = [buffer[index] for index in buffer_rng.integers(0, len(buffer), size=n_nominal)]
+                trajectories = mix_with_buffer(trajectories, buffer, buffer_size, n_nominal, buffer_rng)
             stats = trainer.update(NominalData.from_trajectories(trajectories))
             model.n_constraint_updates = trainer.n_updates
             planned_reward, planned_cost = planner.episode_returns()
