@@ -71,6 +71,7 @@ def test_shipped_suites_are_the_benchmark():
         ("envs: [GridWorldWall-v0]\nalgos: [bc2l]\nseeds: [0, -1]\n", 3, "seeds are integers >= 0"),
         ("envs: [GridWorldWall-v0]\nalgos: [bc2l]\nseeds: [0]\nreference: vicrl\n", 4, "reference 'vicrl' is not one"),
         ("envs: [GridWorldWall-v0]\nalgos: [bc2l]\nseeds: [0]\ntrain_args: {save_every: 3}\n", 4, "unknown train setting"),
+        ("envs: [GridWorldWall-v0]\nalgos: [bc2l]\nseeds: [0]\ntrain_args: {device: 0}\n", 4, "torch device name"),
         ("envs: []\nalgos: [bc2l]\nseeds: [0]\n", 1, "`envs` must be a non-empty list"),
     ],
 )
@@ -106,6 +107,14 @@ def test_run_folder_is_a_function_of_cell_and_seed(tmp_path):
     assert [r.seed for r in suite.select({"algo": ["vicrl"], "seed": ["1"]})] == [1]
     with pytest.raises(SuiteError, match="matches none"):
         suite.select({"algo": ["mecl"]})
+
+
+def test_runs_train_on_the_cpu_unless_the_suite_says_otherwise(tmp_path):
+    argv = load_suite(write(tmp_path, TINY_SUITE)).runs()[0].train_argv("logs")
+    assert argv[argv.index("--device") + 1] == "cpu"
+    on_gpu = load_suite(write(tmp_path, TINY_SUITE.replace("save_freq: 0}", "save_freq: 0, device: cuda}"))).runs()[0]
+    argv = on_gpu.train_argv("logs")
+    assert argv[argv.index("--device") + 1] == "cuda"
 
 
 def test_variant_settings_become_train_flags():

@@ -26,7 +26,7 @@ SUITE_KEYS = {
     "steps": "training steps: an integer, or a mapping env -> integer (default: the recipe's n_timesteps)",
     "eval_episodes": "held-out episodes per run in the report (default 20)",
     "eval_seed": "seed of the held-out episodes (default 100, a seed no run trains on)",
-    "train_args": "extra train.py settings for every run: eval_freq, eval_episodes, save_freq, num_threads",
+    "train_args": "extra train.py settings for every run: eval_freq, eval_episodes, save_freq, num_threads, device",
     "reference": "algorithm the report tests the others against (Wilcoxon signed-rank)",
     "paper": "mapping env -> algo -> [feasible reward, violation rate] of the paper, shown beside ours",
     "gym_packages": "modules to import first: they register your own envs",
@@ -45,8 +45,17 @@ TRAIN_ARGS = {
     "eval_episodes": "--eval-episodes",
     "save_freq": "--save-freq",
     "num_threads": "--num-threads",
+    "device": "--device",
 }
-DEFAULT_TRAIN_ARGS = {"eval_freq": 50_000, "eval_episodes": 5, "save_freq": 100_000, "num_threads": 1}
+#: Runs train on the CPU unless a suite says otherwise: with MLP policies, batch-1 rollouts and many runs at a time,
+#: a shared GPU is slower than one core per run (benchmarks/RESULTS.md)
+DEFAULT_TRAIN_ARGS: dict[str, Any] = {
+    "eval_freq": 50_000,
+    "eval_episodes": 5,
+    "save_freq": 100_000,
+    "num_threads": 1,
+    "device": "cpu",
+}
 
 
 class SuiteError(ValueError):
@@ -310,7 +319,12 @@ class _SuiteReader:
         for key, value in (self.content.get("train_args") or {}).items():
             if key not in TRAIN_ARGS:
                 raise self.error(("train_args", key), f"unknown train setting {key!r}: use {', '.join(TRAIN_ARGS)}.")
-            if isinstance(value, bool) or not isinstance(value, int):
+            if key == "device":
+                if not isinstance(value, str) or not value:
+                    raise self.error(
+                        ("train_args", key), f"`device` is a torch device name ('cpu', 'cuda', 'auto'), got {value!r}."
+                    )
+            elif isinstance(value, bool) or not isinstance(value, int):
                 raise self.error(("train_args", key), f"`{key}` is an integer, got {value!r}.")
             train_args[key] = value
         return train_args
