@@ -148,4 +148,6 @@ def test_evaluate_run_loads_the_model_of_the_folder_it_is_given(tmp_path, monkey
         run = str(tmp_path / "ppo" / f"ConstrainedCorridor-v0_{exp_id}")
         result = evaluate_run(run, 40, eval_seed=100)
         assert result.seed == int(exp_id)
+        # The held-out episodes' mean length: episodes that ended within the 40 evaluation steps
+        assert 1 <= result.episode_length <= 40
         assert loaded[-1].startswith(run + os.sep), (loaded[-1], run)

@@ -58,17 +58,27 @@ def test_train_subprocess_writes_zoo_run_folder(algo: str, tmp_path: pathlib.Pat
 
     evaluations = np.load(run / "evaluations.npz")
     assert evaluations["timesteps"].tolist() == [128, 256]
-    for key in ("results", "ep_lengths", "feasible_rewards", "violations", "episode_costs"):
-        assert evaluations[key].shape == (2, 2), key
-    learned = evaluations["learned_feasible_reward"]
+    # SB3's layout: every array but timesteps holds one row per evaluation and one column per episode
+    per_episode = ("results", "ep_lengths", "feasible_rewards", "violations", "episode_costs", "learned_feasible_rewards")
+    per_episode += ("learned_episode_costs", "learned_penalised_rewards")
+    shapes = {key: evaluations[key].shape for key in evaluations.files if key != "timesteps"}
+    assert shapes == dict.fromkeys(per_episode, (2, 2))
+    learned = evaluations["learned_feasible_rewards"]
     assert np.isfinite(learned).all() == (algo in ICRL_ALGOS)  # NaN for the algos without a learned constraint
-    penalised = evaluations["learned_penalised_reward"]  # only the Lagrangian learners price their learned cost
+    assert np.isfinite(evaluations["learned_episode_costs"]).all() == (algo in ICRL_ALGOS)
+    penalised = evaluations["learned_penalised_rewards"]  # only the Lagrangian learners price their learned cost
     assert np.isfinite(penalised).all() == (algo in ("bc2l", "mecl", "vicrl"))
+    selection = np.load(run / "model_selection.npz")  # one value per evaluation
+    assert {key: selection[key].shape for key in selection.files} == {
+        key: (2,) for key in ("timesteps", "selection_score", "best_model_rescored", "lagrange_multiplier")
+    }
+    assert selection["timesteps"].tolist() == [128, 256]
     expected_score = penalised if algo in ("bc2l", "mecl", "vicrl") else learned if algo == "gacl" else None
     if expected_score is not None:
-        np.testing.assert_allclose(evaluations["selection_score"], expected_score)
+        np.testing.assert_allclose(selection["selection_score"], expected_score.mean(axis=1))
+    assert np.isfinite(selection["lagrange_multiplier"]).all() == (algo not in ("ppo", "gacl"))
     # from the second evaluation on, the best model so far is priced again under the current constraint
-    rescored = evaluations["best_model_rescored"]
+    rescored = selection["best_model_rescored"]
     assert np.isnan(rescored[0]) and np.isfinite(rescored[1]) == (algo in ICRL_ALGOS)
     events = list(tmp_path.glob("tb/GridWorldWall-v0/*/events.out.tfevents.*"))
     assert events
@@ -350,7 +360,8 @@ def test_icrl_with_vecnormalize_and_demonstration_path(algo: str, tmp_path: path
     assert (run / "ConstrainedCorridor-v0" / "vecnormalize.pkl").is_file()
     evaluations = np.load(run / "evaluations.npz")
     assert evaluations["timesteps"].tolist() == [128, 256]
-    assert np.isfinite(evaluations["learned_feasible_reward"]).all()
+    learned = evaluations["learned_feasible_rewards"]  # per episode
+    assert np.isfinite(learned).all() and learned.shape == (2, 2)
 
 
 def test_conf_file_replaces_the_shipped_yml(tmp_path: pathlib.Path) -> None:
@@ -421,6 +432,27 @@ def test_resume_from_a_checkpoint(algo: str, tmp_path: pathlib.Path) -> None:
     assert ALGOS[algo].load(second / "ConstrainedCorridor-v0.zip").num_timesteps == 512
     recorded = yaml.safe_load((second / "ConstrainedCorridor-v0" / "args.yml").read_text())
     assert recorded["trained_agent"] == str(checkpoint)
+
+
+def test_a_resumed_run_counts_the_wall_time_of_its_earlier_segments(tmp_path: pathlib.Path) -> None:
+    """finished.json's wall_time_total_s: the time saved with the checkpoint resumed from, plus the new segment's."""
+    import json
+
+    from sb3_icrl.zoo.callbacks import training_state_wall_time
+
+    args = [*_resume_args("ppolag", tmp_path), "-n", "384", "--exp-id", "1", "--resume"]
+    assert main(args) == 0
+    run = tmp_path / "ppolag" / "ConstrainedCorridor-v0_1"
+    saved = [training_state_wall_time(str(run / f"rl_model_training_state_{steps}_steps.pkl")) for steps in (128, 256, 384)]
+    assert 0 < saved[0] < saved[1] < saved[2]  # each checkpoint carries the run's time so far
+    # Interrupted after the 256-step checkpoint: the later files never were
+    for path in [run / "ConstrainedCorridor-v0.zip", run / "finished.json", *run.glob("rl_model*_384_steps.*")]:
+        path.unlink()
+    assert main(args) == 0
+    finished = json.loads((run / "finished.json").read_text())
+    assert finished["resumed_from"].endswith("rl_model_256_steps.zip")
+    assert finished["wall_time_total_s"] == pytest.approx(saved[1] + finished["wall_time_s"], abs=0.5)
+    assert finished["wall_time_total_s"] > finished["wall_time_s"]
 
 
 def test_resume_errors_are_clear(tmp_path: pathlib.Path, capsys) -> None:

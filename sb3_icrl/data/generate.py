@@ -23,6 +23,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 from sb3_icrl.data.serialize import save
 from sb3_icrl.data.types import Demonstrations, Trajectory
 from sb3_icrl.envs import NAMESPACE
+from sb3_icrl.envs.wrappers import DeclaredCostWrapper
 from sb3_icrl.pi_lagrangian import PILagrangian
 from sb3_icrl.ppo_lagrangian import PPOLagrangian
 
@@ -196,7 +197,9 @@ def generate_demonstrations(
     rollouts (random actions injected) that do break it.
 
     :param expert: The expert (anything with SB3's ``predict``; see :class:`NormalizedExpert` for ``VecNormalize``)
-    :param env: A single gymnasium env, or a registered id, with the true cost in ``info[cost_info_key]``
+    :param env: A single gymnasium env with the true cost in ``info[cost_info_key]``, or a registered id (an env made
+        here gets the cost of its declared constraint where it reports none, see
+        :class:`~sb3_icrl.envs.wrappers.DeclaredCostWrapper`)
     :param n_trajectories: Trajectories to keep
     :param deterministic: Deterministic expert actions (the paper's setting)
     :param violating_fraction: Share of kept trajectories that must contain violating state-action pairs, in [0, 1]
@@ -225,7 +228,9 @@ def generate_demonstrations(
         raise ValueError(f"`max_attempts` ({max_attempts}) must be at least the {n_trajectories} trajectories to keep.")
     max_attempts = 20 * n_trajectories + 100 if max_attempts is None else max_attempts
     made_here = isinstance(env, str)
-    env = gym.make(env) if isinstance(env, str) else env
+    if isinstance(env, str):
+        # The true cost of a declared constraint when the env does not report one itself
+        env = DeclaredCostWrapper(gym.make(env), cost_info_key=cost_info_key)
     rng = np.random.default_rng(seed)
     env.action_space.seed(seed)
 
@@ -401,7 +406,8 @@ def build_dataset(
     env_id = resolve_env_id(env)
     env_kwargs = env_kwargs or {}
     model, expert_info = load_expert(expert, env_id, env_kwargs, algo, vec_normalize_path, generate_kwargs.get("seed"))
-    gym_env = gym.make(env_id, **env_kwargs)
+    cost_info_key = generate_kwargs.get("cost_info_key", "cost")
+    gym_env = DeclaredCostWrapper(gym.make(env_id, **env_kwargs), cost_info_key=cost_info_key)
     try:
         demonstrations = generate_demonstrations(model, gym_env, n_trajectories, **generate_kwargs)
     finally:

@@ -1,4 +1,4 @@
-"""Wrappers that turn the benchmark's environments into its variants."""
+"""Wrappers that turn the benchmark's environments into its variants, and that add the true cost of a declared constraint."""
 
 from typing import Any
 
@@ -7,6 +7,8 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 from gymnasium.envs.mujoco.mujoco_env import MujocoEnv
+
+from sb3_icrl.envs.constraint_spec import ConstraintSpec, FeatureConstraint, as_constraint_spec, get_constraint_spec
 
 
 class TransitionNoiseWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
@@ -109,3 +111,68 @@ class TransitionNoiseWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if cost_info is not None:
             info.update(cost_info())
         return env._get_obs(), noise  # type: ignore[attr-defined]
+
+
+class MissingCostError(ValueError):
+    """An env reports no true cost in its info dict and declares no constraint to compute it from."""
+
+
+class DeclaredCostWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """
+    Puts the true cost of an env's declared constraint (see :mod:`sb3_icrl.envs.constraint_spec`) into
+    ``info[cost_info_key]`` when the env's own ``step`` does not, so that evaluation, experts and demonstrations read it
+    from one place for the benchmark envs and for yours alike.
+
+    The cost is ``spec.true_cost`` of the observation the step returned (the state it reached, as the benchmark envs
+    price it) and the action taken. An env that reports ``info[cost_info_key]`` itself is left as it is: its own cost is
+    never overwritten. Wrap the env before any wrapper that transforms observations (normalisation, frame stacking):
+    the declaration reads the env's own observations. An ICRL learner still never sees this cost: its
+    :class:`~sb3_icrl.constraints.wrappers.LearnedCostVecEnvWrapper` moves ``info[cost_info_key]`` away, whoever put it
+    there.
+
+    :param env: The env, e.g. ``gymnasium.make("myns/MyEnv-v0")``
+    :param spec: The declaration to use; ``None``: the env's own (its ``constraint_spec`` attribute, or
+        :func:`~sb3_icrl.envs.constraint_spec.declare_constraint` for its registered id)
+    :param cost_info_key: The info key of the true per-step cost
+    :param required: Raise :class:`MissingCostError` at a step whose info has no cost when there is no declaration
+        either; ``False``: pass such steps on unchanged (for learners that do not read the true cost)
+    """
+
+    def __init__(
+        self,
+        env: gym.Env,
+        spec: ConstraintSpec | FeatureConstraint | None = None,
+        cost_info_key: str = "cost",
+        required: bool = True,
+    ):
+        gym.utils.RecordConstructorArgs.__init__(self, spec=spec, cost_info_key=cost_info_key, required=required)
+        gym.Wrapper.__init__(self, env)
+        #: The declaration the cost is computed from (``None``: the env declares none)
+        self.declared_spec: ConstraintSpec | None = (
+            get_constraint_spec(env) if spec is None else as_constraint_spec(spec, "DeclaredCostWrapper(spec=...)")
+        )
+        self.cost_info_key = cost_info_key
+        self.required = required
+
+    def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
+        observation, reward, terminated, truncated, info = self.env.step(action)
+        if self.cost_info_key not in info:
+            if self.declared_spec is not None:
+                info = {**info, self.cost_info_key: self._declared_cost(observation, action)}
+            elif self.required:
+                env_id = getattr(self.env.spec, "id", None) or type(self.env.unwrapped).__name__
+                raise MissingCostError(
+                    f"{env_id} reports no true cost (its info has no key {self.cost_info_key!r}, only {sorted(info)}) "
+                    "and declares no constraint to compute it from. Declare the constraint: a `constraint_spec` "
+                    "attribute on the env (a ConstraintSpec or FeatureConstraint from sb3_icrl.envs.constraint_spec), or "
+                    f"declare_constraint({env_id!r}, ...) where you register it; or put the per-step cost in "
+                    f"info[{self.cost_info_key!r}]."
+                )
+        return observation, reward, terminated, truncated, info
+
+    def _declared_cost(self, observation: Any, action: Any) -> Any:
+        assert self.declared_spec is not None
+        # A batch of one: true_cost and user cost functions are batched
+        costs = np.asarray(self.declared_spec.true_cost(np.asarray(observation)[None], np.asarray(action)[None]), np.float64)
+        cost = costs if costs.ndim == 0 else costs[0]
+        return float(cost) if np.ndim(cost) == 0 else cost  # one float, or one per constraint

@@ -2,6 +2,7 @@
 
 import os
 import pickle
+import time
 import warnings
 from collections.abc import Callable, Sequence
 from copy import deepcopy
@@ -146,13 +147,82 @@ class LearnedCostRecorder(VecEnvWrapper):
         return obs, rewards, dones, infos
 
 
+#: The file beside ``evaluations.npz`` with the model selection's values, one per evaluation
+SELECTION_FILE = "model_selection.npz"
+#: Per-evaluation means that older ``evaluations.npz`` files held (1-D) -> the per-episode key that replaced each
+LEARNED_EPISODE_KEYS = {
+    "learned_feasible_reward": "learned_feasible_rewards",
+    "mean_learned_cost": "learned_episode_costs",
+    "learned_penalised_reward": "learned_penalised_rewards",
+}
+
+
+def _episode_row(values: np.ndarray | None, n_episodes: int) -> np.ndarray:
+    """One evaluation's per-episode values as a row of ``n_episodes`` (NaN for missing ones, or for ``None``)."""
+    row = np.full(n_episodes, np.nan)
+    if values is not None:
+        values = np.asarray(values, dtype=float).reshape(-1)[:n_episodes]
+        row[: len(values)] = values
+    return row
+
+
+def split_evaluation_history(
+    arrays: dict[str, np.ndarray], selection: dict[str, np.ndarray] | None = None
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """
+    The arrays of an ``evaluations.npz`` and its ``model_selection.npz`` in the current layout (see
+    :class:`ConstraintEvalCallback`), from files of any version. Older ``evaluations.npz`` files held one value per
+    evaluation (1-D) for the learned metrics and the model selection: each learned mean becomes its per-episode key,
+    the mean repeated for each episode of its evaluation (so per-evaluation means, all that rl_zoo3 and our plots
+    read, are kept); the other 1-D arrays move to the selection values.
+
+    :param arrays: The arrays of ``evaluations.npz``
+    :param selection: The arrays of ``model_selection.npz``, if there is one
+    :return: ``(evaluations, selection)``: ``timesteps`` and per-episode arrays; ``timesteps`` and 1-D arrays
+    """
+    timesteps = np.asarray(arrays.get("timesteps", np.zeros(0, dtype=int)))
+    n_eval = len(timesteps)
+    results = np.asarray(arrays.get("results", np.zeros((n_eval, 0))))
+    n_episodes = results.shape[1] if results.ndim == 2 else 1
+    evaluations: dict[str, np.ndarray] = {}
+    moved: dict[str, np.ndarray] = {}
+    for key, value in arrays.items():
+        value = np.asarray(value)
+        if key == "timesteps" or value.ndim != 1:
+            evaluations[key] = value
+        elif key in LEARNED_EPISODE_KEYS:
+            evaluations[LEARNED_EPISODE_KEYS[key]] = np.repeat(value.astype(float)[:, None], n_episodes, axis=1)
+        else:
+            moved[key] = value
+    current = dict(selection or {})
+    if moved:
+        current = {"timesteps": timesteps, **moved, **current}
+    if current and "lagrange_multiplier" not in current:
+        current["lagrange_multiplier"] = np.full(len(current["timesteps"]), np.nan)
+    return evaluations, current
+
+
+def _rows_up_to(arrays: dict[str, np.ndarray], up_to_timesteps: int) -> dict[str, list]:
+    """The rows of the evaluations made up to ``up_to_timesteps``, as lists (of each key) to append to."""
+    keep = np.asarray(arrays.get("timesteps", []), dtype=float) <= up_to_timesteps
+    return {key: [row for row, kept in zip(rows, keep, strict=True) if kept] for key, rows in arrays.items()}
+
+
 class ConstraintEvalCallback(EvalCallback):
     """
     rl-zoo's evaluation callback with the ICRL metrics. Each evaluation logs under ``eval/``: ``mean_reward``,
     ``feasible_reward``, ``violation_rate`` and ``mean_cost`` (true constraint, reporting only), and for models with a
     learned constraint ``learned_feasible_reward`` and ``mean_learned_cost`` (plus ``learned_penalised_reward`` when
     a Lagrangian learner holds that cost to a budget), for driving envs ``collision_rate``, ``off_road_rate``,
-    ``time_out_rate`` and ``goal_reached_rate``; all go to ``evaluations.npz`` (per episode).
+    ``time_out_rate`` and ``goal_reached_rate``.
+
+    ``evaluations.npz`` keeps SB3's layout, which rl_zoo3's ``all_plots`` (``--key``) and scripts written for SB3 read:
+    ``timesteps`` ``(n_eval,)`` and only per-episode arrays ``(n_eval, n_episodes)``: SB3's ``results`` and
+    ``ep_lengths``, ``feasible_rewards``, ``violations``, ``episode_costs``, the driving outcome flags, and under the
+    learned constraint ``learned_feasible_rewards``, ``learned_episode_costs`` and ``learned_penalised_rewards``
+    (NaN where the model has none). The values with one number per evaluation (``selection_score``,
+    ``best_model_rescored``, ``lagrange_multiplier``) go to ``model_selection.npz`` beside it, each ``(n_eval,)``
+    with its ``timesteps``: rl_zoo3 averages every ``--key`` over a last axis of episodes, which they lack.
 
     The best model (``best_model.zip``) is chosen on what the learner itself knows, never the true constraint:
 
@@ -179,15 +249,17 @@ class ConstraintEvalCallback(EvalCallback):
         super().__init__(eval_env, **kwargs)
         self.recorder = recorder
         self.summary = summary
-        self.history: dict[str, list] = {}
+        self.history: dict[str, list] = {}  # evaluations.npz: timesteps and per-episode rows
+        self.selection_history: dict[str, list] = {}  # model_selection.npz: one value per evaluation
         self.best_score = -np.inf
         self.best_episodes: list[RecordedEpisode] = []  # the best model's recorded episodes, priced again later
 
     def resume_history(self, up_to_timesteps: int) -> None:
         """
-        Go on from the ``evaluations.npz`` of an interrupted run: keep its evaluations made up to ``up_to_timesteps``
-        (the checkpoint the run resumes from), and the best selection score among them, so that the best model is
-        replaced only by a better one.
+        Go on from the ``evaluations.npz`` (and ``model_selection.npz``) of an interrupted run: keep its evaluations
+        made up to ``up_to_timesteps`` (the checkpoint the run resumes from), and the best selection score among them,
+        so that the best model is replaced only by a better one. Files of earlier versions, with one value per
+        evaluation in ``evaluations.npz``, are read too (:func:`split_evaluation_history`).
 
         :param up_to_timesteps: Steps of the checkpoint the run resumes from
         """
@@ -195,9 +267,17 @@ class ConstraintEvalCallback(EvalCallback):
         if path is None or not os.path.isfile(path):
             return
         with np.load(path) as saved:
-            keep = np.asarray(saved["timesteps"]) <= up_to_timesteps
-            self.history = {key: [row for row, kept in zip(saved[key], keep, strict=True) if kept] for key in saved.files}
-        scores = [float(score) for score in self.history.get("selection_score", [])]
+            arrays = {key: np.asarray(saved[key]) for key in saved.files}
+        selection_path = os.path.join(os.path.dirname(path), SELECTION_FILE)
+        if os.path.isfile(selection_path):
+            with np.load(selection_path) as saved:
+                selection = {key: np.asarray(saved[key]) for key in saved.files}
+        else:
+            selection = {}
+        history, selection = split_evaluation_history(arrays, selection)
+        self.history = _rows_up_to(history, up_to_timesteps)
+        self.selection_history = _rows_up_to(selection, up_to_timesteps)
+        scores = [float(score) for score in self.selection_history.get("selection_score", [])]
         if scores and os.path.isfile(os.path.join(self.best_model_save_path or "", "best_model.zip")):
             # Without the checkpoint's own state (load_state_dict), the best score as recorded
             self.best_score = max(scores)
@@ -281,11 +361,15 @@ class ConstraintEvalCallback(EvalCallback):
             **result.outcome_rates,  # driving envs: collision, off-road, time-out and goal rates
         }
         episodes = self.recorder.episodes[: self.n_eval_episodes] if self.recorder is not None else []
+        learned_per_episode: dict[str, np.ndarray | None] = dict.fromkeys(LEARNED_EPISODE_KEYS.values())
         if constraint_net is not None and episodes:
             learned = learned_episode_stats(episodes, constraint_net.cost)
+            penalised = learned_penalised_rewards(self.model, learned)
+            learned_per_episode["learned_feasible_rewards"] = learned[:, 1]
+            learned_per_episode["learned_episode_costs"] = learned[:, 2]
+            learned_per_episode["learned_penalised_rewards"] = penalised
             metrics["learned_feasible_reward"] = float(learned[:, 1].mean())
             metrics["mean_learned_cost"] = float(learned[:, 2].mean())
-            penalised = learned_penalised_rewards(self.model, learned)
             if penalised is not None:
                 metrics["learned_penalised_reward"] = float(penalised.mean())
             rescored = rescore_episodes(self.model, self.best_episodes, constraint_net.cost)
@@ -309,12 +393,19 @@ class ConstraintEvalCallback(EvalCallback):
         self.history.setdefault("episode_costs", []).append(result.episode_costs)
         for key, flags in result.outcomes.items():
             self.history.setdefault(key, []).append(flags)
-        for key in ("learned_feasible_reward", "mean_learned_cost", "learned_penalised_reward", "best_model_rescored"):
-            self.history.setdefault(key, []).append(metrics.get(key, np.nan))
+        n_episodes = len(result.episode_rewards)
+        for key, values in learned_per_episode.items():
+            self.history.setdefault(key, []).append(_episode_row(values, n_episodes))
         score = self._selection_score(metrics)
-        self.history.setdefault("selection_score", []).append(score)
+        multiplier = model_multiplier(self.model)
+        self.selection_history.setdefault("timesteps", []).append(self.num_timesteps)
+        self.selection_history.setdefault("selection_score", []).append(score)
+        self.selection_history.setdefault("best_model_rescored", []).append(metrics.get("best_model_rescored", np.nan))
+        self.selection_history.setdefault("lagrange_multiplier", []).append(np.nan if multiplier is None else multiplier)
         if self.log_path is not None:
             atomic_save_npz(self.log_path, {key: np.array(value) for key, value in self.history.items()})
+            selection_path = os.path.join(os.path.dirname(self.log_path), SELECTION_FILE)
+            atomic_save_npz(selection_path, {key: np.array(value) for key, value in self.selection_history.items()})
 
         if score > self.best_score:
             self.best_score = score
@@ -347,7 +438,26 @@ def training_state_path(model_path: str, name: str) -> str:
     return os.path.join(folder, name, "training_state.pkl")
 
 
-def save_training_state(model: Any, path: str, evaluation: ConstraintEvalCallback | None = None) -> None:
+class WallClock:
+    """
+    The wall time a run has taken to reach where it is, across resumed segments: the time saved with the checkpoint
+    it resumed from (``offset``) plus this segment's. Work lost after a run's last checkpoint is not counted.
+
+    :param offset: Seconds taken before this segment
+    """
+
+    def __init__(self, offset: float = 0.0):
+        self.offset = float(offset)
+        self.start = time.time()
+
+    def elapsed(self) -> float:
+        """Seconds so far, earlier segments included."""
+        return self.offset + time.time() - self.start
+
+
+def save_training_state(
+    model: Any, path: str, evaluation: ConstraintEvalCallback | None = None, wall_time_s: float | None = None
+) -> None:
     """
     Save, atomically, what a resumed run needs beyond the model zip: the ICRL trainer's state
     (:meth:`~sb3_icrl.icrl.ICRLTrainer.state_dict`: nominal memory, unused trajectories, last update step, sampler)
@@ -356,6 +466,7 @@ def save_training_state(model: Any, path: str, evaluation: ConstraintEvalCallbac
     :param model: The learner (an ICRL model has ``icrl_trainer``)
     :param path: Destination (:func:`training_state_path`)
     :param evaluation: The run's evaluation callback, if any
+    :param wall_time_s: The run's wall time so far (:class:`WallClock`), for the resumed run to count on from
     """
     trainer = getattr(model, "icrl_trainer", None)
     state = {
@@ -363,8 +474,24 @@ def save_training_state(model: Any, path: str, evaluation: ConstraintEvalCallbac
         "num_timesteps": int(model.num_timesteps),
         "icrl_trainer": trainer.state_dict() if trainer is not None else None,
         "evaluation": evaluation.state_dict() if evaluation is not None else None,
+        "wall_time_s": wall_time_s,
     }
     atomic_save_pickle(state, path)
+
+
+def training_state_wall_time(path: str) -> float:
+    """
+    The run's wall time saved in a :func:`save_training_state` file (0 when the file or the value is missing).
+
+    :param path: The state file
+    :return: Seconds
+    """
+    if not os.path.isfile(path):
+        return 0.0
+    with open(path, "rb") as file:
+        state = pickle.load(file)  # as trusted as the VecNormalize pickles beside it
+    value = state.get("wall_time_s") if isinstance(state, dict) else None
+    return float(value) if value is not None else 0.0
 
 
 def load_training_state(model: Any, path: str, evaluation: ConstraintEvalCallback | None = None) -> bool:
@@ -413,6 +540,7 @@ class AtomicCheckpointCallback(CheckpointCallback):
     :param save_training_state: Also save the training state (``<prefix>_training_state_<timesteps>_steps.pkl``,
         see :func:`save_training_state`)
     :param evaluation: The run's evaluation callback, whose model selection goes into the training state
+    :param wall_clock: The run's wall clock, whose time so far goes into the training state
     :param verbose: Verbosity level
     """
 
@@ -424,11 +552,13 @@ class AtomicCheckpointCallback(CheckpointCallback):
         save_vecnormalize: bool = False,
         save_training_state: bool = False,
         evaluation: ConstraintEvalCallback | None = None,
+        wall_clock: WallClock | None = None,
         verbose: int = 0,
     ):
         super().__init__(save_freq, save_path, name_prefix=name_prefix, save_vecnormalize=save_vecnormalize, verbose=verbose)
         self.save_training_state = save_training_state
         self.evaluation = evaluation
+        self.wall_clock = wall_clock
         self._last_saved = 0
 
     def _init_callback(self) -> None:
@@ -443,7 +573,9 @@ class AtomicCheckpointCallback(CheckpointCallback):
         if self.save_vecnormalize and vec_normalize is not None:
             atomic_save_pickle(vec_normalize, self._checkpoint_path("vecnormalize_", extension="pkl"))
         if self.save_training_state:
-            save_training_state(self.model, self._checkpoint_path("training_state_", extension="pkl"), self.evaluation)
+            wall_time = self.wall_clock.elapsed() if self.wall_clock is not None else None
+            path = self._checkpoint_path("training_state_", extension="pkl")
+            save_training_state(self.model, path, self.evaluation, wall_time_s=wall_time)
         model_path = atomic_save_model(self.model, self._checkpoint_path(extension="zip"))
         if self.verbose >= 2:
             print(f"Saving model checkpoint to {model_path}")

@@ -55,6 +55,8 @@ class RunResult:
     :param reward: Mean episode reward
     :param n_episodes: Held-out episodes run
     :param label: Row label when it is not the algorithm (a variant: see :func:`run_labels`)
+    :param episode_length: Mean length of the held-out episodes (a learner that ends its episodes early shows here);
+        ``nan`` when unknown (results saved before it was recorded)
     """
 
     run: str
@@ -68,6 +70,7 @@ class RunResult:
     reward: float
     n_episodes: int
     label: str = ""
+    episode_length: float = float("nan")
 
     @property
     def name(self) -> str:
@@ -143,6 +146,7 @@ def evaluate_run(run: str, n_timesteps: int, eval_seed: int, load_best: bool = F
         feasible_reward=evaluation.mean_feasible_reward,
         reward=evaluation.mean_reward,
         n_episodes=len(evaluation.violations),
+        episode_length=float(np.mean(evaluation.episode_lengths)),
     )
 
 

@@ -21,10 +21,11 @@ rl_zoo3's own evaluation callback knows nothing of the constraint: it logs the r
 ``best_model.zip`` on it (with ``normalize``, the registered classes let it copy the normalisation statistics into
 its evaluation env, which SB3 cannot do alone for the ICRL algorithms' wrapped envs). Score saved models with
 ``sb3-icrl compare`` / ``enjoy``, or train with ``sb3-icrl train``, whose evaluations log the constraint metrics and
-select the best model on what the learner knows. rl_zoo3's ``all_plots`` reads our runs'
-``evaluations.npz`` with the per-episode keys (``results``, ``ep_lengths``, ``feasible_rewards``, ``violations``,
-``episode_costs``); the keys with one value per evaluation (``learned_feasible_reward``, ``selection_score``, ...) are
-not per-episode arrays and are not meant for its ``--key``.
+select the best model on what the learner knows. rl_zoo3's ``all_plots`` reads our runs' ``evaluations.npz`` with any
+of its keys as ``--key``: all are per-episode arrays ``(n_eval, n_episodes)`` as in SB3 (``results``, ``ep_lengths``,
+``feasible_rewards``, ``violations``, ``episode_costs``, ``learned_feasible_rewards``, ``learned_episode_costs``,
+``learned_penalised_rewards``...); the values with one number per evaluation (``selection_score``,
+``best_model_rescored``, ``lagrange_multiplier``) are in ``model_selection.npz`` beside it.
 """
 
 import os

@@ -60,16 +60,18 @@ from sb3_icrl.common.utils import (
     remove_temporaries,
 )
 from sb3_icrl.data import load_demonstrations
-from sb3_icrl.envs.wrappers import TransitionNoiseWrapper
+from sb3_icrl.envs.wrappers import DeclaredCostWrapper, TransitionNoiseWrapper
 from sb3_icrl.icrl.tabular import forward_solver, learn_function
 from sb3_icrl.plots import ConstraintFigureCallback
 from sb3_icrl.zoo.callbacks import (
     AtomicCheckpointCallback,
     ConstraintEvalCallback,
     LearnedCostRecorder,
+    WallClock,
     load_training_state,
     save_training_state,
     training_state_path,
+    training_state_wall_time,
 )
 from sb3_icrl.zoo.hyperparams import (
     ALGOS,
@@ -293,15 +295,17 @@ def versions() -> dict[str, str]:
     return info
 
 
-def _wrapper_class(wrappers: list[tuple[Any, dict[str, Any]]], transition_noise: float) -> Any:
+def _wrapper_class(wrappers: list[tuple[Any, dict[str, Any]]], transition_noise: float, require_cost: bool = False) -> Any:
     def wrap(env: gym.Env) -> gym.Env:
         if transition_noise > 0:
             env = TransitionNoiseWrapper(env, sigma=transition_noise)
+        # Outside the noise (the cost of the state the agent sees), inside the yml's wrappers (raw observations)
+        env = DeclaredCostWrapper(env, required=require_cost)
         for wrapper, kwargs in wrappers:
             env = wrapper(env, **kwargs)
         return env
 
-    return wrap if wrappers or transition_noise > 0 else None
+    return wrap
 
 
 def create_env(
@@ -315,9 +319,12 @@ def create_env(
     eval_env: bool = False,
     stats_path: str | None = None,
     append_monitor: bool = False,
+    require_cost: bool | None = None,
 ) -> tuple[VecEnv, LearnedCostRecorder | None]:
     """
-    Vectorised env with Monitor, the yml's wrappers, transition noise and VecNormalize (eval: frozen, raw reward).
+    Vectorised env with Monitor, transition noise, the true cost of a declared constraint where the env reports none
+    (:class:`~sb3_icrl.envs.wrappers.DeclaredCostWrapper`), the yml's wrappers and VecNormalize (eval: frozen, raw
+    reward).
 
     :param env_id: Registered env id
     :param params: Preprocessed hyper-parameters (``normalize``, ``normalize_kwargs``, ``env_wrapper``)
@@ -329,8 +336,12 @@ def create_env(
     :param eval_env: Build an evaluation env: a :class:`LearnedCostRecorder` at its bottom, statistics frozen
     :param stats_path: ``VecNormalize`` statistics to start from (``vecnormalize.pkl``), when normalising
     :param append_monitor: Append to the Monitor files instead of replacing them (a resumed run)
+    :param require_cost: Fail at a step without ``info["cost"]`` when the env declares no constraint either;
+        ``None``: for evaluation envs only (learners other than PPO-Lagrangian do not read the true cost)
     :return: The env and its recorder (eval envs only)
     """
+    if require_cost is None:
+        require_cost = eval_env
     venv = make_vec_env(
         env_id,
         n_envs=n_envs,
@@ -338,7 +349,7 @@ def create_env(
         env_kwargs=env_kwargs,
         monitor_dir=monitor_dir,
         monitor_kwargs={"override_existing": False} if append_monitor else None,
-        wrapper_class=_wrapper_class(params["env_wrapper"], transition_noise),
+        wrapper_class=_wrapper_class(params["env_wrapper"], transition_noise, require_cost),
         vec_env_cls=DummyVecEnv,
     )
     recorder = None
@@ -494,6 +505,21 @@ def _go_on(args: argparse.Namespace, model: BaseAlgorithm, callbacks: list[BaseC
         _restore_training_state(model, args.trained_agent, name, evaluation)
 
 
+def _wall_clock(args: argparse.Namespace, callbacks: list[BaseCallback], name: str, resuming: bool) -> WallClock:
+    """
+    The run's wall clock, given to its checkpoints: a resumed run counts on from the wall time saved with the
+    checkpoint it resumed from, so that ``finished.json`` holds the whole run's (``wall_time_total_s``).
+    """
+    earlier = 0.0
+    if resuming and args.trained_agent:
+        earlier = training_state_wall_time(training_state_path(args.trained_agent, name))
+    clock = WallClock(earlier)
+    for callback in callbacks:
+        if isinstance(callback, AtomicCheckpointCallback):
+            callback.wall_clock = clock
+    return clock
+
+
 def _restore_training_state(
     model: BaseAlgorithm, trained_agent: str, name: str, evaluation: ConstraintEvalCallback | None
 ) -> None:
@@ -579,6 +605,8 @@ def _setup(
             save_path,
             stats_path=stats_path,
             append_monitor=resuming,
+            # PPO-Lagrangian learns from the true cost; the ICRL learners and PPO never read it
+            require_cost=args.algo == "ppolag" and kwargs.get("cost_fn") is None,
         )
     except TypeError as error:  # an env keyword it does not take, or a wrong type
         raise ValueError(f"Cannot make {env_id} with --env-kwargs {env_kwargs} and the yml's wrappers: {error}") from error
@@ -825,6 +853,7 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
     _go_on(args, model, callbacks, name, resuming)
     _pin_tensorboard(args, model, params_path, name, resuming)
     start = time.time()
+    clock = _wall_clock(args, callbacks, name, resuming)
     finished = False
     try:
         learn_function(model, solver, params.get("planner_kwargs"))(
@@ -845,7 +874,8 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
         )
         raise
     final_model = os.path.join(save_path, f"{name}.zip")
-    save_training_state(model, training_state_path(final_model, name), evaluation)  # before the model it goes with
+    # Before the model it goes with
+    save_training_state(model, training_state_path(final_model, name), evaluation, wall_time_s=clock.elapsed())
     atomic_save_model(model, final_model)
     vec_normalize = model.get_vec_normalize_env()
     if vec_normalize is not None:
@@ -856,6 +886,7 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
             {
                 "num_timesteps": int(model.num_timesteps),
                 "wall_time_s": time.time() - start,
+                "wall_time_total_s": clock.elapsed(),
                 "resumed_from": args.trained_agent if resuming else None,
             },
         )
