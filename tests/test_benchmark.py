@@ -1,5 +1,7 @@
 """The benchmark engine: suite files, running and resuming suites, and the report's statistics."""
 
+import csv
+import io
 import json
 import os
 import signal
@@ -14,7 +16,7 @@ import scipy.stats
 
 from sb3_icrl.benchmark import iqm, load_suite, stratified_bootstrap_ci, summarise_suite
 from sb3_icrl.benchmark.cli import main as benchmark_main
-from sb3_icrl.benchmark.report import markdown_table
+from sb3_icrl.benchmark.report import csv_rows, markdown_table
 from sb3_icrl.benchmark.suite import SUITES_DIR, RunSpec, SuiteError
 from sb3_icrl.zoo.compare import RunResult
 from sb3_icrl.zoo.runs import FINISHED_FILE
@@ -167,6 +169,17 @@ def test_summary_cells_hold_hand_computed_statistics(tmp_path):
     assert partial["runs_missing"] == [suite.runs()[-1].name]
 
 
+def test_the_held_out_episode_length_goes_with_each_seed(tmp_path):
+    suite = load_suite(write(tmp_path, TINY_SUITE))
+    results = [(run, _result(run.algo, run.seed, 1.0, 0.0)) for run in suite.runs()]
+    results[0][1].episode_length = 12.5  # the first run ended its episodes after 12.5 steps on average
+    summary = summarise_suite(suite, suite.runs(), results)
+    lengths = [seed["episode_length"] for cell in summary["cells"] for seed in cell["per_seed"]]
+    assert lengths[0] == 12.5 and all(np.isnan(length) for length in lengths[1:])  # unknown for the others
+    rows = list(csv.DictReader(io.StringIO(csv_rows(summary))))
+    assert [row["episode_length"] for row in rows] == ["12.5", "", "", ""]
+
+
 # ---------------------------------------------------------------- running suites
 
 
@@ -195,6 +208,18 @@ def test_smoke_suite_runs_end_to_end_then_skips_finished_runs(tmp_path, capsys):
     assert _summary(root, "smoke") == summary  # held-out results cached in the run folders, same table
 
 
+def _without_compute(summary: dict) -> dict:
+    """A summary less its training times: two suites with the same results took different times to get them."""
+    cells = [
+        {
+            **{key: value for key, value in cell.items() if key != "core_hours"},
+            "per_seed": [{key: value for key, value in seed.items() if key != "wall_time_s"} for seed in cell["per_seed"]],
+        }
+        for cell in summary["cells"]
+    ]
+    return {**{key: value for key, value in summary.items() if key not in ("core_hours", "core_hours_runs")}, "cells": cells}
+
+
 def test_kill_9_mid_suite_then_rerun_gives_the_same_table(tmp_path):
     """A suite killed at any moment, then run again, ends with the JSON of a suite that was never interrupted."""
     path = write(tmp_path, TINY_SUITE)
@@ -210,7 +235,8 @@ def test_kill_9_mid_suite_then_rerun_gives_the_same_table(tmp_path):
     process.wait()
     time.sleep(1.0)
     assert benchmark_main(["run", path, "-f", interrupted, "--jobs", "2"]) == 0
-    assert _summary(interrupted) == _summary(uninterrupted)
+    assert _without_compute(_summary(interrupted)) == _without_compute(_summary(uninterrupted))
+    assert _summary(interrupted)["core_hours_runs"] == 4
 
 
 def test_resume_continues_a_run_from_its_checkpoint(tmp_path):

@@ -1,7 +1,8 @@
 """
 The report of a suite: every finished run's final model on held-out episodes (as ``sb3-icrl compare`` evaluates
 it), then per cell the per-seed values, mean and std, the interquartile mean (IQM) with a 95% bootstrap confidence
-interval, the Wilcoxon signed-rank test against a reference algorithm and the paper's number, written as Markdown,
+interval, the Wilcoxon signed-rank test against a reference algorithm, the paper's number and other published
+re-runs, the feasible reward as a fraction of our expert's return, and the compute the runs took, written as Markdown,
 CSV, LaTeX and JSON, with figures.
 
 IQM and the stratified bootstrap follow rliable (Agarwal et al. 2021): the IQM is the mean of the middle 50% of the
@@ -14,6 +15,7 @@ import io
 import json
 import math
 import os
+import pathlib
 from collections.abc import Callable, Sequence
 from dataclasses import asdict
 from typing import Any
@@ -21,12 +23,13 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import scipy.stats
+import yaml
 
 from sb3_icrl.benchmark.suite import RunSpec, Suite
 from sb3_icrl.common.utils import atomic_write_bytes, atomic_write_json
 from sb3_icrl.zoo.compare import RunResult, evaluate_run, summarise
 from sb3_icrl.zoo.hyperparams import env_name
-from sb3_icrl.zoo.runs import is_finished
+from sb3_icrl.zoo.runs import FINISHED_FILE, is_finished
 
 #: Bootstrap resamples of the confidence intervals
 BOOTSTRAP_REPS = 2000
@@ -36,6 +39,9 @@ BOOTSTRAP_SEED = 0
 HELDOUT_FILE = "heldout.json"
 #: Steps per held-out episode when the env declares no time limit
 DEFAULT_EPISODE_STEPS = 1000
+#: Keys of ``finished.json`` holding a run's training time in seconds, the first present wins: a resumed run's
+#: ``wall_time_s`` may cover only its last segment, ``wall_time_total_s`` the whole run
+WALL_TIME_KEYS = ("wall_time_total_s", "wall_time_s")
 
 
 def iqm(scores: Sequence[float] | np.ndarray) -> float:
@@ -127,8 +133,9 @@ def constraint_metrics(
     """
     Per finished run, how well its learned constraint identifies the true one (ICRL runs: AUROC, and the threshold
     error at ``t = 0.5`` where the constraint is a feature threshold; cached in the run folder as
-    ``identification.json``) and how it transfers (the ``transfer_<task>.json`` that ``sb3-icrl transfer`` wrote, if
-    any: the learner's true violation rate and its feasible reward as a share of the oracle's).
+    ``identification.json``), how it transfers (the ``transfer_<task>.json`` that ``sb3-icrl transfer`` wrote, if
+    any: the learner's true violation rate and its feasible reward as a share of the oracle's), and its training time
+    and expert's return (:func:`run_facts`).
 
     :param results: ``(run, held-out result)`` of the finished runs (:func:`evaluate_finished`)
     :param root: The log root
@@ -139,10 +146,10 @@ def constraint_metrics(
     from sb3_icrl.metrics.transfer import read_transfers
     from sb3_icrl.zoo.hyperparams import ICRL_ALGOS
 
-    metrics: dict[str, dict[str, float]] = {}
+    metrics = run_facts(results, root)
     for run, result in results:
         folder = os.path.join(root, result.run)
-        entry: dict[str, float] = {}
+        entry = metrics.setdefault(result.run, {})
         if run.algo in ICRL_ALGOS:
             if not os.path.isfile(os.path.join(folder, IDENTIFICATION_FILE)):
                 log(f"scoring the learned constraint of {run.name} against the true one")
@@ -153,8 +160,34 @@ def constraint_metrics(
         for task, transfer in read_transfers(folder).items():
             entry[f"transfer_{task}_violation_rate"] = float(transfer["violation_rate"])
             entry[f"transfer_{task}_feasible_ratio"] = float(transfer["feasible_reward_ratio"])
-        metrics[result.run] = entry
     return metrics
+
+
+def run_facts(results: Sequence[tuple[RunSpec, RunResult]], root: str) -> dict[str, dict[str, float]]:
+    """
+    Per finished run, its training time (``wall_time_s``, from ``finished.json``, see :func:`run_wall_time`) and the
+    mean return of the demonstrations it learned from (``expert_return``, see :func:`demonstrations_source`; NaN when
+    there are none, e.g. an env without a shipped dataset).
+
+    :param results: ``(run, held-out result)`` of the finished runs (:func:`evaluate_finished`)
+    :param root: The log root
+    :return: ``{result.run: {column: value}}``
+    """
+    returns: dict[tuple[str, float | None], float | None] = {}  # one load per dataset, however many runs share it
+    facts: dict[str, dict[str, float]] = {}
+    for run, result in results:
+        folder = os.path.join(root, result.run)
+        entry: dict[str, float] = {}
+        seconds = run_wall_time(folder)
+        if seconds is not None:
+            entry["wall_time_s"] = seconds
+        source = demonstrations_source(run, folder)
+        if source not in returns:
+            returns[source] = expert_return(*source)
+        value = returns[source]
+        entry["expert_return"] = math.nan if value is None else value
+        facts[result.run] = entry
+    return facts
 
 
 def _mean_of(values: Sequence[float | None]) -> float | None:
@@ -187,6 +220,91 @@ def _transfer_text(seed: dict[str, Any]) -> str:
     return ", ".join(parts) or "-"
 
 
+def run_wall_time(folder: str | os.PathLike) -> float | None:
+    """
+    The training time of a finished run, from its ``finished.json`` (see :data:`WALL_TIME_KEYS`).
+
+    :param folder: The run folder
+    :return: Seconds; ``None`` when the run is not finished or its ``finished.json`` records no time
+    """
+    try:
+        with open(os.path.join(folder, FINISHED_FILE)) as file:
+            finished = json.load(file)
+    except (OSError, ValueError):
+        return None
+    for key in WALL_TIME_KEYS:
+        value = finished.get(key) if isinstance(finished, dict) else None
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value >= 0:
+            return float(value)
+    return None
+
+
+def demonstrations_source(run: RunSpec, folder: str | os.PathLike | None = None) -> tuple[str, float | None]:
+    """
+    The demonstrations a run learned from: the ``demonstrations`` and ``violating_fraction`` of its ``args.yml``
+    when the run folder has one, else of its variant settings; by default the env's shipped dataset.
+
+    :param run: The run
+    :param folder: Its run folder (``None``: the variant settings only)
+    :return: ``(name or path, violating fraction)``, as :func:`sb3_icrl.data.load_demonstrations` takes them
+    """
+    settings: dict[str, Any] = dict(run.variant_settings)
+    found = sorted(pathlib.Path(folder).glob("*/args.yml")) if folder is not None else []
+    if found:
+        try:
+            with open(found[0]) as file:
+                settings = yaml.safe_load(file) or {}
+        except (OSError, yaml.YAMLError):
+            pass
+    name = settings.get("demonstrations") or env_name(run.env_id)
+    fraction = settings.get("violating_fraction")
+    return str(name), float(fraction) if isinstance(fraction, (int, float)) and fraction else None
+
+
+def expert_return(name: str, violating_fraction: float | None = None) -> float | None:
+    """
+    Mean return (sum of ``rews``) of the trajectories of a demonstration dataset.
+
+    :param name: Shipped dataset name (env name) or path
+    :param violating_fraction: The imperfect-expert variant of a shipped dataset
+    :return: The mean return; ``None`` when there is no such dataset or it is empty
+    """
+    from sb3_icrl.data import load_demonstrations
+
+    try:
+        demonstrations = load_demonstrations(name, violating_fraction=violating_fraction)
+    except (OSError, ValueError):  # DemonstrationError is a ValueError: no dataset for this env
+        return None
+    if not len(demonstrations):
+        return None
+    return float(np.mean([float(np.sum(trajectory.rews)) for trajectory in demonstrations]))
+
+
+def _core_hours(seconds: Sequence[float | None]) -> float | None:
+    """Core-hours of runs taking one core each (``None`` when no run's time is known)."""
+    known = [value for value in seconds if value is not None]
+    return sum(known) / 3600 if known else None
+
+
+def _fmt_hours(hours: float) -> str:
+    return f"{hours:,.0f}" if hours >= 100 else f"{hours:.1f}" if hours >= 1 else f"{hours:.2f}"
+
+
+def _percent(rate: float) -> str:
+    """A published violation rate: whole percents, one decimal below 1% so that 0.004 does not read as 0."""
+    return f"{100 * rate:.1f}%" if 0 < 100 * rate < 1 else f"{100 * rate:.0f}%"
+
+
+def _published(pair: Sequence[float] | None) -> str:
+    """``reward / violation`` of a published pair, ``-`` without one."""
+    return f"{pair[0]:g} / {_percent(pair[1])}" if pair else "-"
+
+
+def _fraction_text(cell: dict[str, Any]) -> str:
+    fraction = cell.get("feasible_reward_fraction")
+    return f"{fraction:.2f} of expert" if fraction is not None else "-"
+
+
 def _fmt(value: float, digits: int = 1) -> str:
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return "-"
@@ -201,19 +319,34 @@ def summarise_suite(
 ) -> dict[str, Any]:
     """
     Per cell (env, variant, algorithm): seeds, per-seed values, mean and std, IQM with its 95% bootstrap CI, the
-    Wilcoxon test against the suite's reference and the paper's numbers; per algorithm, the IQM over all envs with a
-    stratified bootstrap CI; the runs not finished yet.
+    Wilcoxon test against the suite's reference, the paper's and other sources' numbers (``others``), our expert's
+    return (``expert_return``: mean return of the demonstrations the runs learned from) and the feasible reward as a
+    fraction of it (``feasible_reward_fraction``), and the runs' compute (``core_hours``); per algorithm, the IQM over
+    all envs with a stratified bootstrap CI; the runs not finished yet; the suite's compute.
 
     :param suite: The suite
     :param runs: Its runs (to list the missing ones)
     :param results: ``(run, held-out result)`` of the finished runs
     :param metrics: Per run (``result.run``), identification and transfer columns added to its per-seed values
-        (:func:`constraint_metrics`); the cell gets the mean identification AUROC over the seeds that have one
+        (:func:`constraint_metrics`); the cell gets the mean identification AUROC over the seeds that have one.
+        Also the run's ``wall_time_s`` and ``expert_return`` (:func:`run_facts`): the cell sums the former into
+        ``core_hours`` and averages the latter; a run without an ``expert_return`` there takes the dataset its variant
+        settings name
     :return: A JSON-ready summary
     """
+    metrics = {name: dict(entry) for name, entry in (metrics or {}).items()}  # the caller's stays as it was
     by_cell: dict[tuple[str, str], list[RunResult]] = {}
+    returns: dict[tuple[str, float | None], float | None] = {}  # one load per dataset, however many runs share it
     for run, result in results:
         by_cell.setdefault((env_name(run.env_id), run.variant), []).append(result)
+        extra = metrics.setdefault(result.run, {})
+        if "expert_return" not in extra:
+            source = demonstrations_source(run)
+            if source not in returns:
+                returns[source] = expert_return(*source)
+            value = returns[source]
+            extra["expert_return"] = math.nan if value is None else value
+    wall_time = {result.run: metrics[result.run].get("wall_time_s") for _, result in results}
     cells = []
     for (env, variant), cell_results in sorted(by_cell.items()):
         reference = suite.reference if any(r.algo == suite.reference for r in cell_results) else None
@@ -225,6 +358,8 @@ def summarise_suite(
             feasible = [r.feasible_reward for r in mine]
             violation = [r.violation_rate for r in mine]
             paper = suite.paper.get(env, {}).get(algo)
+            expert = _mean_of([metrics[r.run]["expert_return"] for r in mine])
+            feasible_mean = entry.get("feasible_reward_mean")
             cells.append(
                 {
                     "env": env,
@@ -239,13 +374,13 @@ def summarise_suite(
                             "reward": r.reward,
                             "timesteps": r.timesteps,
                             "n_episodes": r.n_episodes,
-                            **(metrics or {}).get(r.run, {}),
+                            # A learner that ends its episodes on purpose shows here (null: evaluated before it was kept)
+                            "episode_length": r.episode_length,
+                            **metrics.get(r.run, {}),
                         }
                         for r in mine
                     ],
-                    "identification_auroc_mean": _mean_of(
-                        [(metrics or {}).get(r.run, {}).get("identification_auroc") for r in mine]
-                    ),
+                    "identification_auroc_mean": _mean_of([metrics.get(r.run, {}).get("identification_auroc") for r in mine]),
                     **{key: value for key, value in entry.items() if key != "seeds"},
                     "feasible_reward_iqm": iqm(feasible),
                     "feasible_reward_iqm_ci95": list(stratified_bootstrap_ci([feasible])),
@@ -254,6 +389,19 @@ def summarise_suite(
                     "reference": reference if algo != reference else None,
                     "paper_feasible_reward": paper[0] if paper else None,
                     "paper_violation_rate": paper[1] if paper else None,
+                    "others": {
+                        source: list(numbers[env][algo])
+                        for source, numbers in suite.others.items()
+                        if algo in numbers.get(env, {})
+                    },
+                    "expert_return": expert,
+                    # A fraction of a return that is not positive says nothing
+                    "feasible_reward_fraction": (
+                        feasible_mean / expert
+                        if expert is not None and expert > 0 and feasible_mean is not None and math.isfinite(feasible_mean)
+                        else None
+                    ),
+                    "core_hours": _core_hours([wall_time[r.run] for r in mine]),
                 }
             )
     aggregates = []
@@ -280,16 +428,39 @@ def summarise_suite(
         "cells": cells,
         "aggregates": aggregates,
         "runs_missing": missing,
+        "others_sources": list(suite.others),
+        "core_hours": _core_hours(list(wall_time.values())),
+        "core_hours_runs": sum(value is not None for value in wall_time.values()),
     }
 
 
+def compute_line(summary: dict[str, Any]) -> str | None:
+    """``Compute: N core-hours over M runs`` (runs with a recorded wall time), ``None`` without any."""
+    if summary.get("core_hours") is None:
+        return None
+    return f"Compute: {_fmt_hours(summary['core_hours'])} core-hours over {summary.get('core_hours_runs', 0)} runs"
+
+
+def _sources(summary: dict[str, Any]) -> list[str]:
+    """The other sources of a summary, in the suite's order (a summary's cells may name them only)."""
+    sources = list(summary.get("others_sources") or [])
+    for cell in summary["cells"]:
+        sources += [source for source in cell.get("others") or {} if source not in sources]
+    return sources
+
+
 def markdown_table(summary: dict[str, Any]) -> str:
-    """The cells as a Markdown table: ours (mean +- std, IQM [CI]) beside the paper's, per-seed values visible."""
+    """
+    The cells as a Markdown table: ours (mean +- std, IQM [CI], fraction of our expert's return) beside the paper's
+    and other sources', per-seed values visible, then the compute line.
+    """
+    sources = _sources(summary)
     lines = [
-        "| env | variant | algo | seeds | feasible reward (mean ± std) | IQM [95% CI] | violation rate | Wilcoxon p | paper "
-        "| per seed (feasible / violation) | identification per seed (AUROC / threshold error) "
-        "| transfer per seed (violation / feasible reward ÷ oracle's) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| env | variant | algo | seeds | feasible reward (mean ± std) | IQM [95% CI] | vs our expert | violation rate "
+        "| Wilcoxon p | paper | " + "".join(f"{source} | " for source in sources) + "per seed (feasible / violation) "
+        "| identification per seed (AUROC / threshold error) | transfer per seed (violation / feasible reward ÷ oracle's) "
+        "| core-hours |",
+        "|---" * (14 + len(sources)) + "|",
     ]
     for cell in summary["cells"]:
         low, high = cell["feasible_reward_iqm_ci95"]
@@ -304,48 +475,82 @@ def markdown_table(summary: dict[str, Any]) -> str:
         identification = ", ".join(f"{s['seed']}: {_identification_text(s)}" for s in cell["per_seed"])
         transfer = ", ".join(f"{s['seed']}: {_transfer_text(s)}" for s in cell["per_seed"] if _transfer_text(s) != "-")
         p_value = cell.get("wilcoxon_p")
+        others = "".join(f"{_published((cell.get('others') or {}).get(source))} | " for source in sources)
+        hours = cell.get("core_hours")
         lines.append(
             f"| {cell['env']} | {cell['variant']} | {cell['algo']} | {cell['n_seeds']} | "
             f"{_fmt(cell['feasible_reward_mean'])} ± {_fmt(cell['feasible_reward_std'])} | "
-            f"{_fmt(cell['feasible_reward_iqm'])} [{_fmt(low)}, {_fmt(high)}] | "
+            f"{_fmt(cell['feasible_reward_iqm'])} [{_fmt(low)}, {_fmt(high)}] | {_fraction_text(cell)} | "
             f"{100 * cell['violation_rate_mean']:.0f}% ± {100 * cell['violation_rate_std']:.0f}% | "
-            f"{_fmt(p_value, 3) if p_value is not None else '-'} | {paper} | {per_seed} | "
-            f"{identification if any('identification_auroc' in s for s in cell['per_seed']) else '-'} | {transfer or '-'} |"
+            f"{_fmt(p_value, 3) if p_value is not None else '-'} | {paper} | {others}{per_seed} | "
+            f"{identification if any('identification_auroc' in s for s in cell['per_seed']) else '-'} | {transfer or '-'} | "
+            f"{_fmt_hours(hours) if hours is not None else '-'} |"
         )
     if summary["runs_missing"]:
         lines.append("")
         lines.append(f"Not finished yet ({len(summary['runs_missing'])}): " + ", ".join(summary["runs_missing"]))
+    compute = compute_line(summary)
+    if compute is not None:
+        lines += ["", compute]
     return "\n".join(lines) + "\n"
 
 
 def latex_table(summary: dict[str, Any]) -> str:
-    """The cells as a LaTeX ``tabular`` (booktabs): feasible reward and violation rate, mean ± std, and the paper's."""
+    """
+    The cells as a LaTeX ``tabular`` (booktabs): feasible reward (mean ± std, fraction of our expert's return) and
+    violation rate, and the paper's and other sources' numbers.
+    """
+    sources = _sources(summary)
+    # Source names are free text: escape what LaTeX reads as markup (underscores are escaped below, for all cells)
+    names = [source.replace("&", "\\&").replace("%", "\\%").replace("#", "\\#") for source in sources]
     rows = [
-        "\\begin{tabular}{lllrrrr}",
+        "\\begin{tabular}{lllrrrrr" + "rr" * len(sources) + "}",
         "\\toprule",
-        "Env & Variant & Method & Feasible reward & Violation rate & Paper reward & Paper violation \\\\",
+        "Env & Variant & Method & Feasible reward & Of expert & Violation rate & Paper reward & Paper violation"
+        + "".join(f" & {name} reward & {name} violation" for name in names)
+        + " \\\\",
         "\\midrule",
     ]
     for cell in summary["cells"]:
         paper_reward = _fmt(cell["paper_feasible_reward"], 2) if cell["paper_feasible_reward"] is not None else "--"
         paper_violation = f"{100 * cell['paper_violation_rate']:.0f}\\%" if cell["paper_violation_rate"] is not None else "--"
+        others = ""
+        for source in sources:
+            pair = (cell.get("others") or {}).get(source)
+            percent = _percent(pair[1]).replace("%", "\\%") if pair else ""
+            others += f" & {pair[0]:g} & {percent}" if pair else " & -- & --"
+        fraction = cell.get("feasible_reward_fraction")
         rows.append(
             f"{cell['env']} & {cell['variant']} & {cell['algo'].upper()} & "
             f"${_fmt(cell['feasible_reward_mean'])} \\pm {_fmt(cell['feasible_reward_std'])}$ & "
+            f"{_fmt(fraction, 2) if fraction is not None else '--'} & "
             f"${100 * cell['violation_rate_mean']:.0f}\\% \\pm {100 * cell['violation_rate_std']:.0f}\\%$ & "
-            f"{paper_reward} & {paper_violation} \\\\"
+            f"{paper_reward} & {paper_violation}{others} \\\\"
         )
     rows += ["\\bottomrule", "\\end{tabular}"]
     return "\n".join(rows).replace("_", "\\_") + "\n"
 
 
 def csv_rows(summary: dict[str, Any]) -> str:
-    """One row per run: cell, seed and held-out values."""
+    """
+    One row per run: cell, seed, held-out values, training time; then the cell's expert return and published numbers
+    (paper, other sources), repeated on each of its rows.
+    """
+    sources = _sources(summary)
     buffer = io.StringIO()
     writer = csv.writer(buffer)
     header = ["env", "variant", "algo", "seed", "feasible_reward", "violation_rate", "reward", "timesteps", "n_episodes"]
-    writer.writerow([*header, "identification_auroc", "threshold_error", *TRANSFER_COLUMNS])
+    header.append("episode_length")
+    published = ["paper_feasible_reward", "paper_violation_rate"]
+    for source in sources:
+        published += [f"{source}_feasible_reward", f"{source}_violation_rate"]
+    writer.writerow(
+        [*header, "identification_auroc", "threshold_error", *TRANSFER_COLUMNS, "wall_time_s", "expert_return", *published]
+    )
     for cell in summary["cells"]:
+        numbers = [cell.get("paper_feasible_reward"), cell.get("paper_violation_rate")]
+        for source in sources:
+            numbers += list((cell.get("others") or {}).get(source) or ["", ""])
         for seed in cell["per_seed"]:
             writer.writerow(
                 [
@@ -358,10 +563,18 @@ def csv_rows(summary: dict[str, Any]) -> str:
                     seed["reward"],
                     seed["timesteps"],
                     seed["n_episodes"],
+                    _csv_number(seed.get("episode_length")),
                     *(seed.get(column, "") for column in ("identification_auroc", "threshold_error", *TRANSFER_COLUMNS)),
+                    seed.get("wall_time_s", ""),
+                    *("" if value is None else value for value in (cell.get("expert_return"), *numbers)),
                 ]
             )
     return buffer.getvalue()
+
+
+def _csv_number(value: float | None) -> Any:
+    """A number for the CSV, empty when it is unknown (``None`` or NaN)."""
+    return "" if value is None or (isinstance(value, float) and math.isnan(value)) else value
 
 
 def finite_or_null(value: Any) -> Any:

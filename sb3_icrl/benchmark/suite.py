@@ -29,6 +29,7 @@ SUITE_KEYS = {
     "train_args": "extra train.py settings for every run: eval_freq, eval_episodes, save_freq, num_threads, device",
     "reference": "algorithm the report tests the others against (Wilcoxon signed-rank)",
     "paper": "mapping env -> algo -> [feasible reward, violation rate] of the paper, shown beside ours",
+    "others": "mapping source name -> env -> algo -> [feasible reward, violation rate] of other published runs",
     "gym_packages": "modules to import first: they register your own envs",
 }
 #: What a variant may change, with the train.py flag it becomes
@@ -156,6 +157,8 @@ class Suite:
     reference: str | None
     paper: dict[str, dict[str, tuple[float, float]]]
     gym_packages: tuple[str, ...] = ()
+    #: source name -> env name -> algo -> (feasible reward, violation rate), in the file's order
+    others: dict[str, dict[str, dict[str, tuple[float, float]]]] = field(default_factory=dict)
 
     def runs(self) -> list[RunSpec]:
         """Every run, env by env, then variant, algorithm and seed."""
@@ -329,19 +332,53 @@ class _SuiteReader:
             train_args[key] = value
         return train_args
 
-    def paper(self) -> dict[str, dict[str, tuple[float, float]]]:
-        paper: dict[str, dict[str, tuple[float, float]]] = {}
-        for env, entries in (self.content.get("paper") or {}).items():
-            name = env_name(self.env_id(env, ("paper", env)))
+    def numbers(self, raw: Any, where: tuple, what: str) -> dict[str, dict[str, tuple[float, float]]]:
+        """
+        Published numbers ``env -> algo -> [feasible reward, violation rate]``, keyed by env name.
+
+        :param raw: The mapping as read
+        :param where: Its location in the file (``("paper",)``, ``("others", source)``)
+        :param what: Whose numbers, for the messages
+        """
+        if raw is None:
+            return {}
+        if not isinstance(raw, dict):
+            raise self.error(where, f"{what} numbers map env -> algo -> [feasible reward, violation rate].")
+        numbers: dict[str, dict[str, tuple[float, float]]] = {}
+        for env, entries in raw.items():
+            name = env_name(self.env_id(env, (*where, env)))
             if not isinstance(entries, dict):
-                raise self.error(("paper", env), "paper numbers map algo -> [feasible reward, violation rate].")
-            for algo, numbers in entries.items():
+                raise self.error((*where, env), f"{what} numbers map algo -> [feasible reward, violation rate].")
+            for algo, pair in entries.items():
                 if algo not in ALGOS:
-                    raise self.error(("paper", env, algo), f"unknown algorithm {algo!r}.")
-                if not (isinstance(numbers, list) and len(numbers) == 2 and all(isinstance(n, (int, float)) for n in numbers)):
-                    raise self.error(("paper", env, algo), f"expected [feasible reward, violation rate], got {numbers!r}.")
-                paper.setdefault(name, {})[algo] = (float(numbers[0]), float(numbers[1]))
-        return paper
+                    raise self.error((*where, env, algo), f"unknown algorithm {algo!r}: use one of {', '.join(ALGOS)}.")
+                if not (
+                    isinstance(pair, list)
+                    and len(pair) == 2
+                    and all(isinstance(n, (int, float)) and not isinstance(n, bool) for n in pair)
+                ):
+                    raise self.error((*where, env, algo), f"expected [feasible reward, violation rate], got {pair!r}.")
+                if not 0 <= pair[1] <= 1:
+                    raise self.error((*where, env, algo), f"a violation rate is within [0, 1], got {pair[1]!r}.")
+                numbers.setdefault(name, {})[algo] = (float(pair[0]), float(pair[1]))
+        return numbers
+
+    def paper(self) -> dict[str, dict[str, tuple[float, float]]]:
+        return self.numbers(self.content.get("paper"), ("paper",), "paper")
+
+    def others(self) -> dict[str, dict[str, dict[str, tuple[float, float]]]]:
+        raw = self.content.get("others")
+        if raw is None:
+            return {}
+        if not isinstance(raw, dict):
+            raise self.error(("others",), "`others` maps a source name to env -> algo -> [feasible reward, violation rate].")
+        others = {}
+        for source, numbers in raw.items():
+            # The name becomes a column heading and a JSON key: a plain non-empty string
+            if not isinstance(source, str) or not source.strip() or "|" in source:
+                raise self.error(("others", source), f"a source name is a non-empty string without '|', got {source!r}.")
+            others[source] = self.numbers(numbers, ("others", source), f"source {source!r}")
+        return others
 
 
 def load_suite(name_or_path: str | os.PathLike) -> Suite:
@@ -387,4 +424,5 @@ def load_suite(name_or_path: str | os.PathLike) -> Suite:
         reference=reference,
         paper=reader.paper(),
         gym_packages=tuple(gym_packages),
+        others=reader.others(),
     )

@@ -1,0 +1,288 @@
+"""
+The report's columns beside our numbers: other published re-runs (``others:``), the feasible reward as a fraction of
+our expert's return, and the compute the runs took; in summary.json, the tables and README's table.
+"""
+
+import csv
+import functools
+import importlib.util
+import io
+import json
+import os
+import pathlib
+
+import numpy as np
+import pytest
+import yaml
+
+from sb3_icrl.benchmark import load_suite, report, summarise_suite
+from sb3_icrl.benchmark.report import (
+    constraint_metrics,
+    csv_rows,
+    latex_table,
+    markdown_table,
+    run_facts,
+    run_wall_time,
+    write_report,
+)
+from sb3_icrl.benchmark.suite import SuiteError
+from sb3_icrl.data import Trajectory, save
+from sb3_icrl.zoo.compare import RunResult
+from sb3_icrl.zoo.runs import FINISHED_FILE
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+spec = importlib.util.spec_from_file_location("readme_table", ROOT / "benchmarks" / "readme_table.py")
+readme_table = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(readme_table)
+
+# GridWorldWall has shipped demonstrations (every trajectory returns 1.0), GridWorld-v0 has none
+SUITE = """\
+description: columns
+envs: [GridWorldWall-v0, GridWorld-v0]
+algos: [bc2l, vicrl]
+seeds: [0, 1]
+steps: 512
+reference: vicrl
+others:
+  simple-icrl:
+    GridWorldWall-v0: {bc2l: [0.9, 0.004]}
+  another re-run:
+    GridWorldWall-v0: {vicrl: [0.5, 0.25]}
+"""
+HEAD = "envs: [GridWorldWall-v0]\nalgos: [bc2l]\nseeds: [0]\n"
+PAIR = r"expected \[feasible reward, violation rate\]"
+
+
+def write(tmp_path: pathlib.Path, text: str, name: str = "suite.yml") -> str:
+    path = tmp_path / name
+    path.write_text(text)
+    return str(path)
+
+
+# ---------------------------------------------------------------- the suite key
+
+
+def test_table3_carries_the_simple_icrl_rerun():
+    others = load_suite("table3").others
+    assert list(others) == ["simple-icrl"]
+    assert others["simple-icrl"]["BlockedAnt-v0"] == {"mecl": (7006.0, 0.004)}
+    assert others["simple-icrl"]["BlockedWalker-v0"]["mecl"] == (318.0, 0.36)
+    assert "HighwayVelocity-v0" not in others["simple-icrl"]
+
+
+@pytest.mark.parametrize(
+    "text, line, message",
+    [
+        (HEAD + "others: [1, 2]\n", 4, "`others` maps a source name"),
+        (HEAD + "others:\n  src:\n    NoSuchEnv-v0: {bc2l: [1, 0.1]}\n", 6, "Unknown env 'NoSuchEnv-v0'"),
+        (HEAD + "others:\n  src:\n    GridWorldWall-v0:\n      airl: [1, 0.1]\n", 7, "unknown algorithm 'airl'"),
+        (HEAD + "others:\n  src:\n    GridWorldWall-v0: {bc2l: [1]}\n", 6, PAIR),
+        (HEAD + "others:\n  src:\n    GridWorldWall-v0: {bc2l: [a, 0.1]}\n", 6, PAIR),
+        (HEAD + "others:\n  src:\n    GridWorldWall-v0: {bc2l: [1, 1.5]}\n", 6, r"violation rate is within \[0, 1\]"),
+        (HEAD + "others:\n  src:\n    GridWorldWall-v0: [1, 0.1]\n", 6, "map algo -> "),
+        (HEAD + "others:\n  src: 3\n", 5, "source 'src' numbers map env"),
+        (HEAD + "others:\n  a|b: {}\n", 5, "a source name is a non-empty string"),
+        (HEAD + "paper:\n  GridWorldWall-v0: {bc2l: [1, 0.1, 2]}\n", 5, PAIR),
+    ],
+)
+def test_bad_others_name_file_and_line(tmp_path, text, line, message):
+    path = write(tmp_path, text)
+    with pytest.raises(SuiteError, match=f"line {line}: .*{message}") as error:
+        load_suite(path)
+    assert path in str(error.value)
+
+
+# ---------------------------------------------------------------- fake finished runs
+
+
+def _finish(folder: str, **finished) -> None:
+    """What train.py leaves in a run folder that matters here: ``finished.json`` and ``<EnvName>/args.yml``."""
+    os.makedirs(folder, exist_ok=True)
+    with open(os.path.join(folder, FINISHED_FILE), "w") as file:
+        json.dump({"num_timesteps": 512, **finished}, file)
+
+
+def _args(folder: str, env: str, **args) -> None:
+    os.makedirs(os.path.join(folder, env), exist_ok=True)
+    with open(os.path.join(folder, env, "args.yml"), "w") as file:
+        yaml.safe_dump({"env": f"sb3_icrl/{env}", "demonstrations": None, "violating_fraction": None, **args}, file)
+
+
+def _own_demonstrations(path: str) -> None:
+    """Two trajectories returning 1 + 2 + 3 = 6 and 4: a mean return of 5."""
+    trajectories = [
+        Trajectory(np.zeros((len(r) + 1, 2)), np.zeros(len(r), dtype=np.int64), None, True, np.array(r), np.zeros(len(r)))
+        for r in ([1.0, 2.0, 3.0], [4.0])
+    ]
+    save(path, trajectories)
+
+
+# Per run: (feasible reward, violation rate, finished.json wall-time keys)
+FEASIBLE = {
+    ("GridWorldWall-v0", "bc2l", 0): (0.5, 0.0, {"wall_time_s": 1800.0}),
+    # A resumed run: its whole time wins over its last segment's
+    ("GridWorldWall-v0", "bc2l", 1): (0.7, 0.5, {"wall_time_s": 100.0, "wall_time_total_s": 3600.0}),
+    ("GridWorldWall-v0", "vicrl", 0): (4.0, 0.0, {"wall_time_s": 900.0}),
+    ("GridWorldWall-v0", "vicrl", 1): (4.0, 0.0, {"wall_time_s": 900.0}),
+    ("GridWorld-v0", "bc2l", 0): (2.0, 0.0, {"wall_time_s": 360.0}),
+    ("GridWorld-v0", "bc2l", 1): (3.0, 0.0, {}),  # an older finished.json: no time recorded
+    ("GridWorld-v0", "vicrl", 0): (1.0, 0.0, {"wall_time_s": 0.0}),
+    ("GridWorld-v0", "vicrl", 1): (1.0, 0.0, {"wall_time_s": 0.0}),
+}
+
+
+@pytest.fixture
+def finished_suite(tmp_path, monkeypatch):
+    """The suite, its log root and the held-out results of its eight fake finished runs."""
+    # These columns do not depend on the confidence intervals: a short bootstrap keeps the tests quick
+    monkeypatch.setattr(report, "stratified_bootstrap_ci", functools.partial(report.stratified_bootstrap_ci, reps=20))
+    suite = load_suite(write(tmp_path, SUITE))
+    root = str(tmp_path / "logs")
+    demonstrations = str(tmp_path / "mine.npz")
+    _own_demonstrations(demonstrations)
+    results = []
+    for run in suite.runs():
+        env = run.env_id.split("/")[-1]
+        feasible, violation, times = FEASIBLE[(env, run.algo, run.seed)]
+        folder = run.run_folder(root)
+        _finish(folder, **times)
+        # vicrl on GridWorldWall learned from the user's own file, as its args.yml says
+        _args(folder, env, **({"demonstrations": demonstrations} if (env, run.algo) == ("GridWorldWall-v0", "vicrl") else {}))
+        name = os.path.relpath(folder, root)
+        results.append((run, RunResult(name, run.algo, run.env_id, run.seed, 100, 1.0, violation, feasible, feasible, 2)))
+    return suite, root, results
+
+
+def _cell(summary: dict, env: str, algo: str) -> dict:
+    return next(cell for cell in summary["cells"] if cell["env"] == env and cell["algo"] == algo)
+
+
+def test_wall_time_prefers_the_whole_runs(tmp_path):
+    _finish(str(tmp_path / "a"), wall_time_s=10.0, wall_time_total_s=30.0)
+    _finish(str(tmp_path / "b"), wall_time_s=10.0)
+    _finish(str(tmp_path / "c"))
+    assert [run_wall_time(tmp_path / name) for name in "abcd"] == [30.0, 10.0, None, None]
+
+
+def test_summary_carries_others_expert_fraction_and_core_hours(finished_suite):
+    suite, root, results = finished_suite
+    facts = run_facts(results, root)
+    assert facts[results[0][1].run] == {"wall_time_s": 1800.0, "expert_return": 1.0}
+    # constraint_metrics, which the report command calls, carries them too (the fake runs cannot be scored)
+    metrics = constraint_metrics(results, root, log=lambda line: None)
+    assert metrics[results[1][1].run]["wall_time_s"] == 3600.0
+    summary = summarise_suite(suite, suite.runs(), results, metrics)
+
+    bc2l = _cell(summary, "GridWorldWall-v0", "bc2l")
+    assert bc2l["others"] == {"simple-icrl": [0.9, 0.004]}
+    assert bc2l["expert_return"] == pytest.approx(1.0)  # the shipped GridWorldWall dataset: every return is 1
+    assert bc2l["feasible_reward_fraction"] == pytest.approx(0.6)  # mean of 0.5 and 0.7
+    assert bc2l["core_hours"] == pytest.approx((1800 + 3600) / 3600)
+    assert [seed["wall_time_s"] for seed in bc2l["per_seed"]] == [1800.0, 3600.0]
+
+    vicrl = _cell(summary, "GridWorldWall-v0", "vicrl")
+    assert vicrl["others"] == {"another re-run": [0.5, 0.25]}
+    assert vicrl["expert_return"] == pytest.approx(5.0)  # its args.yml's own file: returns 6 and 4
+    assert vicrl["feasible_reward_fraction"] == pytest.approx(0.8)
+    assert vicrl["core_hours"] == pytest.approx(0.5)
+
+    # No shipped demonstrations for GridWorld-v0: no expert return, no fraction; a run without a time is left out
+    plain = _cell(summary, "GridWorld-v0", "bc2l")
+    assert plain["others"] == {}
+    assert plain["expert_return"] is None and plain["feasible_reward_fraction"] is None
+    assert plain["core_hours"] == pytest.approx(0.1)
+    assert _cell(summary, "GridWorld-v0", "vicrl")["core_hours"] == 0.0
+
+    assert summary["others_sources"] == ["simple-icrl", "another re-run"]
+    assert summary["core_hours"] == pytest.approx((1800 + 3600 + 900 + 900 + 360) / 3600)
+    assert summary["core_hours_runs"] == 7
+
+
+def test_without_run_folders_the_variant_settings_name_the_demonstrations(finished_suite):
+    suite, _, results = finished_suite
+    summary = summarise_suite(suite, suite.runs(), results)
+    # The shipped dataset of each env: no args.yml is read, no time is known
+    assert _cell(summary, "GridWorldWall-v0", "vicrl")["expert_return"] == pytest.approx(1.0)
+    assert _cell(summary, "GridWorld-v0", "vicrl")["expert_return"] is None
+    assert summary["core_hours"] is None and _cell(summary, "GridWorldWall-v0", "bc2l")["core_hours"] is None
+    assert "Compute:" not in markdown_table(summary)
+
+
+def test_tables_and_readme_show_the_columns(finished_suite, tmp_path):
+    suite, root, results = finished_suite
+    summary = summarise_suite(suite, suite.runs(), results, run_facts(results, root))
+
+    table = markdown_table(summary).splitlines()
+    assert "| vs our expert |" in table[0] and "| paper | simple-icrl | another re-run |" in table[0]
+    assert table[1].count("|---") == 16
+    row = next(line for line in table if line.startswith("| GridWorldWall-v0 | base | bc2l |"))
+    assert "| 0.60 of expert |" in row and "| - | 0.9 / 0.4% | - |" in row and row.endswith("| 1.5 |")
+    row = next(line for line in table if line.startswith("| GridWorld-v0 | base | bc2l |"))
+    assert "| 2.5 [2.0, 3.0] | - |" in row and "| - | - | - |" in row
+    assert table[-1] == "Compute: 2.1 core-hours over 7 runs"  # 7560 s, one run without a time
+
+    rows = list(csv.DictReader(io.StringIO(csv_rows(summary))))
+    first = rows[0]
+    assert (first["env"], first["algo"], first["seed"]) == ("GridWorld-v0", "bc2l", "0")
+    assert first["wall_time_s"] == "360.0" and first["expert_return"] == "" and first["simple-icrl_feasible_reward"] == ""
+    wall = next(row for row in rows if (row["env"], row["algo"], row["seed"]) == ("GridWorldWall-v0", "bc2l", "1"))
+    assert wall["wall_time_s"] == "3600.0" and wall["expert_return"] == "1.0"
+    assert (wall["simple-icrl_feasible_reward"], wall["simple-icrl_violation_rate"]) == ("0.9", "0.004")
+
+    tex = latex_table(summary)
+    assert "simple-icrl reward & simple-icrl violation & another re-run reward" in tex
+    assert "\\begin{tabular}{lllrrrrrrrrr}" in tex
+    assert (
+        "GridWorldWall-v0 & base & BC2L & $0.6 \\pm 0.1$ & 0.60 & $25\\% \\pm 25\\%$ & -- & -- & 0.9 & 0.4\\% & -- & --"
+        in (tex)
+    )
+
+    # summary.json: strict JSON, a run without demonstrations has a null expert return
+    results_folder = tmp_path / "results"
+    write_report(summary, str(results_folder / "columns"))
+    written = json.loads((results_folder / "columns" / "summary.json").read_text())
+    assert _cell(written, "GridWorld-v0", "bc2l")["per_seed"][0]["expert_return"] is None
+    assert _cell(written, "GridWorldWall-v0", "bc2l")["others"] == {"simple-icrl": [0.9, 0.004]}
+
+    readme = readme_table.table(results_folder).splitlines()
+    assert readme[0] == (
+        "| suite | env | variant | method | seeds | violation rate | feasible reward | vs our expert | "
+        "paper (reward / violation) | simple-icrl (reward / violation) | another re-run (reward / violation) |"
+    )
+    assert readme[1] == "|---" * 11 + "|"
+    row = "| suite | GridWorldWall-v0 | base | BC2L | 0, 1 | 25% ± 25% | 1 ± 0 | 0.60 of expert | - | 0.9 / 0.4% | - |"
+    assert row in readme
+    assert "| suite | GridWorld-v0 | base | BC2L | 0, 1 | 0% ± 0% | 2 ± 0 | - | - | - | - |" in readme
+    assert readme[-1] == "Compute: 2.1 core-hours over 7 runs (suite 2.1 over 7)."
+
+
+def test_readme_table_keeps_older_summaries_readable(finished_suite, tmp_path):
+    """A summary written before these columns shows ``-`` in them; without any such summary they do not appear."""
+    suite, root, results = finished_suite
+    summary = summarise_suite(suite, suite.runs(), results, run_facts(results, root))
+    write_report(summary, str(tmp_path / "new"))
+    old = {
+        "suite": "old",
+        "cells": [
+            {
+                "env": "BlockedAnt-v0",
+                "variant": "base",
+                "algo": "mecl",
+                "per_seed": [{"seed": 0}],
+                "violation_rate_mean": 0.0,
+                "violation_rate_std": 0.0,
+                "feasible_reward_mean": 1000.0,
+                "feasible_reward_std": 0.0,
+                "paper_feasible_reward": 8546.0,
+                "paper_violation_rate": 0.0,
+            }
+        ],
+    }
+    (tmp_path / "old").mkdir()
+    (tmp_path / "old" / "summary.json").write_text(json.dumps(old))
+    row = "| old | BlockedAnt-v0 | base | MECL | 0 | 0% ± 0% | 1000 ± 0 | - | 8546 / 0% | - | - |"
+    assert row in readme_table.table(tmp_path)
+    (tmp_path / "new" / "summary.json").unlink()
+    only_old = readme_table.table(tmp_path)
+    assert only_old.splitlines()[-1] == "| old | BlockedAnt-v0 | base | MECL | 0 | 0% ± 0% | 1000 ± 0 | 8546 / 0% |"
+    assert "Compute" not in only_old
