@@ -259,14 +259,17 @@ def test_report_gets_identification_columns(grid_run):
     result = RunResult(os.path.relpath(grid_run, root), "mecl", run.env_id, 0, 512, 0.1, 0.0, 1.0, 1.0, 2)
     metrics = constraint_metrics([(run, result)], root, log=lambda line: None)
     expected = identify_run(grid_run)["scores"]["auroc"]
-    assert metrics == {result.run: {"identification_auroc": expected}}
+    assert metrics[result.run]["identification_auroc"] == expected
+    # The report's other per-run facts come with it: the run's wall time and the shipped expert's return
+    assert metrics[result.run]["wall_time_s"] > 0 and metrics[result.run]["expert_return"] == pytest.approx(1.0)
     summary = summarise_suite(suite, [run], [(run, result)], metrics)
     cell = summary["cells"][0]
     assert cell["per_seed"][0]["identification_auroc"] == expected and cell["identification_auroc_mean"] == expected
     assert f"0: {expected:.2f} / -" in markdown_table(summary)
     header, row = csv_rows(summary).splitlines()[:2]
-    assert header.split(",")[9:11] == ["identification_auroc", "threshold_error"]
-    assert float(row.split(",")[9]) == pytest.approx(expected)
+    columns = header.split(",")
+    assert columns[columns.index("identification_auroc") + 1] == "threshold_error"
+    assert float(row.split(",")[columns.index("identification_auroc")]) == pytest.approx(expected)
 
 
 def test_methods_figure_marks_the_threshold_and_one_line_per_seed():
