@@ -169,6 +169,15 @@ def test_summary_cells_hold_hand_computed_statistics(tmp_path):
     assert partial["runs_missing"] == [suite.runs()[-1].name]
 
 
+def test_identification_text_names_a_cost_above_the_level_everywhere():
+    from sb3_icrl.benchmark.report import _identification_text
+
+    assert _identification_text({"identification_auroc": 0.5, "threshold_error": float("inf")}) == "0.50 / everywhere"
+    assert _identification_text({"identification_auroc": 0.9, "threshold_error": -4.831}) == "0.90 / -4.83"
+    assert _identification_text({"identification_auroc": 0.9, "threshold_error": float("nan")}) == "0.90 / -"
+    assert _identification_text({}) == "-"
+
+
 def test_the_held_out_episode_length_goes_with_each_seed(tmp_path):
     suite = load_suite(write(tmp_path, TINY_SUITE))
     results = [(run, _result(run.algo, run.seed, 1.0, 0.0)) for run in suite.runs()]

@@ -203,11 +203,15 @@ TRANSFER_COLUMNS = tuple(
 
 
 def _identification_text(seed: dict[str, Any]) -> str:
-    """``AUROC / threshold error`` of one seed (``-`` for what it lacks)."""
+    """
+    ``AUROC / threshold error`` of one seed: ``-`` where the learned cost never reaches 0.5 (or there is no
+    threshold), ``everywhere`` where it stays at or above 0.5 up to the safe end of the feature's range.
+    """
     if "identification_auroc" not in seed:
         return "-"
     error = seed.get("threshold_error")
-    return f"{_fmt(seed['identification_auroc'], 2)} / {_fmt(error, 2) if error is not None else '-'}"
+    error_text = "everywhere" if error is not None and math.isinf(error) else _fmt(error, 2) if error is not None else "-"
+    return f"{_fmt(seed['identification_auroc'], 2)} / {error_text}"
 
 
 def _transfer_text(seed: dict[str, Any]) -> str:
