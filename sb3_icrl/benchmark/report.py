@@ -181,11 +181,7 @@ def run_facts(results: Sequence[tuple[RunSpec, RunResult]], root: str) -> dict[s
         seconds = run_wall_time(folder)
         if seconds is not None:
             entry["wall_time_s"] = seconds
-        source = demonstrations_source(run, folder)
-        if source not in returns:
-            returns[source] = expert_return(*source)
-        value = returns[source]
-        entry["expert_return"] = math.nan if value is None else value
+        entry["expert_return"] = _expert_return_once(demonstrations_source(run, folder), returns)
         facts[result.run] = entry
     return facts
 
@@ -284,24 +280,33 @@ def expert_return(name: str, violating_fraction: float | None = None) -> float |
     return float(np.mean([float(np.sum(trajectory.rews)) for trajectory in demonstrations]))
 
 
+def _expert_return_once(source: tuple[str, float | None], loaded: dict[tuple[str, float | None], float | None]) -> float:
+    """:func:`expert_return` of a dataset, loaded once however many runs share it (NaN when there is none)."""
+    if source not in loaded:
+        loaded[source] = expert_return(*source)
+    value = loaded[source]
+    return math.nan if value is None else value
+
+
 def _core_hours(seconds: Sequence[float | None]) -> float | None:
     """Core-hours of runs taking one core each (``None`` when no run's time is known)."""
     known = [value for value in seconds if value is not None]
     return sum(known) / 3600 if known else None
 
 
-def _fmt_hours(hours: float) -> str:
+def format_hours(hours: float) -> str:
+    """Core-hours for a table: whole hours from 100 on, one decimal from 1, two below."""
     return f"{hours:,.0f}" if hours >= 100 else f"{hours:.1f}" if hours >= 1 else f"{hours:.2f}"
 
 
-def _percent(rate: float) -> str:
+def format_rate(rate: float) -> str:
     """A published violation rate: whole percents, one decimal below 1% so that 0.004 does not read as 0."""
     return f"{100 * rate:.1f}%" if 0 < 100 * rate < 1 else f"{100 * rate:.0f}%"
 
 
 def _published(pair: Sequence[float] | None) -> str:
     """``reward / violation`` of a published pair, ``-`` without one."""
-    return f"{pair[0]:g} / {_percent(pair[1])}" if pair else "-"
+    return f"{pair[0]:g} / {format_rate(pair[1])}" if pair else "-"
 
 
 def _fraction_text(cell: dict[str, Any]) -> str:
@@ -345,11 +350,7 @@ def summarise_suite(
         by_cell.setdefault((env_name(run.env_id), run.variant), []).append(result)
         extra = metrics.setdefault(result.run, {})
         if "expert_return" not in extra:
-            source = demonstrations_source(run)
-            if source not in returns:
-                returns[source] = expert_return(*source)
-            value = returns[source]
-            extra["expert_return"] = math.nan if value is None else value
+            extra["expert_return"] = _expert_return_once(demonstrations_source(run), returns)
     wall_time = {result.run: metrics[result.run].get("wall_time_s") for _, result in results}
     cells = []
     for (env, variant), cell_results in sorted(by_cell.items()):
@@ -442,10 +443,10 @@ def compute_line(summary: dict[str, Any]) -> str | None:
     """``Compute: N core-hours over M runs`` (runs with a recorded wall time), ``None`` without any."""
     if summary.get("core_hours") is None:
         return None
-    return f"Compute: {_fmt_hours(summary['core_hours'])} core-hours over {summary.get('core_hours_runs', 0)} runs"
+    return f"Compute: {format_hours(summary['core_hours'])} core-hours over {summary.get('core_hours_runs', 0)} runs"
 
 
-def _sources(summary: dict[str, Any]) -> list[str]:
+def other_sources(summary: dict[str, Any]) -> list[str]:
     """The other sources of a summary, in the suite's order (a summary's cells may name them only)."""
     sources = list(summary.get("others_sources") or [])
     for cell in summary["cells"]:
@@ -458,7 +459,7 @@ def markdown_table(summary: dict[str, Any]) -> str:
     The cells as a Markdown table: ours (mean +- std, IQM [CI], fraction of our expert's return) beside the paper's
     and other sources', per-seed values visible, then the compute line.
     """
-    sources = _sources(summary)
+    sources = other_sources(summary)
     lines = [
         "| env | variant | algo | seeds | feasible reward (mean ± std) | IQM [95% CI] | vs our expert | violation rate "
         "| Wilcoxon p | paper | " + "".join(f"{source} | " for source in sources) + "per seed (feasible / violation) "
@@ -488,7 +489,7 @@ def markdown_table(summary: dict[str, Any]) -> str:
             f"{100 * cell['violation_rate_mean']:.0f}% ± {100 * cell['violation_rate_std']:.0f}% | "
             f"{_fmt(p_value, 3) if p_value is not None else '-'} | {paper} | {others}{per_seed} | "
             f"{identification if any('identification_auroc' in s for s in cell['per_seed']) else '-'} | {transfer or '-'} | "
-            f"{_fmt_hours(hours) if hours is not None else '-'} |"
+            f"{format_hours(hours) if hours is not None else '-'} |"
         )
     if summary["runs_missing"]:
         lines.append("")
@@ -504,7 +505,7 @@ def latex_table(summary: dict[str, Any]) -> str:
     The cells as a LaTeX ``tabular`` (booktabs): feasible reward (mean ± std, fraction of our expert's return) and
     violation rate, and the paper's and other sources' numbers.
     """
-    sources = _sources(summary)
+    sources = other_sources(summary)
     # Source names are free text: escape what LaTeX reads as markup (underscores are escaped below, for all cells)
     names = [source.replace("&", "\\&").replace("%", "\\%").replace("#", "\\#") for source in sources]
     rows = [
@@ -521,7 +522,7 @@ def latex_table(summary: dict[str, Any]) -> str:
         others = ""
         for source in sources:
             pair = (cell.get("others") or {}).get(source)
-            percent = _percent(pair[1]).replace("%", "\\%") if pair else ""
+            percent = format_rate(pair[1]).replace("%", "\\%") if pair else ""
             others += f" & {pair[0]:g} & {percent}" if pair else " & -- & --"
         fraction = cell.get("feasible_reward_fraction")
         rows.append(
@@ -540,7 +541,7 @@ def csv_rows(summary: dict[str, Any]) -> str:
     One row per run: cell, seed, held-out values, training time; then the cell's expert return and published numbers
     (paper, other sources), repeated on each of its rows.
     """
-    sources = _sources(summary)
+    sources = other_sources(summary)
     buffer = io.StringIO()
     writer = csv.writer(buffer)
     header = ["env", "variant", "algo", "seed", "feasible_reward", "violation_rate", "reward", "timesteps", "n_episodes"]
