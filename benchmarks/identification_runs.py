@@ -18,14 +18,13 @@ import copy
 import json
 import math
 import os
+import pathlib
 from typing import Any
 
 import numpy as np
 import torch as th
 
-from sb3_icrl.data import load_demonstrations
-from sb3_icrl.metrics.identification import _load_run_policy, identify_model, policy_pairs, read_icrl_run
-from sb3_icrl.zoo.hyperparams import resolve_env_id
+from sb3_icrl.metrics.identification import identify_model, run_probes
 
 
 def with_random_constraint(model: Any, seed: int) -> Any:
@@ -40,22 +39,21 @@ def with_random_constraint(model: Any, seed: int) -> Any:
 
 def score_run(run_folder: str, n_episodes: int, seed: int) -> dict[str, Any]:
     """Identification scores of a run's learned constraint and of a random one, on the same probe set."""
-    run, args = read_icrl_run(run_folder)
-    learner, _, stats = _load_run_policy(run, "final")
-    env_id = resolve_env_id(args["env"])
-    env_kwargs = dict(args.get("env_kwargs") or {})
-    noise = float(args.get("transition_noise") or 0.0)
-    demonstrations = load_demonstrations(
-        args.get("demonstrations") or env_id.split("/")[-1], violating_fraction=args.get("violating_fraction")
-    )
-    expert = (np.asarray(demonstrations.transitions.obs), np.asarray(demonstrations.transitions.acts))
-    learner_pairs = {"learner": policy_pairs(learner, env_id, env_kwargs, n_episodes, seed, stats, noise)}
+    probes = run_probes(run_folder, n_episodes=n_episodes, seed=seed)
+    learner = probes.learner
     budget = float(np.asarray(learner.cost_budget).reshape(-1)[0])
     scores = {
-        name: identify_model(model, env_id, expert, env_kwargs, learner_pairs, budget=budget, seed=seed)
+        name: identify_model(model, probes.env_id, probes.expert, probes.env_kwargs, probes.other, budget=budget, seed=seed)
         for name, model in (("learned", learner), ("random", with_random_constraint(learner, seed)))
     }
-    return {"run": str(run), "algo": args["algo"], "seed": int(args["seed"]), "env": env_id, "budget": budget, **scores}
+    return {
+        "run": str(pathlib.Path(run_folder)),
+        "algo": probes.args["algo"],
+        "seed": int(probes.args["seed"]),
+        "env": probes.env_id,
+        "budget": budget,
+        **scores,
+    }
 
 
 def row(scores: dict[str, Any]) -> list[str]:

@@ -686,6 +686,68 @@ def _load_run_policy(run: pathlib.Path, which: str = "final") -> tuple[Any, dict
     return model, args, find_vecnormalize(str(path), name)
 
 
+@dataclass
+class RunProbes:
+    """
+    What a finished ICRL run's constraint is scored on (:func:`run_probes`).
+
+    :param learner: The run's model (its learned constraint)
+    :param env_id: The env it was learned on
+    :param env_kwargs: The env's keyword arguments
+    :param expert: The run's demonstrations, ``(observations, actions)``
+    :param other: More probe pairs: ``"learner"`` (and ``"unconstrained"``) episodes; none on grid worlds
+    :param args: The run's saved arguments (``args.yml``)
+    """
+
+    learner: Any
+    env_id: str
+    env_kwargs: dict[str, Any]
+    expert: tuple[np.ndarray, np.ndarray]
+    other: dict[str, tuple[np.ndarray, np.ndarray]]
+    args: dict[str, Any]
+
+
+def run_probes(
+    run_folder: str | os.PathLike,
+    model: str = "final",
+    n_episodes: int = 3,
+    unconstrained_run: str | os.PathLike | None = None,
+    seed: int = 0,
+) -> RunProbes:
+    """
+    The model of a finished ICRL run and its probe pairs: its demonstrations, ``n_episodes`` of the learner's own
+    deterministic episodes and, given an unconstrained PPO run, as many of that agent's (grid worlds: none of these).
+
+    :param run_folder: The run folder ``<folder>/<algo>/<EnvName>_<N>``
+    :param model: ``"final"``, ``"best"`` or a path to a model zip
+    :param n_episodes: Episodes of the learner (and of the unconstrained agent)
+    :param unconstrained_run: A PPO run folder on the same env, or ``None`` for no such episodes
+    :param seed: Seed of the episodes
+    :return: The probes (:class:`RunProbes`)
+    """
+    from sb3_icrl.data import load_demonstrations
+    from sb3_icrl.zoo.hyperparams import resolve_env_id
+
+    run, args = read_icrl_run(run_folder)
+    learner, _, stats = _load_run_policy(run, model)
+    env_id = resolve_env_id(args["env"])
+    env_kwargs = dict(args.get("env_kwargs") or {})
+    noise = float(args.get("transition_noise") or 0.0)
+    demonstrations = load_demonstrations(
+        args.get("demonstrations") or env_id.split("/")[-1], violating_fraction=args.get("violating_fraction")
+    )
+    transitions = demonstrations.transitions
+    expert = (np.asarray(transitions.obs), np.asarray(transitions.acts))
+    other: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    if not getattr(learner.constraint_net, "discrete_obs", False):
+        other["learner"] = policy_pairs(learner, env_id, env_kwargs, n_episodes, seed, stats, noise)
+        if unconstrained_run is not None:
+            agent, agent_args, agent_stats = _load_run_policy(pathlib.Path(unconstrained_run))
+            agent_noise = float(agent_args.get("transition_noise") or 0.0)
+            other["unconstrained"] = policy_pairs(agent, env_id, env_kwargs, n_episodes, seed, agent_stats, agent_noise)
+    return RunProbes(learner, env_id, env_kwargs, expert, other, args)
+
+
 def identify_run(
     run_folder: str | os.PathLike,
     model: str = "final",
@@ -711,9 +773,6 @@ def identify_run(
     :param save: Write the result to ``<run>/identification.json``
     :return: ``{"settings": ..., "scores": ...}`` (scores: see :func:`identification_scores`)
     """
-    from sb3_icrl.data import load_demonstrations
-    from sb3_icrl.zoo.hyperparams import resolve_env_id
-
     run, args = read_icrl_run(run_folder)
     unconstrained = pathlib.Path(unconstrained_run) if unconstrained_run is not None else find_unconstrained_run(run)
     settings = {
@@ -731,24 +790,9 @@ def identify_run(
         if saved.get("settings") == settings and cache.stat().st_mtime >= newest_model:
             return saved
 
-    learner, _, stats = _load_run_policy(run, model)
-    env_id = resolve_env_id(args["env"])
-    env_kwargs = dict(args.get("env_kwargs") or {})
-    noise = float(args.get("transition_noise") or 0.0)
-    demonstrations = load_demonstrations(
-        args.get("demonstrations") or env_id.split("/")[-1], violating_fraction=args.get("violating_fraction")
-    )
-    transitions = demonstrations.transitions
-    expert = (np.asarray(transitions.obs), np.asarray(transitions.acts))
-    other: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    if not getattr(learner.constraint_net, "discrete_obs", False):
-        other["learner"] = policy_pairs(learner, env_id, env_kwargs, n_episodes, seed, stats, noise)
-        if unconstrained is not None:
-            agent, agent_args, agent_stats = _load_run_policy(unconstrained)
-            agent_noise = float(agent_args.get("transition_noise") or 0.0)
-            other["unconstrained"] = policy_pairs(agent, env_id, env_kwargs, n_episodes, seed, agent_stats, agent_noise)
-    scores = identify_model(learner, env_id, expert, env_kwargs, other, seed=seed)
-    result = {"settings": settings, "run": str(run), "algo": args["algo"], "env": env_id, "scores": scores}
+    probes = run_probes(run, model, n_episodes, unconstrained, seed)
+    scores = identify_model(probes.learner, probes.env_id, probes.expert, probes.env_kwargs, probes.other, seed=seed)
+    result = {"settings": settings, "run": str(run), "algo": args["algo"], "env": probes.env_id, "scores": scores}
     if save:
         atomic_write_json(cache, result, indent=2)
     return result
