@@ -2,6 +2,7 @@
 
 import json
 import os
+import shutil
 
 import gymnasium as gym
 import numpy as np
@@ -167,3 +168,71 @@ def test_transfer_command_refuses_bad_input(grid_run, tmp_path, capsys):
     assert "no reward-transfer task" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         cli(["transfer", grid_run, "--task", "colour"])
+
+
+def fresh_copy(run: str, tmp_path) -> str:
+    """A copy of a run folder, without the transfers other tests saved in it."""
+    copy = tmp_path / "logs" / "bc2l" / os.path.basename(run)
+    shutil.copytree(run, copy, ignore=shutil.ignore_patterns("transfer_*.json"))
+    return str(copy)
+
+
+def test_references_are_trained_once_per_setting_and_shared(grid_run, tmp_path, monkeypatch):
+    import sb3_icrl.metrics.transfer as transfer
+
+    grid_run = fresh_copy(grid_run, tmp_path)
+    trained = []
+    real_train = transfer.train_learner
+
+    def counting_train(learner, *args, **kwargs):
+        trained.append(learner)
+        return real_train(learner, *args, **kwargs)
+
+    monkeypatch.setattr(transfer, "train_learner", counting_train)
+    shared = tmp_path / "references"
+    settings = dict(task="same", n_timesteps=64, eval_episodes=2, seed=1, references_dir=shared, log=lambda line: None)
+    first = transfer.run_transfer(grid_run, **settings)
+    assert trained == ["learned", "oracle", "ppo"]
+    assert sorted(path.name.split("_")[0] for path in shared.iterdir()) == ["oracle", "ppo"]
+    # Same settings: nothing trains again, the saved results are read back
+    second = transfer.run_transfer(grid_run, **settings)
+    assert trained[3:] == []
+    for learner in ("oracle", "ppo"):
+        assert second["results"][learner] == first["results"][learner]
+    assert second["settings"]["reference_files"] == first["settings"]["reference_files"]
+    # Another seed is another reference; asking for a retrain trains again
+    transfer.run_transfer(grid_run, **{**settings, "seed": 2})
+    assert trained[3:] == ["learned", "oracle", "ppo"]
+    transfer.run_transfer(grid_run, **{**settings, "seed": 2}, retrain_references=True)
+    assert trained[6:] == ["oracle", "ppo"]
+    # A reference file made with other settings is not reused
+    path = next(shared.glob("oracle_*"))
+    saved = json.loads(path.read_text())
+    saved["settings"]["n_timesteps"] = 999
+    path.write_text(json.dumps(saved))
+    transfer.run_transfer(grid_run, **{**settings, "seed": int(saved["settings"]["seed"])})
+    assert "oracle" in trained[8:]
+
+
+def test_a_transfer_run_again_keeps_its_learned_result_and_adds_the_references(grid_run, tmp_path, monkeypatch):
+    import sb3_icrl.metrics.transfer as transfer
+
+    grid_run = fresh_copy(grid_run, tmp_path)
+    trained, lines = [], []
+    real_train = transfer.train_learner
+
+    def counting_train(learner, *args, **kwargs):
+        trained.append(learner)
+        return real_train(learner, *args, **kwargs)
+
+    monkeypatch.setattr(transfer, "train_learner", counting_train)
+    settings = dict(task="same", n_timesteps=64, eval_episodes=2, seed=3, references_dir=tmp_path / "references")
+    alone = transfer.run_transfer(grid_run, references=False, log=lines.append, **settings)
+    assert trained == ["learned"] and set(alone["results"]) == {"learned"} and np.isnan(alone["feasible_reward_ratio"])
+    assert any(line.strip().startswith("learned: ") and "/64 steps, " in line for line in lines)  # progress lines
+    full = transfer.run_transfer(grid_run, log=lines.append, **settings)
+    assert trained[1:] == ["oracle", "ppo"]
+    assert full["results"]["learned"] == alone["results"]["learned"]
+    # Other settings for the learned-cost learner: it trains again
+    transfer.run_transfer(grid_run, log=lines.append, **{**settings, "eval_episodes": 3})
+    assert trained[3:] == ["learned", "oracle", "ppo"]

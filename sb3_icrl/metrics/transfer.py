@@ -15,10 +15,15 @@ The learner reads only the learned cost: its env is wrapped in a
 :class:`~sb3_icrl.constraints.wrappers.LearnedCostVecEnvWrapper`, which moves the true cost out of ``info["cost"]``.
 Each model is then evaluated on held-out episodes against the true cost (violation rate, feasible reward), and the
 results go into ``<run>/transfer_<task>.json`` (written atomically).
+
+The two references do not depend on the run (they never read its constraint), so each is trained once per task, seed
+and setting and kept in ``<folder>/transfer_references/`` (``--references-dir``): the transfers of every run under
+one log folder share them.
 """
 
 import argparse
 import copy
+import hashlib
 import inspect
 import json
 import os
@@ -30,6 +35,7 @@ from typing import Any
 
 import numpy as np
 import torch as th
+from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_icrl.common.utils import atomic_write_json
 from sb3_icrl.zoo.hyperparams import import_gym_packages
@@ -107,6 +113,30 @@ def _ppo_kwargs(kwargs: dict[str, Any]) -> dict[str, Any]:
     return kept
 
 
+class ProgressLines(BaseCallback):
+    """
+    One line per tenth of a learner's training steps, with its speed: progress a log file can show.
+
+    :param name: The learner's name, at the start of each line
+    :param total_timesteps: Its training steps
+    :param log: Where the lines go
+    """
+
+    def __init__(self, name: str, total_timesteps: int, log: Any):
+        super().__init__()
+        self.name, self.total_timesteps, self.log = name, total_timesteps, log
+        self.every = max(1, total_timesteps // 10)
+        self.next_line = self.every
+        self.start = time.time()
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps >= self.next_line:
+            speed = self.num_timesteps / max(time.time() - self.start, 1e-9)
+            self.log(f"  {self.name}: {self.num_timesteps}/{self.total_timesteps} steps, {speed:.0f} steps/s")
+            self.next_line += self.every
+        return True
+
+
 def train_learner(
     learner: str,
     env_id: str,
@@ -118,6 +148,7 @@ def train_learner(
     cost_fn: Any = None,
     budget: float | None = None,
     budget_statistic: str | None = None,
+    log: Any = None,
 ) -> tuple[Any, Any]:
     """
     Train one learner of a transfer from scratch.
@@ -133,6 +164,7 @@ def train_learner(
     :param cost_fn: The frozen learned cost (``learned`` only)
     :param budget: The learned cost's budget (``learned`` only)
     :param budget_statistic: Its statistic, ``"step"`` or ``"episode"`` (``learned`` only)
+    :param log: Where a progress line goes every tenth of the steps (none when ``None``)
     :return: The model and its training env (``VecNormalize`` statistics inside, when normalising)
     """
     from stable_baselines3 import PPO
@@ -167,7 +199,7 @@ def train_learner(
         model: Any = PPO(params["policy"], venv, seed=seed, verbose=0, **_ppo_kwargs(kwargs))
     else:
         model = PPOLagrangian(params["policy"], venv, seed=seed, verbose=0, **kwargs)
-    model.learn(n_timesteps)
+    model.learn(n_timesteps, callback=None if log is None else ProgressLines(learner, n_timesteps, log))
     return model, venv
 
 
@@ -222,6 +254,33 @@ def feasible_reward_ratio(learned: float, oracle: float) -> float:
     return float(learned / oracle) if oracle > 0 else float("nan")
 
 
+def reference_file(references_dir: str | os.PathLike, learner: str, settings: dict[str, Any]) -> pathlib.Path:
+    """
+    Where a reference learner's result is kept: one file per learner and settings.
+
+    :param references_dir: The folder of shared references
+    :param learner: ``"oracle"`` or ``"ppo"``
+    :param settings: Everything its training and evaluation depend on (JSON-serialisable)
+    :return: ``<references_dir>/<learner>_<EnvName>_<digest>.json``
+    """
+    digest = hashlib.sha256(json.dumps(_as_json(settings), sort_keys=True).encode()).hexdigest()[:16]
+    return pathlib.Path(references_dir) / f"{learner}_{str(settings['env']).split('/')[-1]}_{digest}.json"
+
+
+def _as_json(value: dict[str, Any]) -> dict[str, Any]:
+    """``value`` as it reads back from a JSON file (tuples as lists, other objects as strings), to compare settings."""
+    return json.loads(json.dumps(value, sort_keys=True, default=str))
+
+
+def _cached_reference(path: pathlib.Path, settings: dict[str, Any]) -> dict[str, float] | None:
+    """A reference's saved result when it was made with exactly ``settings``, else ``None``."""
+    if not path.is_file():
+        return None
+    with open(path) as file:
+        saved = json.load(file)
+    return saved["result"] if saved.get("settings") == _as_json(settings) else None
+
+
 def run_transfer(
     run_folder: str | os.PathLike,
     task: str,
@@ -232,6 +291,8 @@ def run_transfer(
     references: bool = True,
     model: str = "final",
     log: Any = print,
+    references_dir: str | os.PathLike | None = None,
+    retrain_references: bool = False,
 ) -> dict[str, Any]:
     """
     Train the learned-cost learner (and the references) on a transfer task, evaluate them and write
@@ -246,6 +307,9 @@ def run_transfer(
     :param references: Also train the oracle and unconstrained PPO
     :param model: The run's model whose constraint is frozen: ``"final"``, ``"best"`` or a path
     :param log: Where progress lines go
+    :param references_dir: Where the references are kept and looked up (default: ``transfer_references`` beside the
+        run's algorithm folder, shared by every run of the log folder)
+    :param retrain_references: Train the references even when a saved result with the same settings exists
     :return: The JSON written
     """
     from sb3_icrl.metrics.identification import _load_run_policy, read_icrl_run
@@ -265,28 +329,9 @@ def run_transfer(
     entry, key = load_hyperparams("ppolag", source_env)  # the source robot's recipe, for all three learners
     params = preprocess_hyperparams(entry)
     steps = int(n_timesteps) if n_timesteps is not None else params["n_timesteps"]
-
-    results: dict[str, dict[str, float]] = {}
-    for learner in LEARNERS if references else ("learned",):
-        start = time.time()
-        log(f"transfer ({task}) on {env_id}: training {learner} for {steps} steps")
-        trained, train_env = train_learner(
-            learner,
-            env_id,
-            env_kwargs,
-            noise,
-            params,
-            steps,
-            seed,
-            cost_fn=icrl_model.constraint_cost if learner == "learned" else None,
-            budget=budget,
-            budget_statistic=budget_statistic,
-        )
-        results[learner] = evaluate_learner(trained, train_env, env_id, env_kwargs, noise, params, eval_episodes, eval_seed)
-        results[learner]["wall_time_min"] = (time.time() - start) / 60.0
-        train_env.close()
-    summary: dict[str, Any] = {
-        "settings": {
+    shared_dir = pathlib.Path(references_dir) if references_dir is not None else run.parent.parent / "transfer_references"
+    settings: dict[str, Any] = _as_json(
+        {
             "version": TRANSFER_VERSION,
             "task": task,
             "env": env_id,
@@ -301,7 +346,60 @@ def run_transfer(
             "budget": budget,
             "budget_statistic": budget_statistic,
             "hyperparams": f"ppolag.yml:{key}",
-        },
+            "ppolag_hyperparams": entry,
+        }
+    )
+    previous = read_transfers(run).get(task, {})
+    previous_settings = {name: value for name, value in previous.get("settings", {}).items() if name != "reference_files"}
+
+    results: dict[str, dict[str, float]] = {}
+    reference_files: dict[str, str] = {}
+    for learner in LEARNERS if references else ("learned",):
+        cache, reference_settings = None, {}
+        if learner == "learned" and previous_settings == settings and "learned" in previous.get("results", {}):
+            # The same transfer was run before (perhaps without the references): its learned-cost learner is kept
+            log(f"transfer ({task}) on {env_id}: learned reused from {run / transfer_file(task)}")
+            results[learner] = previous["results"]["learned"]
+            continue
+        if learner != "learned":
+            reference_settings = _as_json(
+                {
+                    **{name: settings[name] for name in ("version", "env", "env_kwargs", "transition_noise", "n_timesteps")},
+                    **{name: settings[name] for name in ("seed", "eval_episodes", "eval_seed")},
+                    "learner": learner,
+                    "hyperparams": entry,
+                }
+            )
+            cache = reference_file(shared_dir, learner, reference_settings)
+            reference_files[learner] = str(cache)
+            cached = None if retrain_references else _cached_reference(cache, reference_settings)
+            if cached is not None:
+                log(f"transfer ({task}) on {env_id}: {learner} reused from {cache}")
+                results[learner] = cached
+                continue
+        start = time.time()
+        log(f"transfer ({task}) on {env_id}: training {learner} for {steps} steps")
+        trained, train_env = train_learner(
+            learner,
+            env_id,
+            env_kwargs,
+            noise,
+            params,
+            steps,
+            seed,
+            cost_fn=icrl_model.constraint_cost if learner == "learned" else None,
+            budget=budget,
+            budget_statistic=budget_statistic,
+            log=log,
+        )
+        results[learner] = evaluate_learner(trained, train_env, env_id, env_kwargs, noise, params, eval_episodes, eval_seed)
+        results[learner]["wall_time_min"] = (time.time() - start) / 60.0
+        train_env.close()
+        if cache is not None:
+            cache.parent.mkdir(parents=True, exist_ok=True)
+            atomic_write_json(cache, {"settings": reference_settings, "result": results[learner]}, indent=2)
+    summary: dict[str, Any] = {
+        "settings": {**settings, "reference_files": reference_files},
         "results": results,
         "violation_rate": results["learned"]["violation_rate"],
         "feasible_reward_ratio": (
@@ -343,6 +441,14 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
     parser.add_argument("--eval-seed", type=int, default=100, help="Seed of the held-out episodes")
     parser.add_argument("--model", default="final", help="'final', 'best' or a path: whose constraint is frozen")
     parser.add_argument("--no-references", action="store_true", help="Train only the learned-cost learner")
+    parser.add_argument(
+        "--references-dir",
+        default=None,
+        help="Where the oracle and PPO references are kept and reused (default: transfer_references in the log folder)",
+    )
+    parser.add_argument(
+        "--retrain-references", action="store_true", help="Train the references even when saved ones match the settings"
+    )
     parser.add_argument("--num-threads", type=int, default=1, help="Torch threads (default 1)")
     parser.add_argument(
         "--gym-packages",
@@ -374,6 +480,8 @@ def main(argv: Sequence[str] | None = None, prog: str | None = None) -> int:
             eval_seed=args.eval_seed,
             references=not args.no_references,
             model=args.model,
+            references_dir=args.references_dir,
+            retrain_references=args.retrain_references,
         )
     except (FileNotFoundError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)
