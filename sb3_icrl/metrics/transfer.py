@@ -31,6 +31,7 @@ import pathlib
 import sys
 import time
 from collections.abc import Sequence
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -482,6 +483,7 @@ def main(argv: Sequence[str] | None = None, prog: str | None = None) -> int:
             model=args.model,
             references_dir=args.references_dir,
             retrain_references=args.retrain_references,
+            log=partial(print, flush=True),  # progress shows in a log file as it happens
         )
     except (FileNotFoundError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)
