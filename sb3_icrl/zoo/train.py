@@ -40,6 +40,7 @@ import gymnasium as gym
 import numpy as np
 import stable_baselines3
 import torch as th
+import yaml
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_util import make_vec_env, unwrap_wrapper
@@ -396,6 +397,31 @@ def _warn_without_constraint_updates(args: argparse.Namespace, params: dict[str,
             f"run trains {n_timesteps}: it will make no constraint update and learn against the untrained constraint. "
             f"Train longer, or pass -params update_every:{max(n_timesteps // 4, 1)}.",
             stacklevel=3,
+        )
+
+
+def check_same_recipe(config_file: str, recipe: dict[str, Any]) -> None:
+    """
+    Refuse to resume a run whose hyper-parameters changed since it started (an edited yml, other ``-params`` or
+    ``-n``): its checkpoints were made with the recipe in ``config_file``, and going on with another would give a run
+    that neither recipe made.
+
+    :param config_file: The run's ``<EnvName>/config.yml``
+    :param recipe: The hyper-parameters the resumed run would use, as ``config.yml`` records them
+    :raises ValueError: When they differ (naming the keys)
+    """
+    if not os.path.isfile(config_file):
+        return  # a run folder from before config.yml was written: nothing to compare
+    with open(config_file) as file:
+        saved = yaml.safe_load(file) or {}
+    now = yaml.safe_load(yaml.safe_dump(recipe))
+    changed = sorted(key for key in {*saved, *now} if saved.get(key) != now.get(key))
+    if changed:
+        details = "; ".join(f"{key}: {saved.get(key)!r} then, {now.get(key)!r} now" for key in changed)
+        raise ValueError(
+            f"Cannot resume {os.path.dirname(os.path.dirname(config_file))}: its hyper-parameters changed since it started "
+            f"({details}). Resume with the recipe in {config_file} (-params / -n / the yml as they were), or start a "
+            "new run (another --exp-id, or remove the folder)."
         )
 
 
@@ -832,6 +858,8 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
     if resuming:
         remove_temporaries(save_path)  # of writes cut short when the run was killed
     params_path = os.path.join(save_path, name)
+    if resume_from is not None:
+        check_same_recipe(os.path.join(params_path, "config.yml"), {**raw_params, "n_timesteps": n_timesteps})
     os.makedirs(params_path, exist_ok=True)
     if not resuming:
         atomic_write_yaml(os.path.join(params_path, "config.yml"), {**raw_params, "n_timesteps": n_timesteps})
