@@ -189,6 +189,43 @@ def test_the_held_out_episode_length_goes_with_each_seed(tmp_path):
     assert [row["episode_length"] for row in rows] == ["12.5", "", "", ""]
 
 
+def test_constraint_figures_draw_the_scored_runs_of_each_env(tmp_path, monkeypatch):
+    """One learned-cost figure per env and variant, from the runs the report scored; none where nothing can be drawn."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    import sb3_icrl.metrics.identification as identification
+    from sb3_icrl.benchmark.report import constraint_figures
+
+    suite = load_suite(write(tmp_path, TINY_SUITE))
+    results = [(run, _result(run.algo, run.seed, 1.0, 0.0)) for run in suite.runs()]
+    summary = summarise_suite(suite, suite.runs(), results)
+    for cell in summary["cells"]:
+        cell["per_seed"][0]["identification_auroc"] = 0.9  # seed 0 of each algorithm was scored, seed 1 not
+    drawn = []
+
+    def fake_methods_figure(runs, title=None, **kwargs):
+        drawn.append((list(runs), title))
+        return Figure()
+
+    monkeypatch.setattr(identification, "methods_figure", fake_methods_figure)
+    root, output = str(tmp_path / "logs"), str(tmp_path / "report")
+    written = constraint_figures(summary, suite, root, output)
+    assert written == [os.path.join(output, "constraint_GridWorldWall-v0_base.png")] and os.path.isfile(written[0])
+    expected = [
+        RunSpec(suite.name, "base", algo, "sb3_icrl/GridWorldWall-v0", 0, 512).run_folder(root) for algo in suite.algos
+    ]
+    assert drawn == [(expected, "GridWorldWall-v0 (base): learned cost")]
+
+    def no_feature(runs, title=None, **kwargs):
+        raise ValueError("the env's constraint is not a threshold on a feature")
+
+    monkeypatch.setattr(identification, "methods_figure", no_feature)
+    assert constraint_figures(summary, suite, root, str(tmp_path / "none")) == []
+
+
 # ---------------------------------------------------------------- running suites
 
 

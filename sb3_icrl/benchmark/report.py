@@ -621,10 +621,39 @@ def write_report(summary: dict[str, Any], output: str) -> list[str]:
     return written
 
 
+def constraint_figures(summary: dict[str, Any], suite: Suite, root: str, output: str) -> list[str]:
+    """
+    Per env and variant: each method's learned cost over the constrained feature, one line per seed, the true threshold
+    marked (:func:`~sb3_icrl.metrics.identification.methods_figure`, from the runs' cached ``identification.json``).
+    Written as ``constraint_<EnvName>_<variant>.png`` for the runs the report scored; none for envs whose constraint
+    is not a threshold on a feature (the grid worlds).
+
+    :return: The paths written
+    """
+    from sb3_icrl.metrics.identification import methods_figure
+    from sb3_icrl.plots.figures import save_figure
+
+    folders: dict[tuple[str, str], list[str]] = {}
+    for cell in summary["cells"]:
+        for seed in cell["per_seed"]:
+            if "identification_auroc" in seed:
+                run = RunSpec(suite.name, cell["variant"], cell["algo"], cell["env"], int(seed["seed"]), 0)
+                folders.setdefault((cell["env"], cell["variant"]), []).append(run.run_folder(root))
+    written = []
+    for (env_id, variant), runs in folders.items():
+        try:
+            figure = methods_figure(runs, title=f"{env_name(env_id)} ({variant}): learned cost")
+        except ValueError:  # no feature threshold to draw against
+            continue
+        written.append(str(save_figure(figure, os.path.join(output, f"constraint_{env_name(env_id)}_{variant}.png"))))
+    return written
+
+
 def write_figures(summary: dict[str, Any], suite: Suite, root: str, output: str) -> list[str]:
     """
-    Per env and variant: training curves (mean +- std over seeds, from ``evaluations.npz``); per suite: ours against
-    the paper, cell by cell. PNG files in ``output``.
+    Per env and variant: training curves (mean +- std over seeds, from ``evaluations.npz``) and each method's learned
+    cost over the constrained feature (:func:`constraint_figures`); per suite: ours against the paper, cell by cell.
+    PNG files in ``output``.
 
     :return: The paths written
     """
@@ -642,6 +671,7 @@ def write_figures(summary: dict[str, Any], suite: Suite, root: str, output: str)
             except ValueError:
                 continue
             written.append(str(save_figure(figure, os.path.join(output, f"curves_{env_name(env_id)}_{variant}.png"))))
+    written += constraint_figures(summary, suite, root, output)
     compared = [cell for cell in summary["cells"] if cell["paper_feasible_reward"] is not None]
     if compared:
         figure = new_figure(width=max(6.4, 0.5 * len(compared)), height=4.8)
