@@ -503,9 +503,17 @@ def test_a_run_does_not_resume_with_another_recipe(tmp_path: pathlib.Path, capsy
     error = capsys.readouterr().err
     assert "hyper-parameters changed since it started (n_timesteps: 384 then, 512 now)" in error
     assert main([*args, "-n", "384", "-params", "gamma:0.5"]) == 2
-    assert "gamma: None then, 0.5 now" in capsys.readouterr().err
+    assert "gamma: (not set) then, 0.5 now" in capsys.readouterr().err
     assert sorted(path.name for path in run.iterdir()) == before
+    (run / "failed.json").write_text("{}")  # a failed attempt stays marked failed when the resume is refused
+    assert main([*args, "-n", "512"]) == 2 and (run / "failed.json").is_file()
+    capsys.readouterr()
+    (run / "failed.json").unlink()
     assert main([*args, "-n", "384"]) == 0 and (run / "finished.json").is_file()
+    # A finished run is not passed as done for another recipe either
+    assert main([*args, "-n", "384", "-params", "gamma:0.5"]) == 2
+    assert "gamma: (not set) then, 0.5 now" in capsys.readouterr().err
+    assert main([*args, "-n", "384"]) == 0  # same recipe: nothing to do
 
 
 def test_resume_errors_are_clear(tmp_path: pathlib.Path, capsys) -> None:

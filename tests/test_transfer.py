@@ -236,3 +236,20 @@ def test_a_transfer_run_again_keeps_its_learned_result_and_adds_the_references(g
     # Other settings for the learned-cost learner: it trains again
     transfer.run_transfer(grid_run, log=lines.append, **{**settings, "eval_episodes": 3})
     assert trained[3:] == ["learned", "oracle", "ppo"]
+    # The run's model changed since (continued in place): its learned-cost result is stale, the references are not
+    model = os.path.join(grid_run, "GridWorldWall-v0.zip")
+    later = os.path.getmtime(os.path.join(grid_run, "transfer_same.json")) + 10
+    os.utime(model, (later, later))
+    transfer.run_transfer(grid_run, log=lines.append, **{**settings, "eval_episodes": 3})
+    assert trained[6:] == ["learned"]
+
+
+def test_the_references_go_beside_the_algorithm_folders_however_the_run_is_named(grid_run, tmp_path, monkeypatch):
+    import sb3_icrl.metrics.transfer as transfer
+
+    grid_run = fresh_copy(grid_run, tmp_path)
+    monkeypatch.chdir(grid_run)
+    saved = transfer.run_transfer(".", task="same", n_timesteps=64, eval_episodes=1, seed=4, log=lambda line: None)
+    shared = tmp_path / "logs" / "transfer_references"
+    assert sorted(os.path.dirname(path) for path in saved["settings"]["reference_files"].values()) == [str(shared)] * 2
+    assert len(list(shared.glob("*.json"))) == 2

@@ -643,7 +643,7 @@ def constraint_figures(summary: dict[str, Any], suite: Suite, root: str, output:
     for (env_id, variant), runs in folders.items():
         try:
             figure = methods_figure(runs, title=f"{env_name(env_id)} ({variant}): learned cost")
-        except ValueError:  # no feature threshold to draw against
+        except (ValueError, OSError):  # no feature threshold to draw against, or a run's files unreadable: no figure
             continue
         written.append(str(save_figure(figure, os.path.join(output, f"constraint_{env_name(env_id)}_{variant}.png"))))
     return written

@@ -670,6 +670,19 @@ def read_icrl_run(run_folder: str | os.PathLike) -> tuple[pathlib.Path, dict[str
     return run, args
 
 
+def run_model_path(run: pathlib.Path, args: dict[str, Any], which: str = "final") -> pathlib.Path:
+    """
+    :param run: A run folder
+    :param args: Its saved arguments (``args.yml``)
+    :param which: ``"final"``, ``"best"`` or a path
+    :return: The file of that model
+    """
+    from sb3_icrl.zoo.hyperparams import env_name, resolve_env_id
+
+    candidates = {"final": run / f"{env_name(resolve_env_id(args['env']))}.zip", "best": run / "best_model.zip"}
+    return candidates.get(which, pathlib.Path(which))
+
+
 def _load_run_policy(run: pathlib.Path, which: str = "final") -> tuple[Any, dict[str, Any], str | None]:
     """The model saved in a run folder, its arguments and its VecNormalize statistics."""
     from sb3_icrl.zoo.hyperparams import ALGOS, env_name, import_gym_packages, resolve_env_id
@@ -678,8 +691,7 @@ def _load_run_policy(run: pathlib.Path, which: str = "final") -> tuple[Any, dict
     args = _read_args(run)
     import_gym_packages(args.get("gym_packages"))
     name = env_name(resolve_env_id(args["env"]))
-    candidates = {"final": run / f"{name}.zip", "best": run / "best_model.zip"}
-    path = candidates.get(which, pathlib.Path(which))
+    path = run_model_path(run, args, which)
     if not path.is_file():
         raise FileNotFoundError(f"No model {path} (saved models there: {sorted(p.name for p in run.glob('*.zip'))}).")
     model = ALGOS[args["algo"]].load(str(path), device="cpu")

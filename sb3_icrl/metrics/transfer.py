@@ -134,7 +134,7 @@ class ProgressLines(BaseCallback):
         if self.num_timesteps >= self.next_line:
             speed = self.num_timesteps / max(time.time() - self.start, 1e-9)
             self.log(f"  {self.name}: {self.num_timesteps}/{self.total_timesteps} steps, {speed:.0f} steps/s")
-            self.next_line += self.every
+            self.next_line = (self.num_timesteps // self.every + 1) * self.every  # one line even when a step spans several
         return True
 
 
@@ -273,13 +273,19 @@ def _as_json(value: dict[str, Any]) -> dict[str, Any]:
     return json.loads(json.dumps(value, sort_keys=True, default=str))
 
 
-def _cached_reference(path: pathlib.Path, settings: dict[str, Any]) -> dict[str, float] | None:
+def _cached_reference(path: pathlib.Path, settings: dict[str, Any], log: Any) -> dict[str, float] | None:
     """A reference's saved result when it was made with exactly ``settings``, else ``None``."""
+    from sb3_icrl import __version__
+
     if not path.is_file():
         return None
     with open(path) as file:
         saved = json.load(file)
-    return saved["result"] if saved.get("settings") == _as_json(settings) else None
+    if saved.get("settings") != _as_json(settings):
+        return None
+    if saved.get("sb3_icrl_version") != __version__:
+        log(f"  {path.name} was made by sb3-icrl {saved.get('sb3_icrl_version')}: --retrain-references to train it again")
+    return saved["result"]
 
 
 def run_transfer(
@@ -313,7 +319,8 @@ def run_transfer(
     :param retrain_references: Train the references even when a saved result with the same settings exists
     :return: The JSON written
     """
-    from sb3_icrl.metrics.identification import _load_run_policy, read_icrl_run
+    from sb3_icrl import __version__ as sb3_icrl_version
+    from sb3_icrl.metrics.identification import _load_run_policy, read_icrl_run, run_model_path
     from sb3_icrl.zoo.hyperparams import load_hyperparams, preprocess_hyperparams, resolve_env_id
 
     run, args = read_icrl_run(run_folder)
@@ -325,12 +332,15 @@ def run_transfer(
     env_kwargs = dict(args.get("env_kwargs") or {})
     env_id, noise = transfer_env(source_env, task, float(args.get("transition_noise") or 0.0))
     icrl_model, _, _ = _load_run_policy(run, model)
+    model_file = run_model_path(run, args, model)
     budget = float(np.asarray(icrl_model.cost_budget).reshape(-1)[0])
     budget_statistic = str(getattr(icrl_model, "budget_statistic", "step"))
     entry, key = load_hyperparams("ppolag", source_env)  # the source robot's recipe, for all three learners
     params = preprocess_hyperparams(entry)
     steps = int(n_timesteps) if n_timesteps is not None else params["n_timesteps"]
-    shared_dir = pathlib.Path(references_dir) if references_dir is not None else run.parent.parent / "transfer_references"
+    shared_dir = (
+        pathlib.Path(references_dir) if references_dir is not None else run.resolve().parent.parent / "transfer_references"
+    )
     settings: dict[str, Any] = _as_json(
         {
             "version": TRANSFER_VERSION,
@@ -351,6 +361,8 @@ def run_transfer(
         }
     )
     previous = read_transfers(run).get(task, {})
+    if previous and os.path.getmtime(run / transfer_file(task)) < os.path.getmtime(model_file):
+        previous = {}  # the model changed since (a run continued in place): its learned-cost result is stale
     previous_settings = {name: value for name, value in previous.get("settings", {}).items() if name != "reference_files"}
 
     results: dict[str, dict[str, float]] = {}
@@ -373,7 +385,7 @@ def run_transfer(
             )
             cache = reference_file(shared_dir, learner, reference_settings)
             reference_files[learner] = str(cache)
-            cached = None if retrain_references else _cached_reference(cache, reference_settings)
+            cached = None if retrain_references else _cached_reference(cache, reference_settings, log)
             if cached is not None:
                 log(f"transfer ({task}) on {env_id}: {learner} reused from {cache}")
                 results[learner] = cached
@@ -398,7 +410,8 @@ def run_transfer(
         train_env.close()
         if cache is not None:
             cache.parent.mkdir(parents=True, exist_ok=True)
-            atomic_write_json(cache, {"settings": reference_settings, "result": results[learner]}, indent=2)
+            saved = {"settings": reference_settings, "result": results[learner], "sb3_icrl_version": sb3_icrl_version}
+            atomic_write_json(cache, saved, indent=2)
     summary: dict[str, Any] = {
         "settings": {**settings, "reference_files": reference_files},
         "results": results,

@@ -402,9 +402,9 @@ def _warn_without_constraint_updates(args: argparse.Namespace, params: dict[str,
 
 def check_same_recipe(config_file: str, recipe: dict[str, Any]) -> None:
     """
-    Refuse to resume a run whose hyper-parameters changed since it started (an edited yml, other ``-params`` or
-    ``-n``): its checkpoints were made with the recipe in ``config_file``, and going on with another would give a run
-    that neither recipe made.
+    Refuse to resume (``--resume``) a run whose hyper-parameters changed since it started (an edited yml, other
+    ``-params`` or ``-n``): its checkpoints were made with the recipe in ``config_file``, and going on with another
+    would give a run that neither recipe made; a finished one would pass for a run of the new recipe.
 
     :param config_file: The run's ``<EnvName>/config.yml``
     :param recipe: The hyper-parameters the resumed run would use, as ``config.yml`` records them
@@ -415,9 +415,13 @@ def check_same_recipe(config_file: str, recipe: dict[str, Any]) -> None:
     with open(config_file) as file:
         saved = yaml.safe_load(file) or {}
     now = yaml.safe_load(yaml.safe_dump(recipe))
-    changed = sorted(key for key in {*saved, *now} if saved.get(key) != now.get(key))
+    changed = sorted(key for key in {*saved, *now} if key not in saved or key not in now or saved[key] != now[key])
     if changed:
-        details = "; ".join(f"{key}: {saved.get(key)!r} then, {now.get(key)!r} now" for key in changed)
+
+        def shown(recipe: dict[str, Any], key: str) -> str:
+            return repr(recipe[key]) if key in recipe else "(not set)"
+
+        details = "; ".join(f"{key}: {shown(saved, key)} then, {shown(now, key)} now" for key in changed)
         raise ValueError(
             f"Cannot resume {os.path.dirname(os.path.dirname(config_file))}: its hyper-parameters changed since it started "
             f"({details}). Resume with the recipe in {config_file} (-params / -n / the yml as they were), or start a "
@@ -849,6 +853,9 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
         check_writable_folder(args.tensorboard_log, "-tb/--tensorboard-log")
 
     save_path = _run_folder(args, name)
+    if args.resume and (is_finished(save_path) or latest_checkpoint(save_path) is not None):
+        # Before anything in the folder changes: a run made with another recipe is neither resumed nor passed as done
+        check_same_recipe(os.path.join(save_path, name, "config.yml"), {**raw_params, "n_timesteps": n_timesteps})
     if args.resume and is_finished(save_path):
         if args.verbose:
             print(f"{save_path} has finished: nothing to do")
@@ -858,8 +865,6 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
     if resuming:
         remove_temporaries(save_path)  # of writes cut short when the run was killed
     params_path = os.path.join(save_path, name)
-    if resume_from is not None:
-        check_same_recipe(os.path.join(params_path, "config.yml"), {**raw_params, "n_timesteps": n_timesteps})
     os.makedirs(params_path, exist_ok=True)
     if not resuming:
         atomic_write_yaml(os.path.join(params_path, "config.yml"), {**raw_params, "n_timesteps": n_timesteps})
