@@ -226,6 +226,28 @@ def test_constraint_figures_draw_the_scored_runs_of_each_env(tmp_path, monkeypat
     assert constraint_figures(summary, suite, root, str(tmp_path / "none")) == []
 
 
+def test_figures_follow_the_cells_the_report_keeps(tmp_path, monkeypatch):
+    """Training curves only for the envs and variants of the report's cells (its --only filter), not the whole suite."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    import sb3_icrl.plots.figures as figures
+    from sb3_icrl.benchmark.report import write_figures
+
+    text = TINY_SUITE.replace("envs: [GridWorldWall-v0]", "envs: [GridWorldWall-v0, GridWorldSquare-v0]")
+    suite = load_suite(write(tmp_path, text))
+    kept = [run for run in suite.runs() if run.env_id.endswith("GridWorldWall-v0")]
+    summary = summarise_suite(suite, kept, [(run, _result(run.algo, run.seed, 1.0, 0.0)) for run in kept])
+    loaded = []
+    monkeypatch.setattr(figures, "load_runs", lambda folder, algos, env_id, skip_missing: loaded.append(env_id) or [])
+    monkeypatch.setattr(figures, "training_curves_figure", lambda runs, title: Figure())
+    written = write_figures(summary, suite, str(tmp_path / "logs"), str(tmp_path / "report"))
+    assert loaded == ["sb3_icrl/GridWorldWall-v0"]
+    assert [os.path.basename(path) for path in written] == ["curves_GridWorldWall-v0_base.png"]
+
+
 # ---------------------------------------------------------------- running suites
 
 
