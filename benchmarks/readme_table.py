@@ -13,7 +13,7 @@ import json
 import pathlib
 import sys
 
-from sb3_icrl.benchmark.report import format_hours, format_rate, other_sources
+from sb3_icrl.benchmark.report import format_hours, format_mean_std, format_rate, other_sources
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -59,7 +59,7 @@ def table(results: pathlib.Path = RESULTS) -> str:
                 f"| {summary['suite']} | {cell['env']} | {cell['variant']} | {cell['algo'].upper()} | "
                 f"{', '.join(str(seed['seed']) for seed in cell['per_seed'])} | "
                 f"{100 * cell['violation_rate_mean']:.0f}% ± {100 * cell['violation_rate_std']:.0f}% | "
-                f"{cell['feasible_reward_mean']:.0f} ± {cell['feasible_reward_std']:.0f} | "
+                f"{format_mean_std(cell['feasible_reward_mean'], cell['feasible_reward_std'])} | "
                 + ((f"{fraction:.2f} of expert | " if fraction is not None else "- | ") if with_fraction else "")
                 + f"{paper} |{others}"
             )

@@ -6,8 +6,9 @@ and reward on held-out episodes, beside the oracle's (PPO-Lagrangian on the true
     python benchmarks/transfer_table.py logs/suites/table3/base/mecl/BlockedHalfCheetah-v0_* \\
         logs/suites/table3/base/vicrl/BlockedHalfCheetah-v0_* --task reward
 
-Runs without that transfer are listed as missing; paths that are not folders (a glob's ``.lock`` files) are skipped. The feasible-reward ratio is the learned learner's over the
-oracle's (``nan`` when the oracle's is not positive).
+Runs without that transfer are listed as missing; paths that are not folders (a glob's ``.lock`` files) are
+skipped. The feasible-reward ratio is the learned learner's over the oracle's (``nan`` when the oracle's is not
+positive).
 """
 
 import argparse

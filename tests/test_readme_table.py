@@ -36,3 +36,11 @@ def test_table_rows_come_from_the_summaries(tmp_path):
     assert rows[2] == "| mysuite | BlockedHalfCheetah-v0 | base | VICRL | 0, 1 | 5% ± 5% | 3500 ± 200 | 3806 / 0% |"
     with pytest.raises(ValueError, match="marker"):
         readme_table.render("no markers here", "")
+
+
+def test_rewards_keep_the_digits_their_size_needs():
+    from sb3_icrl.benchmark.report import format_mean_std
+
+    assert format_mean_std(3254.3, 576.2) == "3254 ± 576"
+    assert format_mean_std(-19.14, 2.26) == "-19.1 ± 2.3"
+    assert format_mean_std(0.462, 0.298) == "0.46 ± 0.30"  # a Pendulum cell, not "0 ± 0"

@@ -299,6 +299,15 @@ def format_hours(hours: float) -> str:
     return f"{hours:,.0f}" if hours >= 100 else f"{hours:.1f}" if hours >= 1 else f"{hours:.2f}"
 
 
+def format_mean_std(mean: float, std: float) -> str:
+    """
+    ``mean ± std`` of a reward at the precision its size asks for: whole numbers from 100 on, one decimal from 10, two
+    below (a Pendulum's 0.46 does not read as 0).
+    """
+    digits = 0 if abs(mean) >= 100 else 1 if abs(mean) >= 10 else 2
+    return f"{mean:.{digits}f} ± {std:.{digits}f}"
+
+
 def format_rate(rate: float) -> str:
     """A published violation rate: whole percents, one decimal below 1% so that 0.004 does not read as 0."""
     return f"{100 * rate:.1f}%" if 0 < 100 * rate < 1 else f"{100 * rate:.0f}%"
