@@ -250,9 +250,9 @@ def test_tables_and_readme_show_the_columns(finished_suite, tmp_path):
         "paper (reward / violation) | simple-icrl (reward / violation) | another re-run (reward / violation) |"
     )
     assert readme[1] == "|---" * 11 + "|"
-    row = "| suite | GridWorldWall-v0 | base | BC2L | 0, 1 | 25% ± 25% | 1 ± 0 | 0.60 of expert | - | 0.9 / 0.4% | - |"
+    row = "| suite | GridWorldWall-v0 | base | BC2L | 0, 1 | 25% ± 25% | 0.60 ± 0.10 | 0.60 of expert | - | 0.9 / 0.4% | - |"
     assert row in readme
-    assert "| suite | GridWorld-v0 | base | BC2L | 0, 1 | 0% ± 0% | 2 ± 0 | - | - | - | - |" in readme
+    assert "| suite | GridWorld-v0 | base | BC2L | 0, 1 | 0% ± 0% | 2.50 ± 0.50 | - | - | - | - |" in readme
     assert readme[-1] == "Compute: 2.1 core-hours over 7 runs (suite 2.1 over 7)."
 
 
