@@ -672,7 +672,7 @@ def write_figures(summary: dict[str, Any], suite: Suite, root: str, output: str)
     reported = {(cell["env"], cell["variant"]) for cell in summary["cells"]}  # the report's cells (its --only filter)
     for env_id in suite.envs:
         for variant in suite.variants:
-            if (env_name(env_id), variant) not in reported and (env_id, variant) not in reported:
+            if (env_name(env_id), variant) not in reported:
                 continue
             try:
                 runs = load_runs(os.path.join(root, suite.name, variant), suite.algos, env_id, skip_missing=True)

@@ -49,6 +49,8 @@ DYNAMICS_NOISE = 1e-2
 LEARNERS = ("learned", "oracle", "ppo")
 #: Bumped when the results change meaning
 TRANSFER_VERSION = 1
+#: What a reference learner depends on, of a transfer's settings (never the run's constraint, model or budget)
+REFERENCE_SETTINGS = ("version", "env", "env_kwargs", "transition_noise", "n_timesteps", "seed", "eval_episodes", "eval_seed")
 
 
 def transfer_file(task: str) -> str:
@@ -376,12 +378,7 @@ def run_transfer(
             continue
         if learner != "learned":
             reference_settings = _as_json(
-                {
-                    **{name: settings[name] for name in ("version", "env", "env_kwargs", "transition_noise", "n_timesteps")},
-                    **{name: settings[name] for name in ("seed", "eval_episodes", "eval_seed")},
-                    "learner": learner,
-                    "hyperparams": entry,
-                }
+                {**{name: settings[name] for name in REFERENCE_SETTINGS}, "learner": learner, "hyperparams": entry}
             )
             cache = reference_file(shared_dir, learner, reference_settings)
             reference_files[learner] = str(cache)

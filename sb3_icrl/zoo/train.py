@@ -853,9 +853,10 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
         check_writable_folder(args.tensorboard_log, "-tb/--tensorboard-log")
 
     save_path = _run_folder(args, name)
+    recipe = {**raw_params, "n_timesteps": n_timesteps}  # what config.yml records
     if args.resume and (is_finished(save_path) or latest_checkpoint(save_path) is not None):
         # Before anything in the folder changes: a run made with another recipe is neither resumed nor passed as done
-        check_same_recipe(os.path.join(save_path, name, "config.yml"), {**raw_params, "n_timesteps": n_timesteps})
+        check_same_recipe(os.path.join(save_path, name, "config.yml"), recipe)
     if args.resume and is_finished(save_path):
         if args.verbose:
             print(f"{save_path} has finished: nothing to do")
@@ -867,7 +868,7 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
     params_path = os.path.join(save_path, name)
     os.makedirs(params_path, exist_ok=True)
     if not resuming:
-        atomic_write_yaml(os.path.join(params_path, "config.yml"), {**raw_params, "n_timesteps": n_timesteps})
+        atomic_write_yaml(os.path.join(params_path, "config.yml"), recipe)
         atomic_write_yaml(os.path.join(params_path, "args.yml"), {**vars(args), "env": env_id, "hyperparams_entry": source})
         atomic_write_yaml(os.path.join(params_path, "versions.yml"), versions())
     command = shlex.join(["python", sys.argv[0], *(argv if argv is not None else sys.argv[1:])])
