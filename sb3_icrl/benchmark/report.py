@@ -17,7 +17,7 @@ import math
 import os
 import pathlib
 from collections.abc import Callable, Sequence
-from dataclasses import asdict
+from dataclasses import asdict, fields
 from typing import Any
 
 import gymnasium as gym
@@ -26,8 +26,9 @@ import scipy.stats
 import yaml
 
 from sb3_icrl.benchmark.suite import RunSpec, Suite
+from sb3_icrl.common.evaluation import OUTCOME_KEYS
 from sb3_icrl.common.utils import atomic_write_bytes, atomic_write_json
-from sb3_icrl.zoo.compare import RunResult, evaluate_run, summarise
+from sb3_icrl.zoo.compare import OUTCOME_TITLES, RunResult, evaluate_run, summarise
 from sb3_icrl.zoo.hyperparams import env_name
 from sb3_icrl.zoo.runs import FINISHED_FILE, is_finished
 
@@ -94,7 +95,8 @@ def evaluate_finished(
 ) -> list[tuple[RunSpec, RunResult]]:
     """
     Held-out evaluation of every finished run (cached in the run folder as ``heldout.json``, keyed by the evaluation
-    settings, so a report is cheap to make again).
+    settings, so a report is cheap to make again; a cache without some field of :class:`RunResult`, written before it
+    was recorded, is evaluated again).
 
     :param runs: The suite's runs
     :param root: The log root
@@ -114,8 +116,10 @@ def evaluate_finished(
         if os.path.isfile(cache):
             with open(cache) as file:
                 saved = json.load(file)
-            if saved.get("settings") == settings and os.path.getmtime(cache) >= os.path.getmtime(
-                os.path.join(folder, "finished.json")
+            if (
+                saved.get("settings") == settings
+                and {entry.name for entry in fields(RunResult)} <= set(saved.get("result", {}))
+                and os.path.getmtime(cache) >= os.path.getmtime(os.path.join(folder, "finished.json"))
             ):
                 cached = RunResult(**saved["result"])
         if cached is None:
@@ -390,6 +394,7 @@ def summarise_suite(
                             "n_episodes": r.n_episodes,
                             # A learner that ends its episodes on purpose shows here (null: evaluated before it was kept)
                             "episode_length": r.episode_length,
+                            **r.outcome_rates,  # driving envs: how the held-out episodes ended
                             **metrics.get(r.run, {}),
                         }
                         for r in mine
@@ -500,6 +505,7 @@ def markdown_table(summary: dict[str, Any]) -> str:
             f"{identification if any('identification_auroc' in s for s in cell['per_seed']) else '-'} | {transfer or '-'} | "
             f"{format_hours(hours) if hours is not None else '-'} |"
         )
+    lines += outcome_lines(summary)
     if summary["runs_missing"]:
         lines.append("")
         lines.append(f"Not finished yet ({len(summary['runs_missing'])}): " + ", ".join(summary["runs_missing"]))
@@ -507,6 +513,36 @@ def markdown_table(summary: dict[str, Any]) -> str:
     if compute is not None:
         lines += ["", compute]
     return "\n".join(lines) + "\n"
+
+
+#: The per-seed keys of the driving outcome rates, in :data:`OUTCOME_KEYS` order
+OUTCOME_COLUMNS = tuple(f"{key}_rate" for key in OUTCOME_KEYS)
+
+
+def outcome_lines(summary: dict[str, Any]) -> list[str]:
+    """
+    For the cells of driving envs: how their held-out episodes ended (collision, off road, time out, goal reached),
+    mean over seeds and per seed, as Markdown lines after a blank line; no lines for a summary without such cells.
+    """
+    cells = [cell for cell in summary["cells"] if cell.get("outcome_rates_mean")]
+    if not cells:
+        return []
+    titles = " | ".join(OUTCOME_TITLES[key] for key in OUTCOME_KEYS)
+    lines = ["", "How the held-out episodes ended (driving envs; mean over seeds, then per seed):", ""]
+    lines += [f"| env | variant | algo | {titles} | per seed ({titles}) |", "|---" * (4 + len(OUTCOME_KEYS)) + "|"]
+    for cell in cells:
+        means = cell["outcome_rates_mean"]
+        per_seed = ", ".join(
+            f"{seed['seed']}: " + " / ".join(_rate_or_dash(seed.get(column)) for column in OUTCOME_COLUMNS)
+            for seed in cell["per_seed"]
+        )
+        row = " | ".join(_rate_or_dash(means.get(column)) for column in OUTCOME_COLUMNS)
+        lines.append(f"| {cell['env']} | {cell['variant']} | {cell['algo']} | {row} | {per_seed} |")
+    return lines
+
+
+def _rate_or_dash(rate: float | None) -> str:
+    return "-" if rate is None else f"{100 * rate:.0f}%"
 
 
 def latex_table(summary: dict[str, Any]) -> str:
@@ -559,7 +595,16 @@ def csv_rows(summary: dict[str, Any]) -> str:
     for source in sources:
         published += [f"{source}_feasible_reward", f"{source}_violation_rate"]
     writer.writerow(
-        [*header, "identification_auroc", "threshold_error", *TRANSFER_COLUMNS, "wall_time_s", "expert_return", *published]
+        [
+            *header,
+            *OUTCOME_COLUMNS,
+            "identification_auroc",
+            "threshold_error",
+            *TRANSFER_COLUMNS,
+            "wall_time_s",
+            "expert_return",
+            *published,
+        ]
     )
     for cell in summary["cells"]:
         numbers = [cell.get("paper_feasible_reward"), cell.get("paper_violation_rate")]
@@ -578,6 +623,7 @@ def csv_rows(summary: dict[str, Any]) -> str:
                     seed["timesteps"],
                     seed["n_episodes"],
                     _csv_number(seed.get("episode_length")),
+                    *(_csv_number(seed.get(column)) for column in OUTCOME_COLUMNS),
                     *(seed.get(column, "") for column in ("identification_auroc", "threshold_error", *TRANSFER_COLUMNS)),
                     seed.get("wall_time_s", ""),
                     *("" if value is None else value for value in (cell.get("expert_return"), *numbers)),

@@ -6,7 +6,8 @@ Compare finished zoo runs over seeds, as the benchmark reports them::
 
 Each ``RUN`` is a run folder ``<folder>/<algo>/<EnvName>_<N>`` of ``train.py``. Its final model (or ``--model best``)
 is run on held-out env seeds, deterministically, as ``enjoy.py`` does; the table gives per run the training seed, the
-steps trained, the training wall time (the monitor's clock), the true violation rate and the feasible reward. Per
+steps trained, the training wall time (the monitor's clock), the true violation rate and the feasible reward (and, for
+the driving envs, a second table of how the held-out episodes ended: collision, off road, time out, goal reached). Per
 algorithm it then gives the mean and std (``ddof=0``) over seeds and, against ``--reference``, the Wilcoxon
 signed-rank test of the per-seed feasible rewards (pairs: runs with the same training seed). The true constraint is
 read here only to report.
@@ -20,7 +21,7 @@ import argparse
 import csv
 import os
 import sys
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -28,6 +29,7 @@ import scipy.stats
 import yaml
 from stable_baselines3.common.save_util import load_from_zip_file
 
+from sb3_icrl.common.evaluation import OUTCOME_KEYS
 from sb3_icrl.common.utils import atomic_write_json
 from sb3_icrl.zoo import enjoy
 from sb3_icrl.zoo.hyperparams import ALGOS, env_name, import_gym_packages
@@ -57,6 +59,8 @@ class RunResult:
     :param label: Row label when it is not the algorithm (a variant: see :func:`run_labels`)
     :param episode_length: Mean length of the held-out episodes (a learner that ends its episodes early shows here);
         ``nan`` when unknown (results saved before it was recorded)
+    :param outcome_rates: For envs that flag how an episode ended (driving): ``{"collision_rate": share of held-out
+        episodes, ...}`` for each of :data:`~sb3_icrl.common.evaluation.OUTCOME_KEYS`; empty for the other envs
     """
 
     run: str
@@ -71,6 +75,7 @@ class RunResult:
     n_episodes: int
     label: str = ""
     episode_length: float = float("nan")
+    outcome_rates: dict[str, float] = field(default_factory=dict)
 
     @property
     def name(self) -> str:
@@ -147,6 +152,7 @@ def evaluate_run(run: str, n_timesteps: int, eval_seed: int, load_best: bool = F
         reward=evaluation.mean_reward,
         n_episodes=len(evaluation.violations),
         episode_length=float(np.mean(evaluation.episode_lengths)),
+        outcome_rates=evaluation.outcome_rates,
     )
 
 
@@ -177,6 +183,9 @@ def summarise(results: list[RunResult], reference: str | None = None) -> dict[st
             "feasible_reward_mean": float(feasible.mean()),
             "feasible_reward_std": float(feasible.std()),
         }
+        outcomes = outcome_rate_means(list(runs.values()))
+        if outcomes:
+            entry["outcome_rates_mean"] = outcomes
         if reference is not None and algo != reference:
             paired = sorted(set(runs) & set(by_algo[reference]))
             differences = [runs[s].feasible_reward - by_algo[reference][s].feasible_reward for s in paired]
@@ -184,6 +193,21 @@ def summarise(results: list[RunResult], reference: str | None = None) -> dict[st
             entry["wilcoxon_p"] = _wilcoxon_p(differences)
         summary[algo] = entry
     return summary
+
+
+def outcome_rate_means(results: list[RunResult]) -> dict[str, float]:
+    """
+    The mean over runs of each driving outcome rate that every run has (empty when some run has none).
+
+    :param results: Runs of one algorithm
+    :return: ``{"collision_rate": mean, ...}`` in :data:`~sb3_icrl.common.evaluation.OUTCOME_KEYS` order
+    """
+    keys = [f"{key}_rate" for key in OUTCOME_KEYS]
+    return {
+        key: float(np.mean([result.outcome_rates[key] for result in results]))
+        for key in keys
+        if results and all(key in result.outcome_rates for result in results)
+    }
 
 
 def check_runs(runs: list[str]) -> None:
@@ -350,7 +374,27 @@ def format_table(results: list[RunResult], summary: dict[str, dict[str, Any]], r
         if reference:
             row += f" {entry['wilcoxon_p']:.3g} ({entry['wilcoxon_pairs']}) |" if "wilcoxon_p" in entry else " |"
         lines.append(row)
+    lines += outcome_table(results)
     return "\n".join(lines)
+
+
+#: Column titles of the driving outcome rates
+OUTCOME_TITLES = {"collision": "collision", "off_road": "off road", "time_out": "time out", "goal_reached": "goal reached"}
+
+
+def outcome_table(results: list[RunResult]) -> list[str]:
+    """
+    The driving outcome rates per run (how the held-out episodes ended), as Markdown lines after a blank line; no
+    lines when no run has them.
+    """
+    keys = [key for key in OUTCOME_KEYS if any(f"{key}_rate" in result.outcome_rates for result in results)]
+    if not keys:
+        return []
+    lines = ["", "| algo | seed | " + " | ".join(OUTCOME_TITLES[key] for key in keys) + " |", "|---|---|" + "---|" * len(keys)]
+    for r in sorted(results, key=lambda result: (result.name, result.seed)):
+        rates = [r.outcome_rates.get(f"{key}_rate") for key in keys]
+        lines.append(f"| {r.name} | {r.seed} | " + " | ".join("-" if rate is None else f"{rate:.0%}" for rate in rates) + " |")
+    return lines
 
 
 def _check_json_path(path: str) -> None:
