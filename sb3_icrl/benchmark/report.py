@@ -308,8 +308,18 @@ def format_mean_std(mean: float, std: float) -> str:
     ``mean ± std`` of a reward at the precision its size asks for: whole numbers from 100 on, one decimal from 10, two
     below (a Pendulum's 0.46 does not read as 0).
     """
-    digits = 0 if abs(mean) >= 100 else 1 if abs(mean) >= 10 else 2
+    digits = reward_digits(mean)
     return f"{mean:.{digits}f} ± {std:.{digits}f}"
+
+
+def reward_digits(value: float) -> int:
+    """Decimals a reward of this size is shown with: none from 100 on, one from 10, two below."""
+    return 0 if abs(value) >= 100 else 1 if abs(value) >= 10 else 2
+
+
+def format_reward(value: float) -> str:
+    """A reward at the precision its size asks for (:func:`reward_digits`)."""
+    return f"{value:.{reward_digits(value)}f}"
 
 
 def format_rate(rate: float) -> str:
@@ -489,7 +499,7 @@ def markdown_table(summary: dict[str, Any]) -> str:
             else "-"
         )
         per_seed = ", ".join(
-            f"{s['seed']}: {s['feasible_reward']:.0f} / {100 * s['violation_rate']:.0f}%" for s in cell["per_seed"]
+            f"{s['seed']}: {format_reward(s['feasible_reward'])} / {100 * s['violation_rate']:.0f}%" for s in cell["per_seed"]
         )
         identification = ", ".join(f"{s['seed']}: {_identification_text(s)}" for s in cell["per_seed"])
         transfer = ", ".join(f"{s['seed']}: {_transfer_text(s)}" for s in cell["per_seed"] if _transfer_text(s) != "-")
