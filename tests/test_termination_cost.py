@@ -96,8 +96,8 @@ def test_saved_and_loaded(tmp_path):
         ("forever", ValueError, "Unknown `termination_cost`"),
         (-1.0, ValueError, ">= 0"),
         (float("nan"), ValueError, "finite"),
-        (True, TypeError, "'zero', 'bootstrap' or a float"),
-        ([1.0], TypeError, "'zero', 'bootstrap' or a float"),
+        (True, TypeError, "'zero', 'bootstrap', 'budget' or a float"),
+        ([1.0], TypeError, "'zero', 'bootstrap', 'budget' or a float"),
     ],
 )
 def test_bad_values_are_refused(value, error, fragment):
@@ -108,3 +108,56 @@ def test_bad_values_are_refused(value, error, fragment):
 def test_a_float_needs_a_discount():
     with pytest.raises(ValueError, match="cost_gamma < 1"):
         PPOLagrangian("MlpPolicy", DummyVecEnv([EndsAfterThreeSteps]), cost_gamma=1.0, termination_cost=1.0)
+
+
+def test_budget_charges_the_per_step_budget_for_ever():
+    model = PPOLagrangian(
+        "MlpPolicy",
+        DummyVecEnv([EndsAfterThreeSteps]),
+        n_steps=6,
+        batch_size=6,
+        cost_gamma=0.9,
+        cost_budget=0.3,
+        budget_statistic="step",
+        termination_cost="budget",
+        policy_kwargs=dict(net_arch=[8]),
+        seed=0,
+    )
+    model.learn(6)
+    # The last step of each episode adds gamma * budget / (1 - gamma) = 0.9 * 0.3 / 0.1 = 2.7
+    np.testing.assert_allclose(model.rollout_buffer.costs[:, 0, 0], [0.5, 0.5, 3.2, 0.5, 0.5, 3.2])
+    # The budget of the moment: a new one (as ICRL sets the expert's) is what the next rollout charges
+    model.set_cost_budget(0.1)
+    model.learn(6, reset_num_timesteps=False)
+    np.testing.assert_allclose(model.rollout_buffer.costs[:, 0, 0], [0.5, 0.5, 1.4, 0.5, 0.5, 1.4])
+
+
+def test_budget_is_the_lagrangian_of_the_per_step_constraint():
+    """Charging the budget for ever after a termination = summing (c_t - budget) over the episode, up to a constant."""
+    gamma, budget = 0.9, 0.3
+    model = PPOLagrangian(
+        "MlpPolicy",
+        DummyVecEnv([EndsAfterThreeSteps]),
+        n_steps=3,
+        batch_size=3,
+        cost_gamma=gamma,
+        cost_budget=budget,
+        budget_statistic="step",
+        termination_cost="budget",
+        policy_kwargs=dict(net_arch=[8]),
+        seed=0,
+    )
+    model.learn(3)  # one episode of three steps costing 0.5 each
+    discounts = gamma ** np.arange(3)
+    constant = budget / (1 - gamma)  # the same for every episode, whatever its length: no policy prefers it
+    charged = discounts @ model.rollout_buffer.costs[:, 0, 0]
+    assert charged - constant == pytest.approx(discounts @ (np.full(3, 0.5) - budget))
+
+
+def test_budget_needs_a_per_step_budget():
+    with pytest.raises(ValueError, match="budget_statistic='step'"):
+        PPOLagrangian("MlpPolicy", DummyVecEnv([EndsAfterThreeSteps]), termination_cost="budget")
+    with pytest.raises(ValueError, match="cost_gamma < 1"):
+        PPOLagrangian(
+            "MlpPolicy", DummyVecEnv([EndsAfterThreeSteps]), cost_gamma=1.0, budget_statistic="step", termination_cost="budget"
+        )

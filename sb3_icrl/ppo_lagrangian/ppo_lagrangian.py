@@ -28,7 +28,7 @@ from sb3_icrl.ppo_lagrangian.policies import CnnPolicy, MlpPolicy
 SelfPPOLagrangian = TypeVar("SelfPPOLagrangian", bound="PPOLagrangian")
 
 BUDGET_STATISTICS = ("episode", "step")
-TERMINATION_COSTS = ("zero", "bootstrap")
+TERMINATION_COSTS = ("zero", "bootstrap", "budget")
 # Observations per batched critic pass at the end of a rollout
 VALUE_CHUNK = 4096
 
@@ -75,7 +75,10 @@ class PPOLagrangian(PPO):
         had been truncated, bootstrapped with the cost critic's value of the final observation, so a learner cannot
         escape its costs by ending episodes on purpose (e.g. a robot falling when its learned cost exceeds the budget
         everywhere it goes). A float ``c >= 0``: the episode enters an absorbing state costing ``c`` per step forever,
-        ``cost_gamma * c / (1 - cost_gamma)`` added to the last step's cost. Rewards are not changed.
+        ``cost_gamma * c / (1 - cost_gamma)`` added to the last step's cost. ``"budget"`` (with
+        ``budget_statistic="step"``): that absorbing state costs the current per-step budget, which makes the update
+        the Lagrangian of the per-step constraint, ``sum_t (c_t - budget)``, up to a constant: ending an episode is
+        then neither cheaper nor dearer than going on at the budget. Rewards are not changed.
     :param lagrange_update: ``"gradient"`` (gradient ascent, SGD or Adam) or ``"pid"`` (Stooke et al. 2020)
     :param lagrange_kwargs: Arguments of the multiplier: ``init``, ``lr``, ``optimizer`` (``"adam"``/``"sgd"``),
         ``upper_bound`` for gradient; ``init``, ``kp``, ``ki``, ``kd``, ``d_delay``, ``delta_p_ema_alpha``,
@@ -194,6 +197,11 @@ class PPOLagrangian(PPO):
         if budget_statistic not in BUDGET_STATISTICS:
             raise ValueError(f"Unknown `budget_statistic` {budget_statistic!r}: use one of {BUDGET_STATISTICS}.")
         self.termination_cost = _check_termination_cost(termination_cost, gamma if cost_gamma is None else cost_gamma)
+        if self.termination_cost == "budget" and budget_statistic != "step":
+            raise ValueError(
+                "termination_cost='budget' charges a terminated episode the per-step budget for ever, so it needs "
+                f"budget_statistic='step' (got {budget_statistic!r}): use a float cost per step or 'bootstrap' instead."
+            )
         self.cost_budget = budget
         self.n_costs = budget.size
         self.budget_statistic = budget_statistic
@@ -478,8 +486,9 @@ class PPOLagrangian(PPO):
         for offset, (step, env_idx, _) in enumerate(terminations):
             if self.termination_cost == "bootstrap":
                 rollout_buffer.costs[step, env_idx] += self.cost_gamma * cost_values[first_termination + offset]
-            else:  # an absorbing state costing termination_cost per step, for ever
-                rollout_buffer.costs[step, env_idx] += self.cost_gamma * float(self.termination_cost) / (1.0 - self.cost_gamma)
+            else:  # an absorbing state costing termination_cost (or the per-step budget) per step, for ever
+                per_step = self.cost_budget if self.termination_cost == "budget" else float(self.termination_cost)
+                rollout_buffer.costs[step, env_idx] += self.cost_gamma * per_step / (1.0 - self.cost_gamma)
         last = slice(n_stored, n_stored + n_envs)
         return th.as_tensor(values[last]), cost_values[last]
 
@@ -671,21 +680,22 @@ def _env_name(env: VecEnv, idx: int) -> str:
 
 
 def _check_termination_cost(termination_cost: str | float, cost_gamma: float) -> str | float:
-    """The ``termination_cost`` argument, checked: ``"zero"``, ``"bootstrap"`` or a finite float >= 0."""
+    """The ``termination_cost`` argument, checked: ``"zero"``, ``"bootstrap"``, ``"budget"`` or a finite float >= 0."""
     if isinstance(termination_cost, str):
         if termination_cost not in TERMINATION_COSTS:
             raise ValueError(
                 f"Unknown `termination_cost` {termination_cost!r}: use one of {TERMINATION_COSTS} or a float >= 0 "
                 "(the cost per step of the absorbing state a terminated episode enters)."
             )
-        return termination_cost
-    if isinstance(termination_cost, bool) or not isinstance(termination_cost, (int, float)):
-        raise TypeError(f"`termination_cost` must be 'zero', 'bootstrap' or a float >= 0, got {termination_cost!r}.")
-    if not np.isfinite(termination_cost) or termination_cost < 0:
+    elif isinstance(termination_cost, bool) or not isinstance(termination_cost, (int, float)):
+        raise TypeError(f"`termination_cost` must be 'zero', 'bootstrap', 'budget' or a float >= 0, got {termination_cost!r}.")
+    elif not np.isfinite(termination_cost) or termination_cost < 0:
         raise ValueError(f"`termination_cost` as a float is a cost per step: finite and >= 0, got {termination_cost!r}.")
+    if termination_cost in ("zero", "bootstrap"):
+        return termination_cost
     if cost_gamma >= 1.0:
         raise ValueError(
-            "A float `termination_cost` charges an absorbing state for ever, which needs cost_gamma < 1 "
+            f"termination_cost={termination_cost!r} charges an absorbing state for ever, which needs cost_gamma < 1 "
             f"(got {cost_gamma}): lower cost_gamma or use termination_cost='bootstrap'."
         )
-    return float(termination_cost)
+    return termination_cost if isinstance(termination_cost, str) else float(termination_cost)
