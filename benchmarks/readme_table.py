@@ -13,7 +13,7 @@ import json
 import pathlib
 import sys
 
-from sb3_icrl.benchmark.report import format_hours, format_mean_std, format_rate, other_sources
+from sb3_icrl.benchmark.report import beats, format_hours, format_mean_std, format_rate, other_sources, published_pairs
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -63,8 +63,11 @@ def table(results: pathlib.Path = RESULTS) -> str:
                 + ((f"{fraction:.2f} of expert | " if fraction is not None else "- | ") if with_fraction else "")
                 + f"{paper} |{others}"
             )
-    timed = [summary for summary in summaries if summary.get("core_hours") is not None]
     lines = "\n".join(rows) + "\n"
+    scores = [line for summary in summaries if (line := scoreboard(summary))]
+    if scores:
+        lines += "\n" + "\n".join(scores) + "\n"
+    timed = [summary for summary in summaries if summary.get("core_hours") is not None]
     if timed:
         # Runs take one core each: the sum of their wall times
         total = sum(summary["core_hours"] for summary in timed)
@@ -75,6 +78,29 @@ def table(results: pathlib.Path = RESULTS) -> str:
         )
         lines += f"\nCompute: {format_hours(total)} core-hours over {runs} runs ({parts}).\n"
     return lines
+
+
+def scoreboard(summary: dict) -> str | None:
+    """
+    One line per suite with published numbers: for each source and method, on how many of its envs (base variant)
+    our cell beats the published one (a higher mean feasible reward and a mean violation rate no higher), naming them.
+    ``None`` when no base cell has a published number.
+    """
+    counts: dict[tuple[str, str], list[tuple[str, bool]]] = {}
+    for cell in summary["cells"]:
+        if cell["variant"] != "base":
+            continue
+        for source, pair in published_pairs(cell).items():
+            counts.setdefault((source, cell["algo"]), []).append((cell["env"], bool(beats(cell, pair))))
+    if not counts:
+        return None
+    parts = []
+    for (source, algo), envs in counts.items():
+        won = [env for env, beaten in envs if beaten]
+        named = f" ({', '.join(won)})" if won else ""
+        owner = "the paper's" if source == "paper" else f"{source}'s"
+        parts.append(f"{owner} {algo.upper()} on {len(won)} of {len(envs)} envs{named}")
+    return f"{summary['suite']}: our cell beats (higher feasible reward, violation rate no higher) " + "; ".join(parts) + "."
 
 
 def render(readme: str, generated: str) -> str:

@@ -284,5 +284,33 @@ def test_readme_table_keeps_older_summaries_readable(finished_suite, tmp_path):
     assert row in readme_table.table(tmp_path)
     (tmp_path / "new" / "summary.json").unlink()
     only_old = readme_table.table(tmp_path)
-    assert only_old.splitlines()[-1] == "| old | BlockedAnt-v0 | base | MECL | 0 | 0% ± 0% | 1000 ± 0 | 8546 / 0% |"
+    assert only_old.splitlines()[-3] == "| old | BlockedAnt-v0 | base | MECL | 0 | 0% ± 0% | 1000 ± 0 | 8546 / 0% |"
+    # The published numbers an older summary carries are enough to score it
+    assert only_old.splitlines()[-1] == (
+        "old: our cell beats (higher feasible reward, violation rate no higher) the paper's MECL on 0 of 1 envs."
+    )
     assert "Compute" not in only_old
+
+
+def test_cells_say_which_published_numbers_they_beat(finished_suite):
+    suite, root, results = finished_suite
+    summary = summarise_suite(suite, suite.runs(), results, run_facts(results, root))
+    # bc2l: 0.6 / 25% against simple-icrl's 0.9 / 0.4%: lower reward, more violations
+    assert _cell(summary, "GridWorldWall-v0", "bc2l")["beats"] == {"simple-icrl": False}
+    # vicrl: 4.0 / 0% against another re-run's 0.5 / 25%
+    assert _cell(summary, "GridWorldWall-v0", "vicrl")["beats"] == {"another re-run": True}
+    assert _cell(summary, "GridWorld-v0", "vicrl")["beats"] == {}
+    assert readme_table.scoreboard(summary) == (
+        "suite: our cell beats (higher feasible reward, violation rate no higher) simple-icrl's BC2L on 0 of 1 envs; "
+        "another re-run's VICRL on 1 of 1 envs (GridWorldWall-v0)."
+    )
+
+
+@pytest.mark.parametrize(
+    "reward, violation, expected",
+    [(2.0, 0.1, True), (2.0, 0.2, True), (1.0, 0.1, False), (2.0, 0.3, False), (0.5, 0.5, False)],
+)
+def test_beating_needs_more_reward_and_no_more_violations(reward, violation, expected):
+    cell = {"feasible_reward_mean": reward, "violation_rate_mean": violation}
+    assert report.beats(cell, (1.0, 0.2)) is expected
+    assert report.beats(cell, None) is None

@@ -327,6 +327,28 @@ def format_rate(rate: float) -> str:
     return f"{100 * rate:.1f}%" if 0 < 100 * rate < 1 else f"{100 * rate:.0f}%"
 
 
+def beats(cell: dict[str, Any], pair: Sequence[float] | None) -> bool | None:
+    """
+    Whether a cell beats a published ``[feasible reward, violation rate]``: a higher mean feasible reward and a mean
+    violation rate no higher. ``None`` without a published pair.
+
+    :param cell: A cell of :func:`summarise_suite`
+    :param pair: The published numbers
+    """
+    if pair is None:
+        return None
+    return bool(cell["feasible_reward_mean"] > pair[0] and cell["violation_rate_mean"] <= pair[1])
+
+
+def published_pairs(cell: dict[str, Any]) -> dict[str, Sequence[float]]:
+    """``{"paper": pair, source: pair, ...}``: the published numbers of a cell's method on its env."""
+    pairs: dict[str, Sequence[float]] = {}
+    if cell.get("paper_feasible_reward") is not None:
+        pairs["paper"] = (cell["paper_feasible_reward"], cell["paper_violation_rate"])
+    pairs.update((cell.get("others") or {}).items())
+    return pairs
+
+
 def _published(pair: Sequence[float] | None) -> str:
     """``reward / violation`` of a published pair, ``-`` without one."""
     return f"{pair[0]:g} / {format_rate(pair[1])}" if pair else "-"
@@ -353,8 +375,9 @@ def summarise_suite(
     Per cell (env, variant, algorithm): seeds, per-seed values, mean and std, IQM with its 95% bootstrap CI, the
     Wilcoxon test against the suite's reference, the paper's and other sources' numbers (``others``), our expert's
     return (``expert_return``: mean return of the demonstrations the runs learned from) and the feasible reward as a
-    fraction of it (``feasible_reward_fraction``), and the runs' compute (``core_hours``); per algorithm, the IQM over
-    all envs with a stratified bootstrap CI; the runs not finished yet; the suite's compute.
+    fraction of it (``feasible_reward_fraction``), the runs' compute (``core_hours``) and, per published number, whether
+    the cell beats it (``beats``: :func:`beats`); per algorithm, the IQM over all envs with a stratified bootstrap CI;
+    the runs not finished yet; the suite's compute.
 
     :param suite: The suite
     :param runs: Its runs (to list the missing ones)
@@ -433,6 +456,8 @@ def summarise_suite(
                     "core_hours": _core_hours([wall_time[r.run] for r in mine]),
                 }
             )
+            # Higher feasible reward and no higher violation rate than each published number of the same method
+            cells[-1]["beats"] = {source: beats(cells[-1], pair) for source, pair in published_pairs(cells[-1]).items()}
     aggregates = []
     for algo in suite.algos:
         tasks = [[seed["violation_rate"] for seed in cell["per_seed"]] for cell in cells if cell["algo"] == algo]
