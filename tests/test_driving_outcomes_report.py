@@ -75,7 +75,11 @@ def test_report_shows_how_the_episodes_ended_per_cell_and_per_seed(suite):
 
     table = markdown_table(summary).splitlines()
     start = table.index("How the held-out episodes ended (driving envs; mean over seeds, then per seed):")
-    assert table[start + 2].startswith("| env | variant | algo | collision | off road | time out | goal reached |")
+    assert table[start + 2] == (
+        "| env | variant | algo | collision | off road | time out | goal reached "
+        "| per seed (collision / off road / time out / goal reached) |"
+    )
+    assert table[start + 3].count("|---") == table[start + 4].count(" | ") + 1 == 8  # as many columns as cells
     assert table[start + 4 :] == [
         "| GridWorldWall-v0 | base | bc2l | 25% | 0% | 0% | 75% | 0: 50% / 0% / 0% / 50%, 1: 0% / 0% / 0% / 100% |"
     ]
@@ -122,3 +126,8 @@ def test_a_cached_evaluation_missing_a_field_is_evaluated_again(suite, tmp_path,
     # Now complete: reused as it is
     [(_, again)] = evaluate_finished([run], root, suite, log=lambda line: None)
     assert len(calls) == 1 and again.outcome_rates == fresh.outcome_rates
+
+    # Written by a later version, with a field this one does not know: evaluated again rather than a crash
+    (folder / HELDOUT_FILE).write_text(json.dumps({"settings": settings, "result": {**asdict(fresh), "later": 1.0}}))
+    evaluate_finished([run], root, suite, log=lambda line: None)
+    assert len(calls) == 2

@@ -95,8 +95,8 @@ def evaluate_finished(
 ) -> list[tuple[RunSpec, RunResult]]:
     """
     Held-out evaluation of every finished run (cached in the run folder as ``heldout.json``, keyed by the evaluation
-    settings, so a report is cheap to make again; a cache without some field of :class:`RunResult`, written before it
-    was recorded, is evaluated again).
+    settings, so a report is cheap to make again; a cache whose fields are not those of :class:`RunResult`, written
+    by another version, is evaluated again).
 
     :param runs: The suite's runs
     :param root: The log root
@@ -118,7 +118,7 @@ def evaluate_finished(
                 saved = json.load(file)
             if (
                 saved.get("settings") == settings
-                and {entry.name for entry in fields(RunResult)} <= set(saved.get("result", {}))
+                and {entry.name for entry in fields(RunResult)} == set(saved.get("result", {}))
                 and os.path.getmtime(cache) >= os.path.getmtime(os.path.join(folder, "finished.json"))
             ):
                 cached = RunResult(**saved["result"])
@@ -562,9 +562,12 @@ def outcome_lines(summary: dict[str, Any]) -> list[str]:
     cells = [cell for cell in summary["cells"] if cell.get("outcome_rates_mean")]
     if not cells:
         return []
-    titles = " | ".join(OUTCOME_TITLES[key] for key in OUTCOME_KEYS)
+    titles = [OUTCOME_TITLES[key] for key in OUTCOME_KEYS]
     lines = ["", "How the held-out episodes ended (driving envs; mean over seeds, then per seed):", ""]
-    lines += [f"| env | variant | algo | {titles} | per seed ({titles}) |", "|---" * (4 + len(OUTCOME_KEYS)) + "|"]
+    lines += [
+        f"| env | variant | algo | {' | '.join(titles)} | per seed ({' / '.join(titles)}) |",
+        "|---" * (4 + len(titles)) + "|",
+    ]
     for cell in cells:
         means = cell["outcome_rates_mean"]
         per_seed = ", ".join(
