@@ -82,6 +82,7 @@ def test_table3_carries_the_simple_icrl_rerun():
         (HEAD + "others:\n  src:\n    GridWorldWall-v0: [1, 0.1]\n", 6, "map algo -> "),
         (HEAD + "others:\n  src: 3\n", 5, "source 'src' numbers map env"),
         (HEAD + "others:\n  a|b: {}\n", 5, "a source name is a non-empty string"),
+        (HEAD + "others:\n  Paper: {}\n", 5, "'paper' is the `paper` key's own column"),
         (HEAD + "paper:\n  GridWorldWall-v0: {bc2l: [1, 0.1, 2]}\n", 5, PAIR),
     ],
 )
@@ -308,7 +309,14 @@ def test_cells_say_which_published_numbers_they_beat(finished_suite):
 
 @pytest.mark.parametrize(
     "reward, violation, expected",
-    [(2.0, 0.1, True), (2.0, 0.2, True), (1.0, 0.1, False), (2.0, 0.3, False), (0.5, 0.5, False)],
+    [
+        (2.0, 0.1, True),
+        (2.0, 0.2, True),
+        (2.0, float(np.mean([0.1, 0.2, 0.3])), True),  # 0.20000000000000004: the same rate
+        (1.0, 0.1, False),
+        (2.0, 0.3, False),
+        (0.5, 0.5, False),
+    ],
 )
 def test_beating_needs_more_reward_and_no_more_violations(reward, violation, expected):
     cell = {"feasible_reward_mean": reward, "violation_rate_mean": violation}

@@ -126,6 +126,8 @@ def test_budget_charges_the_per_step_budget_for_ever():
     model.learn(6)
     # The last step of each episode adds gamma * budget / (1 - gamma) = 0.9 * 0.3 / 0.1 = 2.7
     np.testing.assert_allclose(model.rollout_buffer.costs[:, 0, 0], [0.5, 0.5, 3.2, 0.5, 0.5, 3.2])
+    # The multiplier judges the env's costs, not the charges
+    np.testing.assert_allclose(model._rollout_mean_step_cost, [0.5])
     # The budget of the moment: a new one (as ICRL sets the expert's) is what the next rollout charges
     model.set_cost_budget(0.1)
     model.learn(6, reset_num_timesteps=False)
@@ -161,3 +163,30 @@ def test_budget_needs_a_per_step_budget():
         PPOLagrangian(
             "MlpPolicy", DummyVecEnv([EndsAfterThreeSteps]), cost_gamma=1.0, budget_statistic="step", termination_cost="budget"
         )
+
+
+class TwoCostsEndsAfterThreeSteps(EndsAfterThreeSteps):
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
+        obs, reward, terminated, truncated, _ = super().step(action)
+        return obs, reward, terminated, truncated, {"cost": [0.5, 0.0]}
+
+
+def test_budget_charges_each_constraint_its_own_budget_and_survives_save_and_load(tmp_path):
+    model = PPOLagrangian(
+        "MlpPolicy",
+        DummyVecEnv([TwoCostsEndsAfterThreeSteps]),
+        n_steps=3,
+        batch_size=3,
+        cost_gamma=0.9,
+        cost_budget=[0.3, 0.1],
+        budget_statistic="step",
+        termination_cost="budget",
+        policy_kwargs=dict(net_arch=[8]),
+        seed=0,
+    )
+    model.learn(3)
+    np.testing.assert_allclose(model.rollout_buffer.costs[:, 0], [[0.5, 0.0], [0.5, 0.0], [3.2, 0.9]])
+    model.save(tmp_path / "model")
+    loaded = PPOLagrangian.load(tmp_path / "model")
+    assert loaded.termination_cost == "budget"
+    np.testing.assert_allclose(loaded.cost_budget, [0.3, 0.1])

@@ -330,14 +330,15 @@ def format_rate(rate: float) -> str:
 def beats(cell: dict[str, Any], pair: Sequence[float] | None) -> bool | None:
     """
     Whether a cell beats a published ``[feasible reward, violation rate]``: a higher mean feasible reward and a mean
-    violation rate no higher. ``None`` without a published pair.
+    violation rate no higher (a mean equal to it up to float rounding counts as equal). ``None`` without a published
+    pair.
 
     :param cell: A cell of :func:`summarise_suite`
     :param pair: The published numbers
     """
     if pair is None:
         return None
-    return bool(cell["feasible_reward_mean"] > pair[0] and cell["violation_rate_mean"] <= pair[1])
+    return bool(cell["feasible_reward_mean"] > pair[0] and cell["violation_rate_mean"] <= pair[1] + 1e-9)
 
 
 def published_pairs(cell: dict[str, Any]) -> dict[str, Sequence[float]]:
@@ -563,7 +564,12 @@ def outcome_lines(summary: dict[str, Any]) -> list[str]:
     if not cells:
         return []
     titles = [OUTCOME_TITLES[key] for key in OUTCOME_KEYS]
-    lines = ["", "How the held-out episodes ended (driving envs; mean over seeds, then per seed):", ""]
+    # Not a partition: an episode can end both in a collision and off the road
+    heading = (
+        "How the held-out episodes ended (driving envs; mean over seeds, then per seed; a collision off the road "
+        "counts twice):"
+    )
+    lines = ["", heading, ""]
     lines += [
         f"| env | variant | algo | {' | '.join(titles)} | per seed ({' / '.join(titles)}) |",
         "|---" * (4 + len(titles)) + "|",

@@ -377,6 +377,8 @@ class _SuiteReader:
             # The name becomes a column heading and a JSON key: a plain non-empty string
             if not isinstance(source, str) or not source.strip() or "|" in source:
                 raise self.error(("others", source), f"a source name is a non-empty string without '|', got {source!r}.")
+            if source.strip().lower() == "paper":
+                raise self.error(("others", source), "'paper' is the `paper` key's own column: give this source another name.")
             others[source] = self.numbers(numbers, ("others", source), f"source {source!r}")
         return others
 

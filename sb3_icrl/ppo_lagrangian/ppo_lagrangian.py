@@ -76,9 +76,9 @@ class PPOLagrangian(PPO):
         escape its costs by ending episodes on purpose (e.g. a robot falling when its learned cost exceeds the budget
         everywhere it goes). A float ``c >= 0``: the episode enters an absorbing state costing ``c`` per step forever,
         ``cost_gamma * c / (1 - cost_gamma)`` added to the last step's cost. ``"budget"`` (with
-        ``budget_statistic="step"``): that absorbing state costs the current per-step budget, which makes the update
-        the Lagrangian of the per-step constraint, ``sum_t (c_t - budget)``, up to a constant: ending an episode is
-        then neither cheaper nor dearer than going on at the budget. Rewards are not changed.
+        ``budget_statistic="step"``): that absorbing state costs the current per-step budget, which turns the cost
+        return into ``sum_t cost_gamma^t (c_t - budget)`` plus a constant the same for every episode: ending an
+        episode is then neither cheaper nor dearer than going on at the budget. Rewards are not changed.
     :param lagrange_update: ``"gradient"`` (gradient ascent, SGD or Adam) or ``"pid"`` (Stooke et al. 2020)
     :param lagrange_kwargs: Arguments of the multiplier: ``init``, ``lr``, ``optimizer`` (``"adam"``/``"sgd"``),
         ``upper_bound`` for gradient; ``init``, ``kp``, ``ki``, ``kd``, ``d_delay``, ``delta_p_ema_alpha``,
@@ -259,8 +259,8 @@ class PPOLagrangian(PPO):
 
     def set_cost_budget(self, cost_budget: float | Sequence[float]) -> None:
         """
-        Use a new budget from the next multiplier update on (e.g. the expert's learned cost in ICRL); the multipliers
-        keep their values.
+        Use a new budget from the next multiplier update on (e.g. the expert's learned cost in ICRL), and with
+        ``termination_cost="budget"`` in the termination charges of the next rollout; the multipliers keep their values.
 
         :param cost_budget: Budget per constraint, in the units of ``budget_statistic``
         """
