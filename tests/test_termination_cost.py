@@ -29,17 +29,22 @@ class EndsAfterThreeSteps(gym.Env):
         return np.array([self.t / 3], dtype=np.float32), 1.0, self.t == 3, False, {"cost": 0.5}
 
 
-def collected_costs(termination_cost: str | float, cost_gamma: float = 0.9) -> tuple[np.ndarray, PPOLagrangian]:
-    model = PPOLagrangian(
+def small_model(termination_cost: str | float, n_steps: int = 6, env: type[gym.Env] | None = None, **kwargs) -> PPOLagrangian:
+    """A tiny PPOLagrangian on three-step episodes; ``kwargs`` go to it (cost_gamma 0.9 unless given)."""
+    return PPOLagrangian(
         "MlpPolicy",
-        DummyVecEnv([EndsAfterThreeSteps]),
-        n_steps=6,
-        batch_size=6,
-        cost_gamma=cost_gamma,
+        DummyVecEnv([env or EndsAfterThreeSteps]),
+        n_steps=n_steps,
+        batch_size=n_steps,
         termination_cost=termination_cost,
         policy_kwargs=dict(net_arch=[8]),
         seed=0,
+        **{"cost_gamma": 0.9, **kwargs},
     )
+
+
+def collected_costs(termination_cost: str | float, cost_gamma: float = 0.9) -> tuple[np.ndarray, PPOLagrangian]:
+    model = small_model(termination_cost, cost_gamma=cost_gamma)
     model.learn(6)  # one rollout of two episodes, then one update
     return model.rollout_buffer.costs[:, 0, 0].copy(), model
 
@@ -56,16 +61,7 @@ def test_float_charges_an_absorbing_state_for_ever():
 
 
 def test_bootstrap_adds_the_cost_value_of_the_final_observation():
-    model = PPOLagrangian(
-        "MlpPolicy",
-        DummyVecEnv([EndsAfterThreeSteps]),
-        n_steps=6,
-        batch_size=6,
-        cost_gamma=0.9,
-        termination_cost="bootstrap",
-        policy_kwargs=dict(net_arch=[8]),
-        seed=0,
-    )
+    model = small_model("bootstrap")
     # Value of the final observation [1.0] before the update changes the critic: read it from a rollout only
     model._setup_learn(6, None)
     with th.no_grad():
@@ -111,18 +107,7 @@ def test_a_float_needs_a_discount():
 
 
 def test_budget_charges_the_per_step_budget_for_ever():
-    model = PPOLagrangian(
-        "MlpPolicy",
-        DummyVecEnv([EndsAfterThreeSteps]),
-        n_steps=6,
-        batch_size=6,
-        cost_gamma=0.9,
-        cost_budget=0.3,
-        budget_statistic="step",
-        termination_cost="budget",
-        policy_kwargs=dict(net_arch=[8]),
-        seed=0,
-    )
+    model = small_model("budget", cost_budget=0.3, budget_statistic="step")
     model.learn(6)
     # The last step of each episode adds gamma * budget / (1 - gamma) = 0.9 * 0.3 / 0.1 = 2.7
     np.testing.assert_allclose(model.rollout_buffer.costs[:, 0, 0], [0.5, 0.5, 3.2, 0.5, 0.5, 3.2])
@@ -137,18 +122,7 @@ def test_budget_charges_the_per_step_budget_for_ever():
 def test_budget_is_the_lagrangian_of_the_per_step_constraint():
     """Charging the budget for ever after a termination = summing (c_t - budget) over the episode, up to a constant."""
     gamma, budget = 0.9, 0.3
-    model = PPOLagrangian(
-        "MlpPolicy",
-        DummyVecEnv([EndsAfterThreeSteps]),
-        n_steps=3,
-        batch_size=3,
-        cost_gamma=gamma,
-        cost_budget=budget,
-        budget_statistic="step",
-        termination_cost="budget",
-        policy_kwargs=dict(net_arch=[8]),
-        seed=0,
-    )
+    model = small_model("budget", n_steps=3, cost_gamma=gamma, cost_budget=budget, budget_statistic="step")
     model.learn(3)  # one episode of three steps costing 0.5 each
     discounts = gamma ** np.arange(3)
     constant = budget / (1 - gamma)  # the same for every episode, whatever its length: no policy prefers it
@@ -172,18 +146,7 @@ class TwoCostsEndsAfterThreeSteps(EndsAfterThreeSteps):
 
 
 def test_budget_charges_each_constraint_its_own_budget_and_survives_save_and_load(tmp_path):
-    model = PPOLagrangian(
-        "MlpPolicy",
-        DummyVecEnv([TwoCostsEndsAfterThreeSteps]),
-        n_steps=3,
-        batch_size=3,
-        cost_gamma=0.9,
-        cost_budget=[0.3, 0.1],
-        budget_statistic="step",
-        termination_cost="budget",
-        policy_kwargs=dict(net_arch=[8]),
-        seed=0,
-    )
+    model = small_model("budget", n_steps=3, env=TwoCostsEndsAfterThreeSteps, cost_budget=[0.3, 0.1], budget_statistic="step")
     model.learn(3)
     np.testing.assert_allclose(model.rollout_buffer.costs[:, 0], [[0.5, 0.0], [0.5, 0.0], [3.2, 0.9]])
     model.save(tmp_path / "model")
