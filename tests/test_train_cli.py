@@ -234,7 +234,7 @@ FORWARD_LEARNER_KEYS = ("n_envs", "n_steps", "batch_size", "learning_rate", "gam
 
 
 #: Envs whose BC2L, MECL and VICRL recipes charge terminated episodes the per-step budget
-TERMINATION_BUDGET_ENVS = ("BiasedPendulum-v0",)
+TERMINATION_BUDGET_ENVS = ("BiasedPendulum-v0", "HighwayVelocity-v0")
 
 
 @pytest.mark.parametrize("env_id", TABLE3_ENVS)
@@ -266,7 +266,7 @@ def test_benchmark_recipes(algo: str, env_id: str) -> None:
     else:
         assert params["cost_budget"] == "expert" and params["lagrange_update"] == "pid"
         assert params["lagrange_kwargs"] == {"init": 1.0, "kp": 5.0, "ki": 0.005, "kd": 0.0}
-        # Decided by the early-termination study (benchmarks/RESULTS.md): the Pendulum only, so far
+        # Decided by the early-termination studies (benchmarks/RESULTS.md)
         assert params.get("termination_cost", "zero") == ("budget" if env_id in TERMINATION_BUDGET_ENVS else "zero")
 
 
