@@ -234,7 +234,7 @@ FORWARD_LEARNER_KEYS = ("n_envs", "n_steps", "batch_size", "learning_rate", "gam
 
 
 #: Envs whose BC2L, MECL and VICRL recipes charge terminated episodes the per-step budget
-TERMINATION_BUDGET_ENVS = ("BiasedPendulum-v0", "BlockedWalker-v0", "HighwayVelocity-v0")
+TERMINATION_BUDGET_ENVS = ("BiasedPendulum-v0", "BlockedWalker-v0", "HighwayVelocity-v0", "HighwayDistance-v0")
 
 
 @pytest.mark.parametrize("env_id", TABLE3_ENVS)
