@@ -18,8 +18,12 @@ from sb3_icrl.zoo.summary import evaluation_line, feature_constraint_summary, gr
 from sb3_icrl.zoo.train import main as train_main
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-#: Bars of the README's first command, below what it measured over seeds 0-4 (see the grid entries of bc2l.yml)
-MIN_PRECISION, MIN_RECALL = 0.3, 0.6
+#: Bars of the README's first command, which draws its seed at random: over seeds 0-29 it recovered 4 of the 5 wall
+#: cells (recall 0.80) inside a superset of 12 or 14 cells (precision 0.33 on 29 seeds, 0.29 on seed 21), and every cell
+#: dearer than the expert path was learned so (recall 1.00)
+MIN_PRECISION, MIN_RECALL = 0.25, 0.6
+MIN_AVOIDED_RECALL = 1.0
+AVOIDED = re.compile(r"Dearer than the whole expert path \(what the planner avoids\): precision ([\d.]+), recall ([\d.]+)")
 LEARNED_UNSAFE = re.compile(
     r"Learned unsafe \(cost > 0\.5\) against the true unsafe cells: precision ([\d.]+), recall ([\d.]+)"
 )
@@ -38,6 +42,8 @@ def test_readme_first_command_recovers_the_wall(tmp_path: pathlib.Path) -> None:
     assert match is not None, out
     precision, recall = float(match[1]), float(match[2])
     assert precision >= MIN_PRECISION and recall >= MIN_RECALL, out
+    avoided = AVOIDED.search(out)
+    assert avoided is not None and float(avoided[2]) >= MIN_AVOIDED_RECALL, out
     assert TABLE_ROW.search(out) is None, out  # quiet by default
     assert re.search(r"^step \d+: return 1\.00, violation rate 0\.00 \(true\)", out, re.MULTILINE), out
     run = tmp_path / "bc2l" / "GridWorldWall-v0_1"
