@@ -26,9 +26,9 @@ import scipy.stats
 import yaml
 
 from sb3_icrl.benchmark.suite import RunSpec, Suite
-from sb3_icrl.common.evaluation import OUTCOME_KEYS
+from sb3_icrl.common.evaluation import OUTCOME_KEYS, OUTCOME_RATE_KEYS
 from sb3_icrl.common.utils import atomic_write_bytes, atomic_write_json
-from sb3_icrl.zoo.compare import OUTCOME_TITLES, RunResult, evaluate_run, summarise
+from sb3_icrl.zoo.compare import OUTCOME_TITLES, RunResult, evaluate_run, format_outcome_rate, summarise
 from sb3_icrl.zoo.hyperparams import env_name
 from sb3_icrl.zoo.runs import FINISHED_FILE, is_finished
 
@@ -552,7 +552,7 @@ def markdown_table(summary: dict[str, Any]) -> str:
 
 
 #: The per-seed keys of the driving outcome rates, in :data:`OUTCOME_KEYS` order
-OUTCOME_COLUMNS = tuple(f"{key}_rate" for key in OUTCOME_KEYS)
+OUTCOME_COLUMNS = tuple(OUTCOME_RATE_KEYS[key] for key in OUTCOME_KEYS)
 
 
 def outcome_lines(summary: dict[str, Any]) -> list[str]:
@@ -577,16 +577,12 @@ def outcome_lines(summary: dict[str, Any]) -> list[str]:
     for cell in cells:
         means = cell["outcome_rates_mean"]
         per_seed = ", ".join(
-            f"{seed['seed']}: " + " / ".join(_rate_or_dash(seed.get(column)) for column in OUTCOME_COLUMNS)
+            f"{seed['seed']}: " + " / ".join(format_outcome_rate(seed.get(column)) for column in OUTCOME_COLUMNS)
             for seed in cell["per_seed"]
         )
-        row = " | ".join(_rate_or_dash(means.get(column)) for column in OUTCOME_COLUMNS)
+        row = " | ".join(format_outcome_rate(means.get(column)) for column in OUTCOME_COLUMNS)
         lines.append(f"| {cell['env']} | {cell['variant']} | {cell['algo']} | {row} | {per_seed} |")
     return lines
-
-
-def _rate_or_dash(rate: float | None) -> str:
-    return "-" if rate is None else f"{100 * rate:.0f}%"
 
 
 def latex_table(summary: dict[str, Any]) -> str:

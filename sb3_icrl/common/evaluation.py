@@ -13,6 +13,8 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 EPISODE_FIELDS = ("episode_rewards", "episode_costs", "feasible_rewards", "violations", "episode_lengths")
 #: Episode outcomes that driving envs flag in the last step's info; their rates are reported when an env sets them
 OUTCOME_KEYS = ("collision", "off_road", "time_out", "goal_reached")
+#: The key of each outcome's rate in :attr:`ConstraintEvaluation.outcome_rates`, run results and reports
+OUTCOME_RATE_KEYS = {key: f"{key}_rate" for key in OUTCOME_KEYS}
 
 
 @dataclass
@@ -55,7 +57,7 @@ class ConstraintEvaluation:
     @property
     def outcome_rates(self) -> dict[str, float]:
         """``{"<key>_rate": share of episodes}`` for each flagged outcome (empty for envs without outcome flags)."""
-        return {f"{key}_rate": float(np.mean(flags)) for key, flags in self.outcomes.items()}
+        return {OUTCOME_RATE_KEYS[key]: float(np.mean(flags)) for key, flags in self.outcomes.items()}
 
     def summary(self) -> dict[str, float]:
         """The means, as plain floats (for JSON and loggers)."""

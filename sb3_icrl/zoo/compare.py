@@ -29,7 +29,7 @@ import scipy.stats
 import yaml
 from stable_baselines3.common.save_util import load_from_zip_file
 
-from sb3_icrl.common.evaluation import OUTCOME_KEYS
+from sb3_icrl.common.evaluation import OUTCOME_KEYS, OUTCOME_RATE_KEYS
 from sb3_icrl.common.utils import atomic_write_json
 from sb3_icrl.zoo import enjoy
 from sb3_icrl.zoo.hyperparams import ALGOS, env_name, import_gym_packages
@@ -202,7 +202,7 @@ def outcome_rate_means(results: list[RunResult]) -> dict[str, float]:
     :param results: Runs of one algorithm
     :return: ``{"collision_rate": mean, ...}`` in :data:`~sb3_icrl.common.evaluation.OUTCOME_KEYS` order
     """
-    keys = [f"{key}_rate" for key in OUTCOME_KEYS]
+    keys = list(OUTCOME_RATE_KEYS.values())
     return {
         key: float(np.mean([result.outcome_rates[key] for result in results]))
         for key in keys
@@ -382,18 +382,23 @@ def format_table(results: list[RunResult], summary: dict[str, dict[str, Any]], r
 OUTCOME_TITLES = {"collision": "collision", "off_road": "off road", "time_out": "time out", "goal_reached": "goal reached"}
 
 
+def format_outcome_rate(rate: float | None) -> str:
+    """An outcome rate in whole percents, ``-`` where a run has none."""
+    return "-" if rate is None else f"{100 * rate:.0f}%"
+
+
 def outcome_table(results: list[RunResult]) -> list[str]:
     """
     The driving outcome rates per run (how the held-out episodes ended), as Markdown lines after a blank line; no
     lines when no run has them.
     """
-    keys = [key for key in OUTCOME_KEYS if any(f"{key}_rate" in result.outcome_rates for result in results)]
+    keys = [key for key in OUTCOME_KEYS if any(OUTCOME_RATE_KEYS[key] in result.outcome_rates for result in results)]
     if not keys:
         return []
     lines = ["", "| algo | seed | " + " | ".join(OUTCOME_TITLES[key] for key in keys) + " |", "|---|---|" + "---|" * len(keys)]
     for r in sorted(results, key=lambda result: (result.name, result.seed)):
-        rates = [r.outcome_rates.get(f"{key}_rate") for key in keys]
-        lines.append(f"| {r.name} | {r.seed} | " + " | ".join("-" if rate is None else f"{rate:.0%}" for rate in rates) + " |")
+        rates = [format_outcome_rate(r.outcome_rates.get(OUTCOME_RATE_KEYS[key])) for key in keys]
+        lines.append(f"| {r.name} | {r.seed} | " + " | ".join(rates) + " |")
     return lines
 
 
