@@ -4,6 +4,7 @@
     sb3-icrl benchmark run table3 -f logs/ --jobs 2
     sb3-icrl benchmark run table3 -f logs/ --only env=BlockedHalfCheetah-v0 algo=mecl,vicrl
     sb3-icrl benchmark run table3 -f logs/ --backend ray --address auto
+    sb3-icrl benchmark status table3 -f logs/
     sb3-icrl benchmark report table3 -f logs/ -o results/table3
     sb3-icrl benchmark list
 
@@ -28,6 +29,7 @@ from sb3_icrl.benchmark.report import (
     write_report,
 )
 from sb3_icrl.benchmark.runner import BACKENDS, RunOutcome, make_backend, run_all
+from sb3_icrl.benchmark.status import status_lines, suite_status
 from sb3_icrl.benchmark.suite import SUITES_DIR, Suite, SuiteError, load_suite
 from sb3_icrl.zoo.hyperparams import import_gym_packages
 
@@ -46,8 +48,11 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     commands = parser.add_subparsers(dest="command", required=True)
     run = commands.add_parser("run", help="train every run of a suite (resumes)")
+    status = commands.add_parser(
+        "status", help="which runs finished, run now, stopped part-way, failed or never started; core-hours left"
+    )
     report = commands.add_parser("report", help="evaluate the finished runs and write the tables and figures")
-    for sub in (run, report):
+    for sub in (run, status, report):
         sub.add_argument("suite", help="a shipped suite (table3, noise, imperfect, multi, experts, smoke) or a .yml path")
         sub.add_argument("-f", "--log-folder", default="logs", help="log root (runs go to <root>/<suite>/...)")
         sub.add_argument("--only", nargs="+", default=None, help="filters key=value[,value]: env, algo, seed, variant")
@@ -61,6 +66,7 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
     run.add_argument("--backend", choices=BACKENDS, default="local", help="local process pool, or Ray tasks")
     run.add_argument("--address", default=None, help="Ray cluster address (--backend ray; default: start one here)")
     run.add_argument("--no-report", action="store_true", help="do not write the report once the runs are done")
+    status.add_argument("-v", "--verbose", action="store_true", help="list the finished runs too")
     report.add_argument("-o", "--output", default=None, help="report folder (default: <root>/<suite>/report)")
     report.add_argument("--no-figures", action="store_true", help="tables only")
     commands.add_parser("list", help="the shipped suites")
@@ -148,6 +154,15 @@ def run_command(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
+def status_command(args: argparse.Namespace) -> int:
+    """Print where the selected runs stand; reads the run folders only, so it is safe while the suite runs."""
+    suite = _load_suite(args)
+    runs = suite.select(_only(args.only))
+    print(f"suite {suite.name}: {len(runs)} runs in {os.path.join(args.log_folder, suite.name)}")
+    print("\n".join(status_lines(suite_status(runs, args.log_folder), verbose=args.verbose)))
+    return 0
+
+
 def report_command(args: argparse.Namespace) -> int:
     suite = _load_suite(args)
     runs = suite.select(_only(args.only))
@@ -184,6 +199,8 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
             raise SuiteError(f"-f/--log-folder {args.log_folder!r} is a file, not a folder: pass the log root folder.")
         if args.command == "run":
             return run_command(args)
+        if args.command == "status":
+            return status_command(args)
         return report_command(args)
     except (SuiteError, ValueError, RuntimeError) as error:
         print(f"error: {error}", file=sys.stderr)

@@ -1,0 +1,205 @@
+"""
+Where a suite stands, read from its run folders without touching them: which runs finished, which are training now,
+which stopped part-way (they resume from their last checkpoint), which failed and which never started, with the
+core-hours spent and an estimate of those left.
+"""
+
+import json
+import os
+import warnings
+from dataclasses import dataclass
+from typing import Any
+
+import yaml
+
+from sb3_icrl.benchmark.report import run_wall_time
+from sb3_icrl.benchmark.suite import RunSpec
+from sb3_icrl.zoo.hyperparams import env_name, load_hyperparams
+from sb3_icrl.zoo.runs import CHECKPOINT_PATTERN, FINISHED_FILE, failure, is_finished
+
+#: The states of a run, in the order the summary line counts them
+STATES = ("finished", "running", "interrupted", "failed", "not started")
+#: Where Linux lists the file locks held on this machine
+PROC_LOCKS = "/proc/locks"
+
+
+@dataclass
+class RunStatus:
+    """
+    Where one run stands.
+
+    :param run: The run
+    :param state: One of :data:`STATES`: ``"running"`` when a process holds its lock (a suite trains it now),
+        ``"interrupted"`` when it has a folder but neither finished nor failed (the suite resumes it), ``"failed"``
+        when its training stopped on an error (``failed.json``)
+    :param steps_done: Env steps of its final model or last checkpoint (``None`` before the first checkpoint)
+    :param steps_total: The steps it trains for (``None`` when they cannot be told)
+    :param wall_time_s: Training time of a finished run
+    :param error: The error of a failed run
+    """
+
+    run: RunSpec
+    state: str
+    steps_done: int | None = None
+    steps_total: int | None = None
+    wall_time_s: float | None = None
+    error: str | None = None
+
+
+def held_lock_inodes(proc_locks: str = PROC_LOCKS) -> set[int] | None:
+    """
+    The inodes of the files that some process holds a lock on, read from ``/proc/locks``; reading it takes no lock,
+    so a suite starting a run at that moment never finds the run busy.
+
+    :param proc_locks: The lock table (Linux)
+    :return: The inodes, or ``None`` where the table cannot be read (not Linux)
+    """
+    try:
+        with open(proc_locks) as file:
+            lines = file.readlines()
+    except OSError:
+        return None
+    inodes = set()
+    for line in lines:
+        fields = line.split()
+        # "1: FLOCK  ADVISORY  WRITE 1234 00:2f:5678 0 EOF": the sixth field is major:minor:inode
+        if len(fields) >= 6 and fields[1] == "FLOCK" and fields[5].count(":") == 2:
+            inode = fields[5].rsplit(":", 1)[1]
+            if inode.isdigit():
+                inodes.add(int(inode))
+    return inodes
+
+
+def checkpoint_steps(run_folder: str) -> int | None:
+    """The steps of the newest ``rl_model_<steps>_steps.zip`` in a run folder (``None`` when it has none)."""
+    if not os.path.isdir(run_folder):
+        return None
+    steps = [
+        int(match["steps"])
+        for match in map(CHECKPOINT_PATTERN.match, os.listdir(run_folder))
+        if match and match["prefix"] == "rl_model"
+    ]
+    return max(steps, default=None)
+
+
+def planned_steps(run: RunSpec, root: str) -> int | None:
+    """
+    The steps a run trains for: the suite's ``steps``, else ``n_timesteps`` of the recipe the run saved
+    (``config.yml``), else of the shipped recipe with the variant's hyper-parameters.
+
+    :return: Steps, or ``None`` when no recipe tells them (an env the suite's packages register, not imported here)
+    """
+    if run.steps is not None:
+        return run.steps
+    config = os.path.join(run.run_folder(root), env_name(run.env_id), "config.yml")
+    try:
+        with open(config) as file:
+            saved = yaml.safe_load(file)
+        return int(float(saved["n_timesteps"]))
+    except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError):
+        pass
+    overrides = run.variant_settings.get("hyperparams") or {}
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the fallback entry of an unknown env says so once per process
+            entry, _ = load_hyperparams(run.algo, run.env_id, dict(overrides))
+        return int(float(entry["n_timesteps"]))
+    except Exception:  # a recipe that cannot be read here is reported as unknown steps, not as an error
+        return None
+
+
+def run_status(run: RunSpec, root: str, locked_inodes: set[int] | None) -> RunStatus:
+    """
+    :param run: The run
+    :param root: The log root (``-f``)
+    :param locked_inodes: :func:`held_lock_inodes` (``None``: a run that is neither finished nor failed counts as
+        interrupted)
+    """
+    folder = run.run_folder(root)
+    total = planned_steps(run, root)
+    if is_finished(folder):
+        done = _finished_steps(folder)
+        return RunStatus(run, "finished", done if done is not None else total, total, run_wall_time(folder))
+    error = failure(folder)
+    if error is not None:
+        return RunStatus(run, "failed", checkpoint_steps(folder), total, error=error)
+    lock = folder + ".lock"
+    if locked_inodes is not None and os.path.exists(lock) and os.stat(lock).st_ino in locked_inodes:
+        return RunStatus(run, "running", checkpoint_steps(folder), total)
+    if os.path.isdir(folder):
+        return RunStatus(run, "interrupted", checkpoint_steps(folder), total)
+    return RunStatus(run, "not started", None, total)
+
+
+def _finished_steps(folder: str) -> int | None:
+    """The steps a finished run trained (``finished.json``)."""
+    try:
+        with open(os.path.join(folder, FINISHED_FILE)) as file:
+            steps = json.load(file).get("num_timesteps")
+        return int(steps) if steps is not None else None
+    except (OSError, ValueError, AttributeError, TypeError):
+        return None
+
+
+def suite_status(runs: list[RunSpec], root: str) -> list[RunStatus]:
+    """The status of each run, in the order given."""
+    locked = held_lock_inodes()
+    return [run_status(run, root, locked) for run in runs]
+
+
+def seconds_left(statuses: list[RunStatus]) -> tuple[float, int]:
+    """
+    The training time left, at the pace (seconds per step) of the finished runs of the same env and algorithm, else
+    of the same env.
+
+    :return: ``(seconds, runs not estimated)``: runs whose steps are unknown or whose env has no finished run
+    """
+    pace: dict[Any, list[float]] = {}
+    for status in statuses:
+        if status.state == "finished" and status.wall_time_s and status.steps_done:
+            rate = status.wall_time_s / status.steps_done
+            pace.setdefault((status.run.env_id, status.run.algo), []).append(rate)
+            pace.setdefault(status.run.env_id, []).append(rate)
+    seconds, unknown = 0.0, 0
+    for status in statuses:
+        if status.state == "finished":
+            continue
+        rates = pace.get((status.run.env_id, status.run.algo)) or pace.get(status.run.env_id)
+        if status.steps_total is None or not rates:
+            unknown += 1
+            continue
+        left = max(status.steps_total - (status.steps_done or 0), 0)
+        seconds += left * sum(rates) / len(rates)
+    return seconds, unknown
+
+
+def status_lines(statuses: list[RunStatus], verbose: bool = False) -> list[str]:
+    """
+    One line per run that is not finished (every run with ``verbose``), then the counts, the core-hours spent and
+    the estimate of those left.
+    """
+    lines = []
+    shown = [status for status in statuses if verbose or status.state != "finished"]
+    if shown:
+        lines.append(f"{'state':12s} {'steps':>21s} {'train time':>10s}  run")
+        for status in shown:
+            done = "-" if status.steps_done is None else f"{status.steps_done:,}"
+            total = "?" if status.steps_total is None else f"{status.steps_total:,}"
+            time_text = "-" if status.wall_time_s is None else f"{status.wall_time_s / 60:.1f} min"
+            line = f"{status.state:12s} {done + ' / ' + total:>21s} {time_text:>10s}  {status.run.name}"
+            if status.error:
+                line += f": {status.error}"
+            lines.append(line)
+        lines.append("")
+    counts = {state: sum(status.state == state for status in statuses) for state in STATES}
+    spent = sum(status.wall_time_s or 0.0 for status in statuses if status.state == "finished") / 3600
+    summary = " · ".join(f"{counts[state]} {state}" for state in STATES)
+    summary += f" · {spent:.1f} core-hours in the finished runs"
+    if counts["finished"] < len(statuses):
+        left, unknown = seconds_left(statuses)
+        estimate = f"about {left / 3600:.1f} core-hours left at the finished runs' pace"
+        if unknown:
+            estimate += f" (not counting {unknown} run{'s' if unknown > 1 else ''} of envs with no finished run)"
+        summary += f" · {estimate}"
+    lines.append(summary)
+    return lines

@@ -1,0 +1,121 @@
+"""``sb3-icrl benchmark status``: where each run of a suite stands, read from the run folders alone."""
+
+import fcntl
+import json
+import os
+import sys
+import textwrap
+
+import pytest
+
+from sb3_icrl.benchmark import load_suite
+from sb3_icrl.benchmark.cli import main as benchmark_main
+from sb3_icrl.benchmark.runner import run_lock
+from sb3_icrl.benchmark.status import held_lock_inodes, seconds_left, status_lines, suite_status
+from sb3_icrl.zoo.runs import FAILED_FILE, FINISHED_FILE
+
+SUITE = """\
+description: five runs in five states
+envs: [GridWorldWall-v0]
+algos: [bc2l]
+seeds: [0, 1, 2, 3, 4]
+steps: 1000
+"""
+
+
+@pytest.fixture
+def suite_in_five_states(tmp_path):
+    """Seed 0 finished (1000 steps in 500 s), 1 failed at 200, 2 interrupted at 400, 3 training now at 600, 4 not
+    started."""
+    path = tmp_path / "five.yml"
+    path.write_text(textwrap.dedent(SUITE))
+    suite = load_suite(str(path))
+    root = str(tmp_path / "logs")
+    runs = suite.runs()
+    folders = [run.run_folder(root) for run in runs]
+    for folder in folders[:4]:
+        os.makedirs(folder)
+    with open(os.path.join(folders[0], FINISHED_FILE), "w") as file:
+        json.dump({"num_timesteps": 1000, "wall_time_total_s": 500.0}, file)
+    for folder, steps in zip(folders[1:4], (200, 400, 600), strict=True):
+        open(os.path.join(folder, f"rl_model_{steps}_steps.zip"), "w").close()
+        open(os.path.join(folder, f"rl_model_{steps // 2}_steps.zip"), "w").close()
+    with open(os.path.join(folders[1], FAILED_FILE), "w") as file:
+        json.dump({"error": "ValueError: bad things"}, file)
+    return suite, root, runs
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads the lock table of Linux")
+def test_each_state_and_the_time_left(suite_in_five_states):
+    _, root, runs = suite_in_five_states
+    with run_lock(runs[3].run_folder(root)) as locked:  # the suite trains seed 3 now
+        assert locked
+        statuses = suite_status(runs, root)
+    assert [status.state for status in statuses] == ["finished", "failed", "interrupted", "running", "not started"]
+    assert [status.steps_done for status in statuses] == [1000, 200, 400, 600, None]
+    assert all(status.steps_total == 1000 for status in statuses)
+    assert statuses[0].wall_time_s == 500.0 and statuses[1].error == "ValueError: bad things"
+    # 0.5 s per step: (800 + 600 + 400 + 1000) steps left
+    assert seconds_left(statuses) == (pytest.approx(1400.0), 0)
+    lines = status_lines(statuses)
+    assert len(lines) == 1 + 4 + 1 + 1  # header, the four runs not finished, blank, summary
+    assert "bc2l/GridWorldWall-v0/seed 0" not in "\n".join(lines)
+    assert "bc2l/GridWorldWall-v0/seed 0" in "\n".join(status_lines(statuses, verbose=True))
+    assert lines[-1] == (
+        "1 finished · 1 running · 1 interrupted · 1 failed · 1 not started · 0.1 core-hours in the finished runs · "
+        "about 0.4 core-hours left at the finished runs' pace"
+    )
+
+
+def test_a_lock_released_is_no_longer_running(suite_in_five_states):
+    _, root, runs = suite_in_five_states
+    with run_lock(runs[3].run_folder(root)):
+        pass
+    assert suite_status(runs, root)[3].state == "interrupted"
+
+
+def test_without_a_finished_run_the_time_left_is_not_guessed(suite_in_five_states):
+    _, root, runs = suite_in_five_states
+    os.remove(os.path.join(runs[0].run_folder(root), FINISHED_FILE))
+    statuses = suite_status(runs, root)
+    assert seconds_left(statuses) == (0.0, 5)
+    assert status_lines(statuses)[-1].endswith("(not counting 5 runs of envs with no finished run)")
+
+
+def test_lock_table_parsing(tmp_path):
+    table = tmp_path / "locks"
+    table.write_text(
+        "1: FLOCK  ADVISORY  WRITE 1234 00:2f:5678 0 EOF\n"
+        "2: POSIX  ADVISORY  WRITE 99 08:01:42 0 EOF\n"
+        "3: FLOCK  ADVISORY  WRITE 77 fd:00:9 0 EOF\n"
+        "garbage\n"
+    )
+    assert held_lock_inodes(str(table)) == {5678, 9}  # flock locks only: the runner's run_lock
+    assert held_lock_inodes(str(tmp_path / "missing")) is None
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads the lock table of Linux")
+def test_the_lock_table_sees_a_lock_of_this_process(tmp_path):
+    path = tmp_path / "run.lock"
+    with open(path, "a") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        assert os.stat(path).st_ino in held_lock_inodes()
+        fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def test_recipe_steps_when_the_suite_gives_none(tmp_path):
+    path = tmp_path / "recipe.yml"
+    path.write_text(textwrap.dedent(SUITE).replace("steps: 1000\n", ""))
+    runs = load_suite(str(path)).runs()
+    status = suite_status(runs[:1], str(tmp_path / "logs"))[0]
+    assert status.state == "not started" and status.steps_total == 10000  # bc2l.yml's GridWorldWall-v0 entry
+
+
+def test_cli_prints_the_table_and_the_summary(suite_in_five_states, capsys):
+    suite, root, _ = suite_in_five_states
+    assert benchmark_main(["status", suite.path, "-f", root, "--only", "seed=0,4"]) == 0
+    out = capsys.readouterr().out
+    assert "suite five: 2 runs" in out
+    assert "not started" in out and "- / 1,000" in out
+    assert out.strip().splitlines()[-1].startswith("1 finished · 0 running · 0 interrupted · 0 failed · 1 not started")
+    assert benchmark_main(["status", suite.path, "-f", root, "--only", "seed=9"]) == 2  # matches no run
