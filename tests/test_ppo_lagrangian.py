@@ -15,7 +15,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from sb3_icrl import PPOLagrangian
 from sb3_icrl.common.callbacks import EpisodeCostRecorder
 from sb3_icrl.common.envs import ConstrainedCorridorEnv
-from sb3_icrl.common.policies import CostActorCriticPolicy
+from sb3_icrl.common.policies import CostActorCriticPolicy, clip_grad_norms_
 
 TINY = dict(n_steps=32, batch_size=16, n_epochs=2, policy_kwargs=dict(net_arch=[16]))
 
@@ -292,3 +292,27 @@ def test_optimizers_fused_by_default_with_sb3_adam_settings():
         "MlpPolicy", PendulumWithCost(), n_steps=64, batch_size=16, policy_kwargs=dict(optimizer_class=th.optim.RMSprop)
     )
     assert "fused" not in rmsprop.policy.optimizer_kwargs  # torch's RMSprop has no fused CPU kernel in this list
+
+
+def test_clip_grad_norms_matches_torch_per_group() -> None:
+    """One pass over two groups gives, bit for bit, torch's clip_grad_norm_ applied to each group on its own."""
+    generator = th.Generator().manual_seed(0)
+    shapes = [[(4, 3), (3,)], [(2, 5), (5,), (1,)]]
+    for scale in (1e-3, 10.0):  # below the bound (left as is) and above it (scaled down)
+        groups = [[th.nn.Parameter(th.zeros(shape)) for shape in group] for group in shapes]
+        twins = [[th.nn.Parameter(th.zeros(shape)) for shape in group] for group in shapes]
+        for group, twin in zip(groups, twins, strict=True):
+            for param, other in zip(group, twin, strict=True):
+                param.grad = th.randn(param.shape, generator=generator) * scale
+                other.grad = param.grad.clone()
+        totals = clip_grad_norms_(groups, max_norm=0.5)
+        expected = th.stack([th.nn.utils.clip_grad_norm_(twin, 0.5, foreach=True) for twin in twins])
+        assert th.equal(totals, expected)
+        for group, twin in zip(groups, twins, strict=True):
+            assert all(th.equal(param.grad, other.grad) for param, other in zip(group, twin, strict=True))
+        norms = [th.linalg.vector_norm(th.cat([param.grad.flatten() for param in group])) for group in groups]
+        if scale > 1:
+            assert all(abs(float(norm) - 0.5) < 1e-5 for norm in norms)  # each group by its own norm
+    without_grads = [[th.nn.Parameter(th.zeros(2))]]
+    with pytest.raises(ValueError, match="at least one gradient"):
+        clip_grad_norms_(without_grads, 0.5)

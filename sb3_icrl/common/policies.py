@@ -1,5 +1,7 @@
 """Actor-critic policies with an extra cost critic (one output per constraint)."""
 
+import itertools
+from collections.abc import Sequence
 from functools import partial
 from typing import Any
 
@@ -33,6 +35,28 @@ def fused_optimizer_kwargs(
     if optimizer_class in FUSED_OPTIMIZERS and not {"fused", "foreach"} & set(kwargs):
         kwargs["fused"] = True
     return kwargs
+
+
+def clip_grad_norms_(parameter_groups: Sequence[Sequence[th.Tensor]], max_norm: float) -> th.Tensor:
+    """
+    ``th.nn.utils.clip_grad_norm_(group, max_norm)`` for each group, each by its own total norm, in one pass: one
+    ``_foreach_norm`` over every gradient instead of one per group, the same arithmetic (and results) as the
+    per-group calls. PPOLagrangian clips the actor-critic and the cost critic apart, once per minibatch.
+
+    :param parameter_groups: Lists of parameters (those without a gradient are left out, as torch does)
+    :param max_norm: The largest total L2 norm of each group's gradients
+    :return: The total norm of each group before clipping, shape ``(n_groups,)``
+    """
+    grads = [[param.grad for param in group if param.grad is not None] for group in parameter_groups]
+    if any(not group for group in grads):
+        raise ValueError("Every parameter group must hold at least one gradient: call backward() first.")
+    norms = th._foreach_norm([grad for group in grads for grad in group])
+    bounds = itertools.pairwise(np.cumsum([0] + [len(group) for group in grads]))
+    totals = th.stack([th.linalg.vector_norm(th.stack(norms[start:end])) for start, end in bounds])
+    coefficients = th.clamp(max_norm / (totals + 1e-6), max=1.0)
+    for group, coefficient in zip(grads, coefficients, strict=True):
+        th._foreach_mul_(group, coefficient)
+    return totals
 
 
 class CostActorCriticPolicy(ActorCriticPolicy):

@@ -21,7 +21,7 @@ from torch.nn import functional as F
 from sb3_icrl.common.buffers import CostRolloutBuffer
 from sb3_icrl.common.costs import CostFn, as_cost_array, costs_from_infos
 from sb3_icrl.common.lagrange import LagrangeMultiplier, make_lagrange_multiplier
-from sb3_icrl.common.policies import CostActorCriticPolicy
+from sb3_icrl.common.policies import CostActorCriticPolicy, clip_grad_norms_
 from sb3_icrl.common.saved import check_saved_algorithm, library_algorithm
 from sb3_icrl.ppo_lagrangian.policies import CnnPolicy, MlpPolicy
 
@@ -595,8 +595,7 @@ class PPOLagrangian(PPO):
                 self.policy.cost_optimizer.zero_grad()
                 loss.backward()
                 # Clip separately: the cost critic's gradients must not rescale the actor-critic's
-                th.nn.utils.clip_grad_norm_(actor_critic_params, self.max_grad_norm, foreach=True)
-                th.nn.utils.clip_grad_norm_(cost_critic_params, self.max_grad_norm, foreach=True)
+                clip_grad_norms_([actor_critic_params, cost_critic_params], self.max_grad_norm)
                 self.policy.optimizer.step()
                 self.policy.cost_optimizer.step()
 
