@@ -1,5 +1,6 @@
 """``sb3-icrl benchmark status``: where each run of a suite stands, read from the run folders alone."""
 
+import dataclasses
 import fcntl
 import json
 import os
@@ -11,7 +12,7 @@ import pytest
 from sb3_icrl.benchmark import load_suite
 from sb3_icrl.benchmark.cli import main as benchmark_main
 from sb3_icrl.benchmark.runner import run_lock
-from sb3_icrl.benchmark.status import held_lock_inodes, seconds_left, status_lines, suite_status
+from sb3_icrl.benchmark.status import RunStatus, held_lock_inodes, seconds_left, status_lines, suite_status
 from sb3_icrl.zoo.runs import FAILED_FILE, FINISHED_FILE
 
 SUITE = """\
@@ -79,7 +80,7 @@ def test_without_a_finished_run_the_time_left_is_not_guessed(suite_in_five_state
     os.remove(os.path.join(runs[0].run_folder(root), FINISHED_FILE))
     statuses = suite_status(runs, root)
     assert seconds_left(statuses) == (0.0, 5)
-    assert status_lines(statuses)[-1].endswith("(not counting 5 runs of envs with no finished run)")
+    assert status_lines(statuses)[-1].endswith(" · time left unknown until a run of each env finishes")
 
 
 def test_lock_table_parsing(tmp_path):
@@ -119,3 +120,14 @@ def test_cli_prints_the_table_and_the_summary(suite_in_five_states, capsys):
     assert "not started" in out and "- / 1,000" in out
     assert out.strip().splitlines()[-1].startswith("1 finished · 0 running · 0 interrupted · 0 failed · 1 not started")
     assert benchmark_main(["status", suite.path, "-f", root, "--only", "seed=9"]) == 2  # matches no run
+
+
+def test_runs_of_an_env_without_a_finished_run_are_left_out_of_the_estimate(suite_in_five_states):
+    _, root, runs = suite_in_five_states
+    statuses = suite_status(runs, root)
+    other_env = dataclasses.replace(runs[4], env_id="sb3_icrl/GridWorldSquare-v0")
+    statuses.append(RunStatus(other_env, "not started", None, 1000))
+    assert seconds_left(statuses)[1] == 1
+    assert status_lines(statuses)[-1].endswith(
+        "about 0.4 core-hours left at the finished runs' pace (not counting 1 run of envs with no finished run)"
+    )

@@ -197,9 +197,12 @@ def status_lines(statuses: list[RunStatus], verbose: bool = False) -> list[str]:
     summary += f" · {spent:.1f} core-hours in the finished runs"
     if counts["finished"] < len(statuses):
         left, unknown = seconds_left(statuses)
-        estimate = f"about {left / 3600:.1f} core-hours left at the finished runs' pace"
-        if unknown:
-            estimate += f" (not counting {unknown} run{'s' if unknown > 1 else ''} of envs with no finished run)"
+        if unknown == len(statuses) - counts["finished"]:
+            estimate = "time left unknown until a run of each env finishes"
+        else:
+            estimate = f"about {left / 3600:.1f} core-hours left at the finished runs' pace"
+            if unknown:
+                estimate += f" (not counting {unknown} run{'s' if unknown > 1 else ''} of envs with no finished run)"
         summary += f" · {estimate}"
     lines.append(summary)
     return lines
