@@ -526,6 +526,7 @@ class PPOLagrangian(PPO):
             self.lagrange_multiplier.update(constraint_values)
             self._record_per_constraint("train/constraint_value", constraint_values)
         multipliers = th.as_tensor(self.lagrange_multiplier.value, dtype=th.float32, device=self.device)
+        advantage_scale = 1.0 + multipliers.sum()  # fixed for the whole update: computed once, not per minibatch
         actor_critic_params = [param for group in self.policy.optimizer.param_groups for param in group["params"]]
         cost_critic_params = self.policy.cost_critic_parameters()
 
@@ -541,9 +542,9 @@ class PPOLagrangian(PPO):
                 values, log_prob, entropy = self.policy.evaluate_actions(rollout_data.observations, actions)
                 values = values.flatten()
                 # Lagrangian advantage; equal to PPO's when every multiplier is 0
-                advantages = (rollout_data.advantages - (rollout_data.cost_advantages * multipliers).sum(dim=1)) / (
-                    1.0 + multipliers.sum()
-                )
+                advantages = (
+                    rollout_data.advantages - (rollout_data.cost_advantages * multipliers).sum(dim=1)
+                ) / advantage_scale
                 if self.normalize_advantage and len(advantages) > 1:
                     advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
 
