@@ -1,5 +1,6 @@
 """The learned-cost and GACL reward wrappers: what the learner sees, on which (s, a), and the errors."""
 
+import gymnasium as gym
 import numpy as np
 import pytest
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
@@ -138,3 +139,43 @@ def test_gacl_discriminator_errors():
         env.step(np.array([0, 0]))
     with pytest.raises(ValueError, match=r"`eps` must be in \(0, 1\)"):
         GACLRewardWrapper(make_venv(), lambda obs, actions: obs, eps=0.0)
+
+
+class EndsOnAction(gym.Env):
+    """Action 1 ends the episode (terminated); otherwise the time limit truncates it after 3 steps. Reward 0."""
+
+    observation_space = gym.spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
+    action_space = gym.spaces.Discrete(2)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.steps = 0
+        return np.zeros(1, dtype=np.float32), {}
+
+    def step(self, action):
+        self.steps += 1
+        return np.zeros(1, dtype=np.float32), 0.0, bool(action == 1), self.steps >= 3, {}
+
+
+@pytest.mark.parametrize("gamma", [0.9, 0.0])
+def test_gacl_termination_gamma_charges_the_final_pair_for_ever_on_termination_only(gamma):
+    """Terminated: log D * (1 + gamma / (1 - gamma)) on the last step; truncated and other steps: log D."""
+    log_d = np.log(0.5)
+    env = GACLRewardWrapper(
+        DummyVecEnv([EndsOnAction, EndsOnAction]), lambda obs, actions: np.full(2, 0.5), termination_gamma=gamma
+    )
+    env.reset()
+    # env 0 terminates at its first step; env 1 goes on and is truncated at its third
+    _, rewards, dones, infos = env.step(np.array([1, 0]))
+    assert dones.tolist() == [True, False]
+    np.testing.assert_allclose(rewards, [log_d / (1.0 - gamma), log_d], rtol=1e-6)
+    env.step(np.array([0, 0]))
+    _, rewards, dones, infos = env.step(np.array([0, 0]))
+    assert dones.tolist() == [False, True] and infos[1]["TimeLimit.truncated"]
+    np.testing.assert_allclose(rewards, [log_d, log_d], rtol=1e-6)
+    # Without it (the paper's GACL) a terminated step earns log D like any other
+    plain = GACLRewardWrapper(DummyVecEnv([EndsOnAction]), lambda obs, actions: np.full(1, 0.5))
+    plain.reset()
+    np.testing.assert_allclose(plain.step(np.array([1]))[1], [log_d], rtol=1e-6)
+    with pytest.raises(ValueError, match="termination_gamma"):
+        GACLRewardWrapper(DummyVecEnv([EndsOnAction]), lambda obs, actions: np.full(1, 0.5), termination_gamma=1.0)

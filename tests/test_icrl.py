@@ -558,3 +558,19 @@ def test_a_loaded_model_samples_its_constraint_minibatches_from_its_seed(tmp_pat
         assert loaded.icrl_trainer.n_updates == model.n_constraint_updates + 1
         rngs.append(loaded.icrl_trainer._rng.integers(1 << 30, size=4))
     np.testing.assert_array_equal(rngs[0], rngs[1])
+
+
+def test_gacl_termination_reward_sets_the_wrapper_and_survives_save_load(tmp_path):
+    model = GACL("MlpPolicy", make_env(), corridor_demonstrations(), n_steps=16, batch_size=16, gamma=0.95)
+    assert model.termination_reward == "zero" and model.constraint_wrapper.termination_gamma is None
+    repeat = GACL(
+        "MlpPolicy", make_env(), corridor_demonstrations(), n_steps=16, batch_size=16, gamma=0.95, termination_reward="repeat"
+    )
+    assert repeat.constraint_wrapper.termination_gamma == 0.95
+    repeat.save(tmp_path / "gacl.zip")
+    loaded = GACL.load(tmp_path / "gacl.zip", env=make_env(), demonstrations=corridor_demonstrations())
+    assert loaded.termination_reward == "repeat" and loaded.constraint_wrapper.termination_gamma == 0.95
+    model.set_env(repeat.env)  # an env wrapped by another GACL model: reused, with this model's setting
+    assert model.constraint_wrapper is repeat.constraint_wrapper and model.constraint_wrapper.termination_gamma is None
+    with pytest.raises(ValueError, match="`termination_reward` must be one of 'zero', 'repeat'"):
+        GACL("MlpPolicy", make_env(), corridor_demonstrations(), termination_reward="budget")

@@ -147,6 +147,11 @@ class GACLRewardWrapper(_StateActionVecEnvWrapper):
     The clip bounds the penalty at ``log(eps)`` where the paper's ``log D`` would be ``-inf``. The env's reward is
     kept in ``info[env_reward_info_key]``; its own cost, if any, is moved to ``info[true_cost_info_key]``.
 
+    Since ``log D <= 0``, every step costs the learner something and an episode that ends early stops paying: a
+    learner can prefer to end its episodes (fall, drive off the road). With ``termination_gamma`` set, the last step
+    of a terminated (not time-limit truncated) episode also earns ``gamma / (1 - gamma) * log D`` of its own pair: as
+    if the episode stayed in its final situation for ever, so ending it is worth what staying there would be.
+
     :param venv: The env to wrap (without ``VecNormalize`` inside)
     :param discriminator: ``discriminator(observations, actions) -> D`` of shape ``(n_envs,)``, values in [0, 1]
         (e.g. ``FeasibilityNet.predict_feasibility``)
@@ -154,6 +159,8 @@ class GACLRewardWrapper(_StateActionVecEnvWrapper):
     :param env_reward_info_key: Info key where the env's own reward is kept
     :param cost_info_key: Info key of the env's own cost
     :param true_cost_info_key: Info key where that cost is moved
+    :param termination_gamma: The learner's discount factor, to charge terminated episodes as above; ``None``: no
+        charge (the paper's GACL)
     """
 
     def __init__(
@@ -164,10 +171,14 @@ class GACLRewardWrapper(_StateActionVecEnvWrapper):
         env_reward_info_key: str = "env_reward",
         cost_info_key: str = "cost",
         true_cost_info_key: str = "true_cost",
+        termination_gamma: float | None = None,
     ):
         super().__init__(venv, cost_info_key=cost_info_key, true_cost_info_key=true_cost_info_key)
         if not 0.0 < eps < 1.0:
             raise ValueError(f"`eps` must be in (0, 1), got {eps}.")
+        if termination_gamma is not None and not 0.0 <= termination_gamma < 1.0:
+            raise ValueError(f"`termination_gamma` must be in [0, 1) or None, got {termination_gamma}.")
+        self.termination_gamma = termination_gamma
         self.eps = eps
         self.env_reward_info_key = env_reward_info_key
         self.discriminator: DiscriminatorFn
@@ -205,7 +216,13 @@ class GACLRewardWrapper(_StateActionVecEnvWrapper):
         self._hide_true_cost(infos)
         for info, reward in zip(infos, rewards, strict=True):
             info[self.env_reward_info_key] = float(reward)
-        new_rewards = (rewards + self._log_discriminator).astype(np.asarray(rewards).dtype, copy=False)
+        log_discriminator = self._log_discriminator
+        if self.termination_gamma is not None:
+            terminated = np.array(
+                [bool(done) and not info.get("TimeLimit.truncated", False) for done, info in zip(dones, infos, strict=True)]
+            )
+            log_discriminator = log_discriminator * np.where(terminated, 1.0 / (1.0 - self.termination_gamma), 1.0)
+        new_rewards = (rewards + log_discriminator).astype(np.asarray(rewards).dtype, copy=False)
         self._log_discriminator = None
         self._advance(obs)
         return obs, new_rewards, dones, infos

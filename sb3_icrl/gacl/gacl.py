@@ -15,6 +15,9 @@ from sb3_icrl.constraints.wrappers import GACLRewardWrapper
 from sb3_icrl.icrl.base import DemonstrationsLike, ICRLAlgorithmMixin
 from sb3_icrl.icrl.trainer import ICRLTrainer
 
+#: What the last step of a terminated episode adds to GACL's reward (see :class:`GACL`)
+TERMINATION_REWARDS = ("zero", "repeat")
+
 
 class GACLTrainer(BC2LTrainer):
     """
@@ -49,6 +52,10 @@ class GACL(ICRLAlgorithmMixin, PPO):
     :param trainer_kwargs: Further arguments of the trainer
     :param allow_env_mismatch: Accept demonstrations recorded on another env id whose spaces fit this env's
     :param log_d_eps: Smallest ``D`` inside the log of the reward
+    :param termination_reward: What the last step of a terminated (not truncated) episode adds. ``"zero"``: nothing
+        more, the paper's GACL; since every ``log D`` is <= 0, ending an episode early then saves the learner its
+        future penalties. ``"repeat"``: ``gamma / (1 - gamma)`` times the final pair's ``log D``, as if the episode
+        stayed in its final situation for ever (see :class:`~sb3_icrl.constraints.GACLRewardWrapper`)
     :param kwargs: The other arguments of SB3's ``PPO``
     """
 
@@ -72,6 +79,7 @@ class GACL(ICRLAlgorithmMixin, PPO):
         trainer_kwargs: dict[str, Any] | None = None,
         allow_env_mismatch: bool = False,
         log_d_eps: float = 1e-5,
+        termination_reward: str = "zero",
         _init_setup_model: bool = True,
         **kwargs: Any,
     ):
@@ -89,10 +97,25 @@ class GACL(ICRLAlgorithmMixin, PPO):
             allow_env_mismatch,
         )
         self.log_d_eps = log_d_eps
+        if termination_reward not in TERMINATION_REWARDS:
+            raise ValueError(
+                f"`termination_reward` must be one of {', '.join(map(repr, TERMINATION_REWARDS))}, got {termination_reward!r}."
+            )
+        self.termination_reward = termination_reward
         super().__init__(policy, env, _init_setup_model=False, **kwargs)
         if _init_setup_model:
             self._setup_model()
 
+    def _termination_gamma(self) -> float | None:
+        return self.gamma if self.termination_reward == "repeat" else None
+
     def _make_constraint_wrapper(self, venv: VecEnv) -> GACLRewardWrapper:
         assert self.constraint_net is not None
-        return GACLRewardWrapper(venv, self.constraint_net.predict_feasibility, eps=self.log_d_eps)
+        return GACLRewardWrapper(
+            venv, self.constraint_net.predict_feasibility, eps=self.log_d_eps, termination_gamma=self._termination_gamma()
+        )
+
+    def _wrap_icrl_env(self) -> None:
+        super()._wrap_icrl_env()
+        if isinstance(self.constraint_wrapper, GACLRewardWrapper):  # also a wrapper reused from another GACL model
+            self.constraint_wrapper.termination_gamma = self._termination_gamma()
