@@ -272,7 +272,9 @@ def test_smoke_suite_runs_end_to_end_then_skips_finished_runs(tmp_path, capsys):
         assert json.load(file)["num_timesteps"] == 2048
     capsys.readouterr()
     assert benchmark_main(["run", "smoke", "-f", root, "--jobs", "2", "--no-report"]) == 0
-    assert "8/8 done (8 from before)" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "8/8 done (8 from before)" in out
+    assert "before this run: 8 finished · 0 running · 0 interrupted · 0 failed · 0 not started" in out
     assert benchmark_main(["report", "smoke", "-f", root, "--no-figures"]) == 0
     assert _summary(root, "smoke") == summary  # held-out results cached in the run folders, same table
 

@@ -138,6 +138,7 @@ def run_command(args: argparse.Namespace) -> int:
         f"({args.backend}, {args.jobs} at a time)",
         flush=True,
     )
+    print(f"before this run: {status_lines(suite_status(runs, args.log_folder))[-1]}", flush=True)
     backend = make_backend(args.backend, args.jobs, args.address)
     display = Display(len(runs))
     try:
