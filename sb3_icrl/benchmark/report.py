@@ -30,7 +30,7 @@ from sb3_icrl.common.evaluation import OUTCOME_KEYS, OUTCOME_RATE_KEYS
 from sb3_icrl.common.utils import atomic_write_bytes, atomic_write_json
 from sb3_icrl.zoo.compare import OUTCOME_TITLES, RunResult, evaluate_run, format_outcome_rate, summarise
 from sb3_icrl.zoo.hyperparams import env_name
-from sb3_icrl.zoo.runs import FINISHED_FILE, is_finished
+from sb3_icrl.zoo.runs import is_finished, read_finished
 
 #: Bootstrap resamples of the confidence intervals
 BOOTSTRAP_REPS = 2000
@@ -231,13 +231,16 @@ def run_wall_time(folder: str | os.PathLike) -> float | None:
     :param folder: The run folder
     :return: Seconds; ``None`` when the run is not finished or its ``finished.json`` records no time
     """
-    try:
-        with open(os.path.join(folder, FINISHED_FILE)) as file:
-            finished = json.load(file)
-    except (OSError, ValueError):
-        return None
+    return finished_wall_time(read_finished(folder))
+
+
+def finished_wall_time(finished: dict[str, Any] | None) -> float | None:
+    """
+    :param finished: A run's ``finished.json`` (:func:`~sb3_icrl.zoo.runs.read_finished`)
+    :return: Its training time in seconds (see :data:`WALL_TIME_KEYS`), ``None`` when it records none
+    """
     for key in WALL_TIME_KEYS:
-        value = finished.get(key) if isinstance(finished, dict) else None
+        value = finished.get(key) if finished is not None else None
         if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value >= 0:
             return float(value)
     return None

@@ -4,7 +4,6 @@ which stopped part-way (they resume from their last checkpoint), which failed an
 core-hours spent and an estimate of those left.
 """
 
-import json
 import os
 import warnings
 from dataclasses import dataclass
@@ -12,10 +11,10 @@ from typing import Any
 
 import yaml
 
-from sb3_icrl.benchmark.report import run_wall_time
+from sb3_icrl.benchmark.report import finished_wall_time
 from sb3_icrl.benchmark.suite import RunSpec
 from sb3_icrl.zoo.hyperparams import env_name, load_hyperparams
-from sb3_icrl.zoo.runs import CHECKPOINT_PATTERN, FINISHED_FILE, failure, is_finished
+from sb3_icrl.zoo.runs import checkpoints, failure, is_finished, read_finished
 
 #: The states of a run, in the order the summary line counts them
 STATES = ("finished", "running", "interrupted", "failed", "not started")
@@ -71,23 +70,13 @@ def held_lock_inodes(proc_locks: str = PROC_LOCKS) -> set[int] | None:
     return inodes
 
 
-def checkpoint_steps(run_folder: str) -> int | None:
-    """The steps of the newest ``rl_model_<steps>_steps.zip`` in a run folder (``None`` when it has none)."""
-    if not os.path.isdir(run_folder):
-        return None
-    steps = [
-        int(match["steps"])
-        for match in map(CHECKPOINT_PATTERN.match, os.listdir(run_folder))
-        if match and match["prefix"] == "rl_model"
-    ]
-    return max(steps, default=None)
-
-
-def planned_steps(run: RunSpec, root: str) -> int | None:
+def planned_steps(run: RunSpec, root: str, recipes: dict[tuple[str, str, str], int | None] | None = None) -> int | None:
     """
     The steps a run trains for: the suite's ``steps``, else ``n_timesteps`` of the recipe the run saved
     (``config.yml``), else of the shipped recipe with the variant's hyper-parameters.
 
+    :param recipes: Steps of the shipped recipes already read, by (algorithm, env, variant hyper-parameters): the runs
+        of one cell share them, and each read parses the whole yml file
     :return: Steps, or ``None`` when no recipe tells them (an env the suite's packages register, not imported here)
     """
     if run.steps is not None:
@@ -100,53 +89,60 @@ def planned_steps(run: RunSpec, root: str) -> int | None:
     except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError):
         pass
     overrides = run.variant_settings.get("hyperparams") or {}
+    key = (run.algo, run.env_id, repr(sorted(overrides.items())))
+    if recipes is not None and key in recipes:
+        return recipes[key]
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the fallback entry of an unknown env says so once per process
             entry, _ = load_hyperparams(run.algo, run.env_id, dict(overrides))
-        return int(float(entry["n_timesteps"]))
+        steps: int | None = int(float(entry["n_timesteps"]))
     except Exception:  # a recipe that cannot be read here is reported as unknown steps, not as an error
-        return None
+        steps = None
+    if recipes is not None:
+        recipes[key] = steps
+    return steps
 
 
-def run_status(run: RunSpec, root: str, locked_inodes: set[int] | None) -> RunStatus:
+def run_status(
+    run: RunSpec, root: str, locked_inodes: set[int] | None, recipes: dict[tuple[str, str, str], int | None] | None = None
+) -> RunStatus:
     """
     :param run: The run
     :param root: The log root (``-f``)
     :param locked_inodes: :func:`held_lock_inodes` (``None``: a run that is neither finished nor failed counts as
         interrupted)
+    :param recipes: See :func:`planned_steps`
     """
     folder = run.run_folder(root)
-    total = planned_steps(run, root)
+    total = planned_steps(run, root, recipes)
     if is_finished(folder):
-        done = _finished_steps(folder)
-        return RunStatus(run, "finished", done if done is not None else total, total, run_wall_time(folder))
+        finished = read_finished(folder) or {}
+        done: int | None
+        try:
+            done = int(finished["num_timesteps"])
+        except (KeyError, TypeError, ValueError):
+            done = total
+        return RunStatus(run, "finished", done, total, finished_wall_time(finished))
+    saved = checkpoints(folder)
+    newest = saved[0][0] if saved else None
     # The lock first: a failed run that a suite tries again keeps its failed.json until its training starts
     lock = folder + ".lock"
     if locked_inodes is not None and os.path.exists(lock) and os.stat(lock).st_ino in locked_inodes:
-        return RunStatus(run, "running", checkpoint_steps(folder), total)
+        return RunStatus(run, "running", newest, total)
     error = failure(folder)
     if error is not None:
-        return RunStatus(run, "failed", checkpoint_steps(folder), total, error=error)
+        return RunStatus(run, "failed", newest, total, error=error)
     if os.path.isdir(folder):
-        return RunStatus(run, "interrupted", checkpoint_steps(folder), total)
+        return RunStatus(run, "interrupted", newest, total)
     return RunStatus(run, "not started", None, total)
-
-
-def _finished_steps(folder: str) -> int | None:
-    """The steps a finished run trained (``finished.json``)."""
-    try:
-        with open(os.path.join(folder, FINISHED_FILE)) as file:
-            steps = json.load(file).get("num_timesteps")
-        return int(steps) if steps is not None else None
-    except (OSError, ValueError, AttributeError, TypeError):
-        return None
 
 
 def suite_status(runs: list[RunSpec], root: str) -> list[RunStatus]:
     """The status of each run, in the order given."""
     locked = held_lock_inodes()
-    return [run_status(run, root, locked) for run in runs]
+    recipes: dict[tuple[str, str, str], int | None] = {}
+    return [run_status(run, root, locked, recipes) for run in runs]
 
 
 def seconds_left(statuses: list[RunStatus]) -> tuple[float, int]:

@@ -166,6 +166,35 @@ def is_finished(run: str) -> bool:
     return os.path.isfile(os.path.join(run, FINISHED_FILE))
 
 
+def read_finished(run: str | os.PathLike) -> dict[str, Any] | None:
+    """
+    :param run: A run folder
+    :return: Its ``finished.json`` (step count, wall times), or ``None`` when it is missing, unreadable or not a mapping
+    """
+    try:
+        with open(os.path.join(run, FINISHED_FILE)) as file:
+            finished = json.load(file)
+    except (OSError, ValueError):
+        return None
+    return finished if isinstance(finished, dict) else None
+
+
+def checkpoints(run: str) -> list[tuple[int, str]]:
+    """
+    :param run: A run folder
+    :return: ``(steps, path)`` of each ``rl_model_<steps>_steps.zip`` in it, the most steps first (unchecked: see
+        :func:`latest_checkpoint`); empty when the folder does not exist
+    """
+    if not os.path.isdir(run):
+        return []
+    found = []
+    for entry in os.listdir(run):
+        match = CHECKPOINT_PATTERN.match(entry)
+        if match and match["prefix"] == "rl_model":
+            found.append((int(match["steps"]), os.path.join(run, entry)))
+    return sorted(found, reverse=True)
+
+
 def latest_checkpoint(run: str) -> str | None:
     """
     The checkpoint to resume an unfinished run from: the ``rl_model_<steps>_steps.zip`` with the most steps that is a
@@ -174,14 +203,7 @@ def latest_checkpoint(run: str) -> str | None:
     :param run: A run folder
     :return: The path, or ``None`` when the folder holds no usable checkpoint
     """
-    if not os.path.isdir(run):
-        return None
-    checkpoints = []
-    for entry in os.listdir(run):
-        match = CHECKPOINT_PATTERN.match(entry)
-        if match and match["prefix"] == "rl_model":
-            checkpoints.append((int(match["steps"]), os.path.join(run, entry)))
-    for _, path in sorted(checkpoints, reverse=True):
+    for _, path in checkpoints(run):
         try:
             with zipfile.ZipFile(path) as archive:
                 if archive.testzip() is None and "data" in archive.namelist():
