@@ -350,3 +350,62 @@ def test_train_clips_the_actor_critic_and_the_cost_critic_apart(monkeypatch) -> 
         assert max_norm == 0.3 and len(groups) == 2
         assert [id(p) for p in groups[0]] == [id(p) for p in actor_critic]
         assert [id(p) for p in groups[1]] == [id(p) for p in cost_critic]
+
+
+def test_distribution_validation_is_restored_even_after_an_error():
+    """Inside the block a NaN mean builds a Normal (no check); outside, torch's default check raises again."""
+    from torch.distributions import Distribution, Normal
+
+    from sb3_icrl.common.policies import distribution_validation
+
+    nan = th.tensor([float("nan")])
+    previous = Distribution._validate_args
+    with pytest.raises(RuntimeError, match="inside"), distribution_validation(False):
+        Normal(nan, th.ones(1))
+        raise RuntimeError("inside")
+    assert Distribution._validate_args == previous
+    with distribution_validation(True), pytest.raises(ValueError):
+        Normal(nan, th.ones(1))
+
+
+def test_diverged_policy_fails_clearly_in_rollouts():
+    """torch's distribution checks are off in rollouts: NaN actions must still stop training with a clear error."""
+    from torch.distributions import Distribution
+
+    model = PPOLagrangian("MlpPolicy", PendulumWithCost(), seed=0, **TINY)
+    with th.no_grad():
+        model.policy.action_net.weight.fill_(float("nan"))
+    previous = Distribution._validate_args
+    with pytest.raises(FloatingPointError, match=r"The policy.s actions are not finite.*Lower the learning rate"):
+        model.learn(32)
+    assert Distribution._validate_args == previous
+
+
+def test_diverged_critic_fails_clearly_in_the_update():
+    """A NaN value turns the advantages and losses NaN: the update says so instead of training on."""
+    model = PPOLagrangian("MlpPolicy", PendulumWithCost(), seed=0, **TINY)
+    with th.no_grad():
+        model.policy.value_net.weight.fill_(float("nan"))
+    with pytest.raises(FloatingPointError, match=r"The losses of the update at step 32 \(.*value_loss.: nan.*are not finite"):
+        model.learn(32)
+
+
+def test_callbacks_keep_torchs_distribution_checks():
+    """Only the policy's own distributions skip torch's checks: user code in callbacks runs with torch's setting."""
+    from torch.distributions import Distribution
+
+    class RecordSetting(BaseCallback):
+        def __init__(self) -> None:
+            super().__init__()
+            self.settings: set[bool] = set()
+
+        def _on_step(self) -> bool:
+            self.settings.add(Distribution._validate_args)
+            return True
+
+        def _on_rollout_end(self) -> None:
+            self.settings.add(Distribution._validate_args)
+
+    callback = RecordSetting()
+    PPOLagrangian("MlpPolicy", PendulumWithCost(), seed=0, **TINY).learn(64, callback=callback)
+    assert callback.settings == {Distribution._validate_args}
