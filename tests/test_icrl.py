@@ -560,17 +560,27 @@ def test_a_loaded_model_samples_its_constraint_minibatches_from_its_seed(tmp_pat
     np.testing.assert_array_equal(rngs[0], rngs[1])
 
 
-def test_gacl_termination_reward_sets_the_wrapper_and_survives_save_load(tmp_path):
+def test_gacl_settings_set_the_wrapper_also_a_reused_one_and_survive_save_load(tmp_path):
     model = GACL("MlpPolicy", make_env(), corridor_demonstrations(), n_steps=16, batch_size=16, gamma=0.95)
     assert model.termination_reward == "zero" and model.constraint_wrapper.termination_gamma is None
     repeat = GACL(
-        "MlpPolicy", make_env(), corridor_demonstrations(), n_steps=16, batch_size=16, gamma=0.95, termination_reward="repeat"
+        "MlpPolicy",
+        make_env(),
+        corridor_demonstrations(),
+        n_steps=16,
+        batch_size=16,
+        gamma=0.95,
+        termination_reward="repeat",
+        log_d_eps=1e-3,
     )
-    assert repeat.constraint_wrapper.termination_gamma == 0.95
+    assert repeat.constraint_wrapper.termination_gamma == 0.95 and repeat.constraint_wrapper.eps == 1e-3
     repeat.save(tmp_path / "gacl.zip")
     loaded = GACL.load(tmp_path / "gacl.zip", env=make_env(), demonstrations=corridor_demonstrations())
     assert loaded.termination_reward == "repeat" and loaded.constraint_wrapper.termination_gamma == 0.95
-    model.set_env(repeat.env)  # an env wrapped by another GACL model: reused, with this model's setting
+    model.set_env(repeat.env)  # an env wrapped by another GACL model: reused, with this model's settings
     assert model.constraint_wrapper is repeat.constraint_wrapper and model.constraint_wrapper.termination_gamma is None
+    assert model.constraint_wrapper.eps == model.log_d_eps == 1e-5
+    with pytest.raises(ValueError, match="`log_d_eps` must be in \\(0, 1\\), got 0"):
+        GACL("MlpPolicy", make_env(), corridor_demonstrations(), log_d_eps=0.0)
     with pytest.raises(ValueError, match="`termination_reward` must be one of 'zero', 'repeat'"):
         GACL("MlpPolicy", make_env(), corridor_demonstrations(), termination_reward="budget")

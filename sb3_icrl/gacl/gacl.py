@@ -96,6 +96,8 @@ class GACL(ICRLAlgorithmMixin, PPO):
             trainer_kwargs,
             allow_env_mismatch,
         )
+        if not 0.0 < log_d_eps < 1.0:
+            raise ValueError(f"`log_d_eps` must be in (0, 1), got {log_d_eps}: it is the smallest D inside log D.")
         self.log_d_eps = log_d_eps
         if termination_reward not in TERMINATION_REWARDS:
             raise ValueError(
@@ -106,16 +108,11 @@ class GACL(ICRLAlgorithmMixin, PPO):
         if _init_setup_model:
             self._setup_model()
 
-    def _termination_gamma(self) -> float | None:
-        return self.gamma if self.termination_reward == "repeat" else None
-
     def _make_constraint_wrapper(self, venv: VecEnv) -> GACLRewardWrapper:
         assert self.constraint_net is not None
-        return GACLRewardWrapper(
-            venv, self.constraint_net.predict_feasibility, eps=self.log_d_eps, termination_gamma=self._termination_gamma()
-        )
+        return GACLRewardWrapper(venv, self.constraint_net.predict_feasibility)
 
-    def _wrap_icrl_env(self) -> None:
-        super()._wrap_icrl_env()
-        if isinstance(self.constraint_wrapper, GACLRewardWrapper):  # also a wrapper reused from another GACL model
-            self.constraint_wrapper.termination_gamma = self._termination_gamma()
+    def _configure_constraint_wrapper(self, wrapper: VecEnvWrapper) -> None:
+        assert isinstance(wrapper, GACLRewardWrapper)
+        wrapper.eps = self.log_d_eps
+        wrapper.termination_gamma = self.gamma if self.termination_reward == "repeat" else None

@@ -247,6 +247,12 @@ class ICRLAlgorithmMixin:
         assert self.constraint_net is not None
         return LearnedCostVecEnvWrapper(venv, self.constraint_net.cost)
 
+    def _configure_constraint_wrapper(self, wrapper: VecEnvWrapper) -> None:
+        """
+        Apply this model's settings to its constraint wrapper: called on a new wrapper and on one reused from another
+        model of the same kind, so that the reused one follows this model's settings, not the other's (none here).
+        """
+
     def _wrap_icrl_env(self) -> None:
         """Insert ``constraint_wrapper(recorder(raw_venv))`` at the bottom of the env, below any VecNormalize."""
         self.recorder = self.constraint_wrapper = None
@@ -261,6 +267,7 @@ class ICRLAlgorithmMixin:
                     self.constraint_wrapper, self.recorder = node, node.venv
                     assert self.constraint_net is not None
                     install_constraint(node, self.constraint_net)
+                    self._configure_constraint_wrapper(node)
                     return
                 raise ValueError(
                     f"The env already contains a {type(node).__name__}; {type(self).__name__} adds its own "
@@ -269,6 +276,7 @@ class ICRLAlgorithmMixin:
             parent, node = node, node.venv
         self.recorder = TrajectoryRecorderVecEnvWrapper(node)
         self.constraint_wrapper = self._make_constraint_wrapper(self.recorder)
+        self._configure_constraint_wrapper(self.constraint_wrapper)
         if parent is None:
             self.env = self.constraint_wrapper
         else:
