@@ -577,10 +577,15 @@ def test_gacl_settings_set_the_wrapper_also_a_reused_one_and_survive_save_load(t
     repeat.save(tmp_path / "gacl.zip")
     loaded = GACL.load(tmp_path / "gacl.zip", env=make_env(), demonstrations=corridor_demonstrations())
     assert loaded.termination_reward == "repeat" and loaded.constraint_wrapper.termination_gamma == 0.95
+    assert loaded.constraint_wrapper.eps == loaded.log_d_eps == 1e-3
+    with pytest.raises(ValueError, match=r"`log_d_eps` must be in \(0, 1\), got 0.0"):
+        GACL.load(tmp_path / "gacl.zip", env=make_env(), demonstrations=corridor_demonstrations(), log_d_eps=0.0)
+    with pytest.raises(ValueError, match=r"`eps` must be in \(0, 1\)"):
+        loaded.constraint_wrapper.eps = 1.5
     model.set_env(repeat.env)  # an env wrapped by another GACL model: reused, with this model's settings
     assert model.constraint_wrapper is repeat.constraint_wrapper and model.constraint_wrapper.termination_gamma is None
     assert model.constraint_wrapper.eps == model.log_d_eps == 1e-5
-    with pytest.raises(ValueError, match="`log_d_eps` must be in \\(0, 1\\), got 0"):
+    with pytest.raises(ValueError, match=r"`log_d_eps` must be in \(0, 1\), got 0"):
         GACL("MlpPolicy", make_env(), corridor_demonstrations(), log_d_eps=0.0)
     with pytest.raises(ValueError, match="`termination_reward` must be one of 'zero', 'repeat'"):
         GACL("MlpPolicy", make_env(), corridor_demonstrations(), termination_reward="budget")

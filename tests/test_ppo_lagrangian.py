@@ -352,20 +352,44 @@ def test_train_clips_the_actor_critic_and_the_cost_critic_apart(monkeypatch) -> 
         assert [id(p) for p in groups[1]] == [id(p) for p in cost_critic]
 
 
-def test_distribution_validation_is_restored_even_after_an_error():
-    """Inside the block a NaN mean builds a Normal (no check); outside, torch's default check raises again."""
+def test_distribution_validation_comes_back_after_nested_overlapping_and_failing_blocks():
+    """Off inside (a NaN mean builds a Normal), torch's setting back after the last block, even after an error."""
+    import threading
+
     from torch.distributions import Distribution, Normal
 
-    from sb3_icrl.common.policies import distribution_validation
+    from sb3_icrl.common.policies import no_distribution_validation
 
     nan = th.tensor([float("nan")])
     previous = Distribution._validate_args
-    with pytest.raises(RuntimeError, match="inside"), distribution_validation(False):
-        Normal(nan, th.ones(1))
-        raise RuntimeError("inside")
-    assert Distribution._validate_args == previous
-    with distribution_validation(True), pytest.raises(ValueError):
-        Normal(nan, th.ones(1))
+    Distribution.set_default_validate_args(True)
+    try:
+        with pytest.raises(RuntimeError, match="inside"), no_distribution_validation():
+            with no_distribution_validation():
+                Normal(nan, th.ones(1))
+            Normal(nan, th.ones(1))  # still off after the inner block
+            raise RuntimeError("inside")
+        with pytest.raises(ValueError):
+            Normal(nan, th.ones(1))
+        # Two threads whose blocks overlap (A enters, B enters, A leaves, B leaves): the checks come back on
+        entered, a_left = threading.Event(), threading.Event()
+        seen = []
+
+        def thread_b() -> None:
+            with no_distribution_validation():
+                entered.set()
+                a_left.wait()
+                seen.append(Distribution._validate_args)
+
+        with no_distribution_validation():
+            other = threading.Thread(target=thread_b)
+            other.start()
+            entered.wait()
+        a_left.set()
+        other.join()
+        assert seen == [False] and Distribution._validate_args is True
+    finally:
+        Distribution.set_default_validate_args(previous)
 
 
 def test_diverged_policy_fails_clearly_in_rollouts():
@@ -383,11 +407,16 @@ def test_diverged_policy_fails_clearly_in_rollouts():
 
 def test_diverged_critic_fails_clearly_in_the_update():
     """A NaN value turns the advantages and losses NaN: the update says so instead of training on."""
+    from torch.distributions import Distribution
+
     model = PPOLagrangian("MlpPolicy", PendulumWithCost(), seed=0, **TINY)
     with th.no_grad():
         model.policy.value_net.weight.fill_(float("nan"))
-    with pytest.raises(FloatingPointError, match=r"The losses of the update at step 32 \(.*value_loss.: nan.*are not finite"):
+    previous = Distribution._validate_args
+    message = r"The losses of the update at step 32 \(means: .*value_loss.: nan.*are not finite"
+    with pytest.raises(FloatingPointError, match=message):
         model.learn(32)
+    assert Distribution._validate_args == previous
 
 
 def test_callbacks_keep_torchs_distribution_checks():
@@ -406,6 +435,32 @@ def test_callbacks_keep_torchs_distribution_checks():
         def _on_rollout_end(self) -> None:
             self.settings.add(Distribution._validate_args)
 
-    callback = RecordSetting()
-    PPOLagrangian("MlpPolicy", PendulumWithCost(), seed=0, **TINY).learn(64, callback=callback)
-    assert callback.settings == {Distribution._validate_args}
+    previous = Distribution._validate_args
+    Distribution.set_default_validate_args(True)  # torch's default, also under python -O
+    try:
+        callback = RecordSetting()
+        model = PPOLagrangian("MlpPolicy", PendulumWithCost(), seed=0, **TINY)
+        # ... while the policy's own distributions, in rollouts and in the update, skip them
+        in_policy = set()
+        get_distribution = model.policy._get_action_dist_from_latent
+
+        def recording(*args, **kwargs):
+            in_policy.add(Distribution._validate_args)
+            return get_distribution(*args, **kwargs)
+
+        model.policy._get_action_dist_from_latent = recording
+        model.learn(64, callback=callback)
+        assert callback.settings == {True} and in_policy == {False}
+    finally:
+        Distribution.set_default_validate_args(previous)
+
+
+def test_target_kl_stop_on_a_non_finite_minibatch_is_not_divergence():
+    """A minibatch that target_kl stops before its step is not applied: its losses do not count as divergence."""
+    model = PPOLagrangian("MlpPolicy", PendulumWithCost(), seed=0, target_kl=0.01, **TINY)
+    model.learn(32)
+    # The old log-probabilities far below the new ones: the ratio overflows to inf, the KL too, and training stops
+    model.rollout_buffer.log_probs[:] = -1e6
+    model.rollout_buffer._sampling_tensors = None  # (made again from the fields)
+    model.train()  # no FloatingPointError
+    assert model.logger.name_to_value["train/policy_gradient_loss"] == float("inf")  # the stopped minibatch's loss

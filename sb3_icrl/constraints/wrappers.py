@@ -174,16 +174,34 @@ class GACLRewardWrapper(_StateActionVecEnvWrapper):
         termination_gamma: float | None = None,
     ):
         super().__init__(venv, cost_info_key=cost_info_key, true_cost_info_key=true_cost_info_key)
-        if not 0.0 < eps < 1.0:
-            raise ValueError(f"`eps` must be in (0, 1), got {eps}.")
-        if termination_gamma is not None and not 0.0 <= termination_gamma < 1.0:
-            raise ValueError(f"`termination_gamma` must be in [0, 1) or None, got {termination_gamma}.")
         self.termination_gamma = termination_gamma
         self.eps = eps
         self.env_reward_info_key = env_reward_info_key
         self.discriminator: DiscriminatorFn
         self.set_discriminator(discriminator)
         self._log_discriminator: np.ndarray | None = None
+
+    @property
+    def eps(self) -> float:
+        """Smallest ``D`` inside the log, in (0, 1) (checked on every assignment)."""
+        return self._eps
+
+    @eps.setter
+    def eps(self, eps: float) -> None:
+        if not 0.0 < eps < 1.0:
+            raise ValueError(f"`eps` must be in (0, 1), got {eps}: it is the smallest D inside log D.")
+        self._eps = float(eps)
+
+    @property
+    def termination_gamma(self) -> float | None:
+        """The discount that charges terminated episodes, in [0, 1), or ``None`` (checked on every assignment)."""
+        return self._termination_gamma
+
+    @termination_gamma.setter
+    def termination_gamma(self, termination_gamma: float | None) -> None:
+        if termination_gamma is not None and not 0.0 <= termination_gamma < 1.0:
+            raise ValueError(f"`termination_gamma` must be in [0, 1) or None, got {termination_gamma}.")
+        self._termination_gamma = termination_gamma
 
     def set_discriminator(self, discriminator: DiscriminatorFn) -> None:
         """

@@ -251,6 +251,8 @@ class ICRLAlgorithmMixin:
         """
         Apply this model's settings to its constraint wrapper: called on a new wrapper and on one reused from another
         model of the same kind, so that the reused one follows this model's settings, not the other's (none here).
+
+        :param wrapper: The constraint wrapper, new or reused
         """
 
     def _wrap_icrl_env(self) -> None:

@@ -25,7 +25,8 @@ from sb3_icrl.common.policies import (
     CostActorCriticPolicy,
     check_finite,
     clip_grad_norms_,
-    distribution_validation,
+    diverged_error,
+    no_distribution_validation,
     without_distribution_validation,
 )
 from sb3_icrl.common.saved import check_saved_algorithm, library_algorithm
@@ -392,7 +393,7 @@ class PPOLagrangian(PPO):
 
             with th.no_grad():
                 obs_tensor = obs_as_tensor(self._last_obs, self.device)  # type: ignore[arg-type]
-                with distribution_validation(False):
+                with no_distribution_validation():
                     action_tensor, log_probs = self.policy.act(obs_tensor)
             actions = action_tensor.cpu().numpy()
             check_finite(actions, "The policy's actions")
@@ -523,8 +524,8 @@ class PPOLagrangian(PPO):
     def train(self) -> None:
         """
         Update the multipliers on the latest constraint estimate, then the policy, reward critic and cost critic
-        on the rollout buffer. torch's distribution argument checks are off here (about a seventh of the update's time
-        for minibatches of 64, and they change no value); the losses are checked for NaN at the end instead.
+        on the rollout buffer. torch's distribution argument checks are off here (they change no value); the losses
+        of the minibatches applied are checked for NaN at the end instead.
         """
         assert self.lagrange_multiplier is not None
         self.policy.set_training_mode(True)
@@ -542,6 +543,7 @@ class PPOLagrangian(PPO):
         actor_critic_params = [param for group in self.policy.optimizer.param_groups for param in group["params"]]
         cost_critic_params = self.policy.cost_critic_parameters()
         every_param = actor_critic_params + cost_critic_params
+        applied_losses_finite = th.ones((), dtype=th.bool, device=self.device)  # a tensor: no sync per minibatch
 
         entropy_losses, pg_losses, value_losses, cost_value_losses, clip_fractions = [], [], [], [], []
         continue_training = True
@@ -608,6 +610,7 @@ class PPOLagrangian(PPO):
                 # What both optimisers' zero_grad() do (set_to_none), without their per-call overhead (~13 us)
                 for param in every_param:
                     param.grad = None
+                applied_losses_finite &= th.isfinite(loss)
                 loss.backward()
                 # Clip separately: the cost critic's gradients must not rescale the actor-critic's
                 clip_grad_norms_([actor_critic_params, cost_critic_params], self.max_grad_norm)
@@ -629,7 +632,8 @@ class PPOLagrangian(PPO):
             "value_loss": _mean(value_losses),
             "cost_value_loss": _mean(cost_value_losses),
         }
-        check_finite(np.array(list(losses.values())), f"The losses of the update at step {self.num_timesteps} ({losses})")
+        if not applied_losses_finite:  # (a minibatch that target_kl stopped before its step does not count)
+            raise diverged_error(f"The losses of the update at step {self.num_timesteps} (means: {losses})")
         for key, value in losses.items():
             self.logger.record(f"train/{key}", value)
         self.logger.record("train/approx_kl", _mean(approx_kl_divs))
