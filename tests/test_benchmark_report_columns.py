@@ -322,3 +322,54 @@ def test_beating_needs_more_reward_and_no_more_violations(reward, violation, exp
     cell = {"feasible_reward_mean": reward, "violation_rate_mean": violation}
     assert report.beats(cell, (1.0, 0.2)) is expected
     assert report.beats(cell, None) is None
+
+
+# ---------------------------------------------------------------- best models
+
+
+def test_report_of_best_models_evaluates_best_model_zip_with_its_own_cache(finished_suite, tmp_path, monkeypatch):
+    """
+    ``--model best``: each finished run's ``best_model.zip`` (a run without one left out, said so), cached beside the
+    final model's evaluation, never in its place; the tables say which models they show, and the README's table
+    labels the suite and does not count its compute twice.
+    """
+    suite, root, results = finished_suite
+    evaluated = []
+
+    def fake_evaluate_run(folder, steps, seed, load_best=False):
+        evaluated.append((os.path.relpath(folder, root), load_best))
+        feasible = 9.0 if load_best else 1.0
+        return RunResult(folder, "bc2l", "sb3_icrl/GridWorldWall-v0", 0, 100, 1.0, 0.0, feasible, feasible, 2)
+
+    monkeypatch.setattr(report, "evaluate_run", fake_evaluate_run)
+    with_best = [run for run in suite.runs() if run.seed == 0]
+    for run in with_best:
+        pathlib.Path(run.run_folder(root), "best_model.zip").write_bytes(b"")
+    logged = []
+    best = report.evaluate_finished(suite.runs(), root, suite, log=logged.append, model="best")
+    assert [run for run, _ in best] == with_best and all(result.feasible_reward == 9.0 for _, result in best)
+    assert sorted(evaluated) == sorted((os.path.relpath(run.run_folder(root), root), True) for run in with_best)
+    assert sum("has no best_model.zip" in line for line in logged) == len(suite.runs()) - len(with_best)
+    folder = with_best[0].run_folder(root)
+    assert os.path.isfile(os.path.join(folder, report.HELDOUT_BEST_FILE))
+    assert not os.path.isfile(os.path.join(folder, report.HELDOUT_FILE))
+    # Cached: a second report evaluates nothing; the final models' report has its own cache
+    evaluated.clear()
+    report.evaluate_finished(suite.runs(), root, suite, log=logged.append, model="best")
+    assert evaluated == []
+    report.evaluate_finished(with_best[:1], root, suite, log=logged.append)
+    assert evaluated == [(os.path.relpath(folder, root), False)]
+    with pytest.raises(ValueError, match="`model` must be one of final, best, got 'last'"):
+        report.evaluate_finished(suite.runs(), root, suite, model="last")
+
+    final_summary = summarise_suite(suite, suite.runs(), results, run_facts(results, root))
+    best_summary = summarise_suite(suite, suite.runs(), results, run_facts(results, root), model="best")
+    assert final_summary["model"] == "final" and best_summary["model"] == "best"
+    assert report.BEST_MODELS_NOTE in markdown_table(best_summary)
+    assert report.BEST_MODELS_NOTE not in markdown_table(final_summary)
+    write_report(final_summary, str(tmp_path / "results" / "final"))
+    write_report(best_summary, str(tmp_path / "results" / "best"))
+    readme = readme_table.table(tmp_path / "results").splitlines()
+    assert sum(line.startswith("| suite (best models) | ") for line in readme) == 4
+    assert sum(line.startswith("| suite | GridWorld") for line in readme) == 4
+    assert readme[-1] == "Compute: 2.1 core-hours over 7 runs (suite 2.1 over 7)."  # counted once

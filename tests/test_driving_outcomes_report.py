@@ -109,7 +109,7 @@ def test_a_cached_evaluation_missing_a_field_is_evaluated_again(suite, tmp_path,
     fresh = _result(run.algo, run.seed, _rates(0.0, 0.0, 1.0, 0.0))
     calls = []
 
-    def fake_evaluate(path, steps, seed):
+    def fake_evaluate(path, steps, seed, load_best=False):
         calls.append(path)
         return RunResult(**asdict(fresh))
 

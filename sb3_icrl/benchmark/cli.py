@@ -21,6 +21,7 @@ import time
 from typing import Any
 
 from sb3_icrl.benchmark.report import (
+    REPORT_MODELS,
     constraint_metrics,
     evaluate_finished,
     markdown_table,
@@ -67,7 +68,15 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
     run.add_argument("--address", default=None, help="Ray cluster address (--backend ray; default: start one here)")
     run.add_argument("--no-report", action="store_true", help="do not write the report once the runs are done")
     status.add_argument("-v", "--verbose", action="store_true", help="list the finished runs too")
-    report.add_argument("-o", "--output", default=None, help="report folder (default: <root>/<suite>/report)")
+    report.add_argument(
+        "-o", "--output", default=None, help="report folder (default: <root>/<suite>/report, report_best with --model best)"
+    )
+    report.add_argument(
+        "--model",
+        choices=REPORT_MODELS,
+        default="final",
+        help="evaluate each run's final model (default) or the best_model.zip its training chose on learned quantities",
+    )
     report.add_argument("--no-figures", action="store_true", help="tables only")
     commands.add_parser("list", help="the shipped suites")
     return parser
@@ -170,14 +179,15 @@ def status_command(args: argparse.Namespace) -> int:
 def report_command(args: argparse.Namespace) -> int:
     suite = _load_suite(args)
     runs = suite.select(_only(args.only))
-    results = evaluate_finished(runs, args.log_folder, suite)
+    model = getattr(args, "model", "final")  # (``benchmark run`` reports the final models)
+    results = evaluate_finished(runs, args.log_folder, suite, model=model)
     if not results and args.command == "report":
         raise SuiteError(
             f"No finished run of suite {suite.name!r} in {os.path.join(args.log_folder, suite.name)}: train them first with "
             f"`sb3-icrl benchmark run {args.suite} -f {args.log_folder}` (or check -f and --only)."
         )
-    summary = summarise_suite(suite, runs, results, constraint_metrics(results, args.log_folder))
-    output = args.output or os.path.join(args.log_folder, suite.name, "report")
+    summary = summarise_suite(suite, runs, results, constraint_metrics(results, args.log_folder, model=model), model=model)
+    output = args.output or os.path.join(args.log_folder, suite.name, "report" if model == "final" else "report_best")
     written = write_report(summary, output)
     if not args.no_figures:
         written += write_figures(summary, suite, args.log_folder, output)

@@ -38,6 +38,10 @@ BOOTSTRAP_REPS = 2000
 BOOTSTRAP_SEED = 0
 #: Held-out evaluation cached in each run folder
 HELDOUT_FILE = "heldout.json"
+#: The same for ``best_model.zip`` (``model="best"``)
+HELDOUT_BEST_FILE = "heldout_best.json"
+#: What a report can evaluate: each run's final model, or the best model its training chose on learned quantities
+REPORT_MODELS = ("final", "best")
 #: Steps per held-out episode when the env declares no time limit
 DEFAULT_EPISODE_STEPS = 1000
 #: Keys of ``finished.json`` holding a run's training time in seconds, the first present wins: a resumed run's
@@ -91,27 +95,35 @@ def heldout_steps(env_id: str, episodes: int) -> int:
 
 
 def evaluate_finished(
-    runs: Sequence[RunSpec], root: str, suite: Suite, log: Callable[[str], None] = print
+    runs: Sequence[RunSpec], root: str, suite: Suite, log: Callable[[str], None] = print, model: str = "final"
 ) -> list[tuple[RunSpec, RunResult]]:
     """
-    Held-out evaluation of every finished run (cached in the run folder as ``heldout.json``, keyed by the evaluation
-    settings, so a report is cheap to make again; a cache whose fields are not those of :class:`RunResult`, written
-    by another version, is evaluated again).
+    Held-out evaluation of every finished run (cached in the run folder as ``heldout.json``, ``heldout_best.json``
+    for the best model, keyed by the evaluation settings, so a report is cheap to make again; a cache whose fields are
+    not those of :class:`RunResult`, written by another version, is evaluated again).
 
     :param runs: The suite's runs
     :param root: The log root
     :param suite: The suite (evaluation episodes and seed)
     :param log: Where progress lines go
+    :param model: ``"final"``: each run's final model; ``"best"``: the ``best_model.zip`` its training chose on
+        learned quantities only (a run without one is left out, and said so)
     :return: ``(run, result)`` for each finished run
     """
+    if model not in REPORT_MODELS:
+        raise ValueError(f"`model` must be one of {', '.join(REPORT_MODELS)}, got {model!r}.")
+    best = model == "best"
     results = []
     for run in runs:
         folder = run.run_folder(root)
         if not is_finished(folder):
             continue
+        if best and not os.path.isfile(os.path.join(folder, "best_model.zip")):
+            log(f"{run.name} has no best_model.zip (trained without evaluations?): left out of the best models' report")
+            continue
         steps = heldout_steps(run.env_id, suite.eval_episodes)
-        cache = os.path.join(folder, HELDOUT_FILE)
-        settings = {"eval_seed": suite.eval_seed, "n_timesteps": steps}
+        cache = os.path.join(folder, HELDOUT_BEST_FILE if best else HELDOUT_FILE)
+        settings: dict[str, Any] = {"eval_seed": suite.eval_seed, "n_timesteps": steps, **({"model": model} if best else {})}
         cached = None
         if os.path.isfile(cache):
             with open(cache) as file:
@@ -123,8 +135,8 @@ def evaluate_finished(
             ):
                 cached = RunResult(**saved["result"])
         if cached is None:
-            log(f"evaluating {run.name} on {suite.eval_episodes} held-out episodes")
-            cached = evaluate_run(folder, steps, suite.eval_seed)
+            log(f"evaluating {run.name}{' (best model)' if best else ''} on {suite.eval_episodes} held-out episodes")
+            cached = evaluate_run(folder, steps, suite.eval_seed, load_best=best)
             atomic_write_json(cache, {"settings": settings, "result": asdict(cached)}, indent=2)
         cached.run = os.path.relpath(folder, root)
         results.append((run, cached))
@@ -132,7 +144,7 @@ def evaluate_finished(
 
 
 def constraint_metrics(
-    results: Sequence[tuple[RunSpec, RunResult]], root: str, log: Callable[[str], None] = print
+    results: Sequence[tuple[RunSpec, RunResult]], root: str, log: Callable[[str], None] = print, model: str = "final"
 ) -> dict[str, dict[str, float]]:
     """
     Per finished run, how well its learned constraint identifies the true one (ICRL runs: AUROC, and the threshold
@@ -144,9 +156,11 @@ def constraint_metrics(
     :param results: ``(run, held-out result)`` of the finished runs (:func:`evaluate_finished`)
     :param root: The log root
     :param log: Where progress lines and skipped runs go
+    :param model: ``"final"`` or ``"best"``: whose learned constraint is scored (transfer results are the final
+        model's, as ``sb3-icrl transfer`` wrote them)
     :return: ``{result.run: {column: value}}``
     """
-    from sb3_icrl.metrics.identification import IDENTIFICATION_FILE, headline, identify_run
+    from sb3_icrl.metrics.identification import headline, identification_file, identify_run
     from sb3_icrl.metrics.transfer import read_transfers
     from sb3_icrl.zoo.hyperparams import ICRL_ALGOS
 
@@ -155,10 +169,10 @@ def constraint_metrics(
         folder = os.path.join(root, result.run)
         entry = metrics.setdefault(result.run, {})
         if run.algo in ICRL_ALGOS:
-            if not os.path.isfile(os.path.join(folder, IDENTIFICATION_FILE)):
+            if not os.path.isfile(os.path.join(folder, identification_file(model))):
                 log(f"scoring the learned constraint of {run.name} against the true one")
             try:
-                entry.update(headline(identify_run(folder)["scores"]))
+                entry.update(headline(identify_run(folder, model=model)["scores"]))
             except Exception as error:  # a run that cannot be scored leaves its columns empty, not the report unwritten
                 log(f"no identification scores for {run.name}: {type(error).__name__}: {error}")
         for task, transfer in read_transfers(folder).items():
@@ -374,6 +388,7 @@ def summarise_suite(
     runs: Sequence[RunSpec],
     results: Sequence[tuple[RunSpec, RunResult]],
     metrics: dict[str, dict[str, float]] | None = None,
+    model: str = "final",
 ) -> dict[str, Any]:
     """
     Per cell (env, variant, algorithm): seeds, per-seed values, mean and std, IQM with its 95% bootstrap CI, the
@@ -391,6 +406,7 @@ def summarise_suite(
         Also the run's ``wall_time_s`` and ``expert_return`` (:func:`run_facts`): the cell sums the former into
         ``core_hours`` and averages the latter; a run without an ``expert_return`` there takes the dataset its variant
         settings name
+    :param model: Which model of each run ``results`` evaluated (``"final"`` or ``"best"``), recorded as ``model``
     :return: A JSON-ready summary
     """
     metrics = {name: dict(entry) for name, entry in (metrics or {}).items()}  # the caller's stays as it was
@@ -479,6 +495,7 @@ def summarise_suite(
     missing = [run.name for run in runs if run not in finished]
     return {
         "suite": suite.name,
+        "model": model,
         "description": suite.description,
         "eval_episodes": suite.eval_episodes,
         "eval_seed": suite.eval_seed,
@@ -505,6 +522,13 @@ def other_sources(summary: dict[str, Any]) -> list[str]:
     for cell in summary["cells"]:
         sources += [source for source in cell.get("others") or {} if source not in sources]
     return sources
+
+
+#: Under a report of best models: what they are
+BEST_MODELS_NOTE = (
+    "Models: each run's `best_model.zip`, chosen during training by the learned penalised reward (learned quantities "
+    "only; the true constraint is not used), not the final model."
+)
 
 
 def markdown_table(summary: dict[str, Any]) -> str:
@@ -545,6 +569,8 @@ def markdown_table(summary: dict[str, Any]) -> str:
             f"{format_hours(hours) if hours is not None else '-'} |"
         )
     lines += outcome_lines(summary)
+    if summary.get("model") == "best":
+        lines += ["", BEST_MODELS_NOTE]
     if summary["runs_missing"]:
         lines.append("")
         lines.append(f"Not finished yet ({len(summary['runs_missing'])}): " + ", ".join(summary["runs_missing"]))
@@ -740,7 +766,9 @@ def constraint_figures(summary: dict[str, Any], suite: Suite, root: str, output:
     written = []
     for (env_id, variant), runs in folders.items():
         try:
-            figure = methods_figure(runs, title=f"{env_name(env_id)} ({variant}): learned cost")
+            model = summary.get("model", "final")
+            suffix = " (best models)" if model == "best" else ""
+            figure = methods_figure(runs, title=f"{env_name(env_id)} ({variant}): learned cost{suffix}", model=model)
         except (ValueError, OSError):  # no feature threshold to draw against, or a run's files unreadable: no figure
             continue
         written.append(str(save_figure(figure, os.path.join(output, f"constraint_{env_name(env_id)}_{variant}.png"))))

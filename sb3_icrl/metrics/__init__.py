@@ -6,6 +6,7 @@ probe set built for evaluation only), and whether it transfers to new tasks (:mo
 """
 
 from sb3_icrl.metrics.identification import (
+    IDENTIFICATION_BEST_FILE,
     IDENTIFICATION_FILE,
     ProbeSet,
     ThresholdCrossing,
@@ -26,6 +27,7 @@ from sb3_icrl.metrics.transfer import DYNAMICS_NOISE, TASKS, read_transfers, run
 
 __all__ = [
     "DYNAMICS_NOISE",
+    "IDENTIFICATION_BEST_FILE",
     "IDENTIFICATION_FILE",
     "TASKS",
     "ProbeSet",

@@ -32,6 +32,18 @@ from sb3_icrl.common.utils import atomic_write_json
 
 #: Identification results cached in each run folder (keyed by their settings)
 IDENTIFICATION_FILE = "identification.json"
+#: The same for ``best_model.zip`` (``model="best"``), so that the final model's scores stay cached beside it
+IDENTIFICATION_BEST_FILE = "identification_best.json"
+
+
+def identification_file(model: str) -> str:
+    """
+    :param model: ``"final"``, ``"best"`` or a path to a model zip
+    :return: The file in the run folder that caches that model's scores
+    """
+    return IDENTIFICATION_BEST_FILE if model == "best" else IDENTIFICATION_FILE
+
+
 #: Bumped when the scores change meaning, so that cached results are computed again
 IDENTIFICATION_VERSION = 1
 #: Default bins of the expected calibration error
@@ -770,7 +782,8 @@ def identify_run(
     save: bool = True,
 ) -> dict[str, Any]:
     """
-    Identification scores of a finished ICRL run's learned constraint, cached in ``<run>/identification.json``.
+    Identification scores of a finished ICRL run's learned constraint, cached in ``<run>/identification.json``
+    (``identification_best.json`` for the best model).
 
     The probe set: the run's demonstrations, ``n_episodes`` of the learner's own episodes, ``n_episodes`` of an
     unconstrained PPO run's (``unconstrained_run``, or :func:`find_unconstrained_run`) and the sweep; the budget is
@@ -782,7 +795,7 @@ def identify_run(
     :param unconstrained_run: A PPO run folder on the same env (default: one found near the run, if any)
     :param seed: Seed of the episodes and draws
     :param use_cache: Return the cached result when its settings match and it is newer than the model
-    :param save: Write the result to ``<run>/identification.json``
+    :param save: Write the result to the cache
     :return: ``{"settings": ..., "scores": ...}`` (scores: see :func:`identification_scores`)
     """
     run, args = read_icrl_run(run_folder)
@@ -794,7 +807,7 @@ def identify_run(
         "seed": seed,
         "unconstrained_run": None if unconstrained is None else os.path.relpath(unconstrained.resolve(), run.resolve()),
     }
-    cache = run / IDENTIFICATION_FILE
+    cache = run / identification_file(model)
     if use_cache and cache.is_file():
         with open(cache) as file:
             saved = json.load(file)
@@ -831,17 +844,19 @@ def methods_figure(
     level: float | None = 0.5,
     title: str | None = None,
     n_episodes: int = 3,
+    model: str = "final",
 ) -> Any:
     """
     Per method, the learned cost over the constrained feature of one env (one line per seed, their mean), the true
     threshold marked: :func:`~sb3_icrl.plots.figures.methods_partial_dependence_figure` of the partial dependence
-    curves of :func:`identify_run` (computed once, then read from each run's ``identification.json``).
+    curves of :func:`identify_run` (computed once, then read from each run's cache).
 
     :param run_folders: ICRL run folders, all on one env
     :param feature: The constrained feature to plot (its name) when the env has several (default: the first)
     :param level: A level ``t`` drawn as a dotted line
     :param title: Figure title (default: the env)
     :param n_episodes: Learner episodes of the probe set, for runs not scored yet
+    :param model: ``"final"`` or ``"best"``: whose learned constraint
     :return: The figure
     """
     from sb3_icrl.plots.figures import methods_partial_dependence_figure
@@ -852,7 +867,7 @@ def methods_figure(
     envs: set[str] = set()
     chosen, threshold, op = feature, float("nan"), "<="
     for folder in run_folders:
-        result = identify_run(folder, n_episodes=n_episodes)
+        result = identify_run(folder, model=model, n_episodes=n_episodes)
         envs.add(result["env"])
         features = result["scores"].get("features", {})
         if not features:
