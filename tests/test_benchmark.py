@@ -179,6 +179,23 @@ def test_identification_text_names_a_cost_above_the_level_everywhere():
     assert _identification_text({}) == "-"
 
 
+def test_headline_keeps_everywhere_and_nowhere_apart_through_strict_json():
+    """Strict JSON writes both non-finite threshold errors as null: the crossing tells a summary read back which."""
+    import json
+
+    from sb3_icrl.benchmark.report import _identification_text, finite_or_null
+    from sb3_icrl.metrics.identification import headline
+
+    def scores(error: float) -> dict:
+        return {"auroc": 0.5, "features": {"x": {"at_0.5": {"threshold_error": error}}}}
+
+    rows = [headline(scores(error)) for error in (float("inf"), float("nan"), -1.25)]
+    assert [row["threshold_crossing"] for row in rows] == ["everywhere", "nowhere", "crosses"]
+    read_back = [json.loads(json.dumps(finite_or_null(row), allow_nan=False)) for row in rows]
+    assert [row["threshold_error"] for row in read_back] == [None, None, -1.25]
+    assert [_identification_text(row) for row in read_back] == ["0.50 / everywhere", "0.50 / -", "0.50 / -1.25"]
+
+
 def test_the_held_out_episode_length_goes_with_each_seed(tmp_path):
     suite = load_suite(write(tmp_path, TINY_SUITE))
     results = [(run, _result(run.algo, run.seed, 1.0, 0.0)) for run in suite.runs()]

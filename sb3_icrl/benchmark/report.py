@@ -145,7 +145,7 @@ def evaluate_finished(
 
 def constraint_metrics(
     results: Sequence[tuple[RunSpec, RunResult]], root: str, log: Callable[[str], None] = print, model: str = "final"
-) -> dict[str, dict[str, float]]:
+) -> dict[str, dict[str, Any]]:
     """
     Per finished run, how well its learned constraint identifies the true one (ICRL runs: AUROC, and the threshold
     error at ``t = 0.5`` where the constraint is a feature threshold; cached in the run folder as
@@ -164,7 +164,7 @@ def constraint_metrics(
     from sb3_icrl.metrics.transfer import read_transfers
     from sb3_icrl.zoo.hyperparams import ICRL_ALGOS
 
-    metrics = run_facts(results, root)
+    metrics: dict[str, dict[str, Any]] = {name: dict(facts) for name, facts in run_facts(results, root).items()}
     for run, result in results:
         folder = os.path.join(root, result.run)
         entry = metrics.setdefault(result.run, {})
@@ -224,7 +224,9 @@ def _identification_text(seed: dict[str, Any]) -> str:
     if "identification_auroc" not in seed:
         return "-"
     error = seed.get("threshold_error")
-    error_text = "everywhere" if error is not None and math.isinf(error) else _fmt(error, 2) if error is not None else "-"
+    # (a summary read back from JSON has null for both non-finite errors: its crossing tells them apart)
+    everywhere = seed.get("threshold_crossing") == "everywhere" or (error is not None and math.isinf(error))
+    error_text = "everywhere" if everywhere else _fmt(error, 2) if error is not None and math.isfinite(error) else "-"
     return f"{_fmt(seed['identification_auroc'], 2)} / {error_text}"
 
 
@@ -387,7 +389,7 @@ def summarise_suite(
     suite: Suite,
     runs: Sequence[RunSpec],
     results: Sequence[tuple[RunSpec, RunResult]],
-    metrics: dict[str, dict[str, float]] | None = None,
+    metrics: dict[str, dict[str, Any]] | None = None,
     model: str = "final",
 ) -> dict[str, Any]:
     """
@@ -669,6 +671,7 @@ def csv_rows(summary: dict[str, Any]) -> str:
             *OUTCOME_COLUMNS,
             "identification_auroc",
             "threshold_error",
+            "threshold_crossing",
             *TRANSFER_COLUMNS,
             "wall_time_s",
             "expert_return",
@@ -693,7 +696,10 @@ def csv_rows(summary: dict[str, Any]) -> str:
                     seed["n_episodes"],
                     _csv_number(seed.get("episode_length")),
                     *(_csv_number(seed.get(column)) for column in OUTCOME_COLUMNS),
-                    *(seed.get(column, "") for column in ("identification_auroc", "threshold_error", *TRANSFER_COLUMNS)),
+                    *(
+                        seed.get(column, "")
+                        for column in ("identification_auroc", "threshold_error", "threshold_crossing", *TRANSFER_COLUMNS)
+                    ),
                     seed.get("wall_time_s", ""),
                     *("" if value is None else value for value in (cell.get("expert_return"), *numbers)),
                 ]

@@ -19,6 +19,7 @@ The true label of a pair ``(s, a)`` is the true constraint evaluated on the stat
 """
 
 import json
+import math
 import os
 import pathlib
 from collections.abc import Callable, Mapping, Sequence
@@ -823,18 +824,23 @@ def identify_run(
     return result
 
 
-def headline(scores: Mapping[str, Any]) -> dict[str, float]:
+def headline(scores: Mapping[str, Any]) -> dict[str, float | str]:
     """
     The identification numbers a table shows: AUROC, and the threshold error at ``t = 0.5`` of the first constrained
-    feature (left out on grid worlds, whose constraint has no threshold).
+    feature with how the learned cost meets that level (left out on grid worlds, whose constraint has no threshold).
 
     :param scores: Scores of :func:`identification_scores` or :func:`grid_identification`
-    :return: ``{"identification_auroc": ..., "threshold_error": ...}``
+    :return: ``{"identification_auroc": ..., "threshold_error": ..., "threshold_crossing": ...}``, the crossing
+        ``"crosses"`` (a finite error), ``"everywhere"`` (the cost stays at or above 0.5 up to the safe end of the
+        range: an infinite error) or ``"nowhere"`` (it never reaches 0.5: NaN). Strict JSON writes both non-finite
+        errors as ``null``; the crossing keeps them apart.
     """
-    row = {"identification_auroc": float(scores["auroc"])}
+    row: dict[str, float | str] = {"identification_auroc": float(scores["auroc"])}
     features = list(scores.get("features", {}).values())
     if features:  # grid worlds have no threshold: no column rather than a NaN
-        row["threshold_error"] = float(features[0][_level_key("0.5")]["threshold_error"])
+        error = float(features[0][_level_key("0.5")]["threshold_error"])
+        row["threshold_error"] = error
+        row["threshold_crossing"] = "everywhere" if math.isinf(error) else "nowhere" if math.isnan(error) else "crosses"
     return row
 
 
