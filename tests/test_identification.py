@@ -157,7 +157,11 @@ def test_identification_separates_the_true_step_from_a_random_net_and_a_too_stri
     # Forbidding x <= 50 keeps every violation away too, but is no identification: the threshold is 53 m off
     assert strict["at_0.5"]["recall"] == 1.0 and strict["at_0.5"]["precision"] < 0.5
     assert strict["features"]["x_position"]["at_0.5"]["threshold_error"] == pytest.approx(53.0, abs=spacing)
-    assert headline(true) == {"identification_auroc": 1.0, "threshold_error": pytest.approx(0.0, abs=spacing)}
+    assert headline(true) == {
+        "identification_auroc": 1.0,
+        "threshold_error": pytest.approx(0.0, abs=spacing),
+        "threshold_crossing": "crosses",
+    }
 
 
 def test_scores_report_each_source_and_both_levels(expert):
