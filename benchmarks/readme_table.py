@@ -67,8 +67,13 @@ def table(results: pathlib.Path = RESULTS) -> str:
     scores = [line for summary in summaries if (line := scoreboard(summary))]
     if scores:
         lines += "\n" + "\n".join(scores) + "\n"
-    # A report of best models re-evaluates runs another summary already counts
-    timed = [s for s in summaries if s.get("core_hours") is not None and s.get("model", "final") == "final"]
+    # Each suite's runs once: a report of best models re-evaluates the runs its final-model report counts
+    finals = {s["suite"] for s in summaries if s.get("model", "final") == "final"}
+    timed = [
+        s
+        for s in summaries
+        if s.get("core_hours") is not None and (s.get("model", "final") == "final" or s["suite"] not in finals)
+    ]
     if timed:
         # Runs take one core each: the sum of their wall times
         total = sum(summary["core_hours"] for summary in timed)

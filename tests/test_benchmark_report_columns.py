@@ -361,6 +361,16 @@ def test_report_of_best_models_evaluates_best_model_zip_with_its_own_cache(finis
     assert evaluated == [(os.path.relpath(folder, root), False)]
     with pytest.raises(ValueError, match="`model` must be one of final, best, got 'last'"):
         report.evaluate_finished(suite.runs(), root, suite, model="last")
+    # A normalising run (final statistics in <EnvName>/) whose best model has no statistics of its own: left out
+    first = with_best[0]
+    stats = pathlib.Path(first.run_folder(root), first.env_id.split("/")[-1], "vecnormalize.pkl")
+    stats.write_bytes(b"")
+    logged.clear()
+    kept = report.evaluate_finished(suite.runs(), root, suite, log=logged.append, model="best")
+    assert first not in [run for run, _ in kept] and len(kept) == len(with_best) - 1
+    assert any("no normalisation statistics of its own" in line for line in logged)
+    pathlib.Path(first.run_folder(root), "best_model_vecnormalize.pkl").write_bytes(b"")
+    assert first in [run for run, _ in report.evaluate_finished(suite.runs(), root, suite, log=logged.append, model="best")]
 
     final_summary = summarise_suite(suite, suite.runs(), results, run_facts(results, root))
     best_summary = summarise_suite(suite, suite.runs(), results, run_facts(results, root), model="best")
@@ -373,3 +383,7 @@ def test_report_of_best_models_evaluates_best_model_zip_with_its_own_cache(finis
     assert sum(line.startswith("| suite (best models) | ") for line in readme) == 4
     assert sum(line.startswith("| suite | GridWorld") for line in readme) == 4
     assert readme[-1] == "Compute: 2.1 core-hours over 7 runs (suite 2.1 over 7)."  # counted once
+    # A suite committed only as a report of best models still counts
+    (tmp_path / "results" / "final" / "summary.json").unlink()
+    only_best = readme_table.table(tmp_path / "results").splitlines()
+    assert only_best[-1] == "Compute: 2.1 core-hours over 7 runs (suite 2.1 over 7)."

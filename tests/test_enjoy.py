@@ -100,8 +100,20 @@ def test_model_choice_and_statistics(logs: pathlib.Path, capsys) -> None:
     assert "No episode finished in 5 steps" in out
     assert enjoy_main(_enjoy(logs, "-n", "5", "--load-last-checkpoint", "--exp-id", "1")) == 0
     assert "rl_model_vecnormalize_256_steps.pkl" in capsys.readouterr().out
+    # The best model runs with the statistics saved with it (the final ones scale observations differently)
     assert enjoy_main(_enjoy(logs, "-n", "5", "--load-best", "--deterministic")) == 0
-    assert f"Loaded {run / 'best_model.zip'} with {run.resolve() / ENV / 'vecnormalize.pkl'}" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert f"Loaded {run / 'best_model.zip'} with {run.resolve() / 'best_model_vecnormalize.pkl'}" in out
+
+
+def test_a_best_model_saved_without_its_statistics_runs_with_the_final_ones_and_says_so(logs, tmp_path, capsys) -> None:
+    folder = tmp_path / "logs"
+    shutil.copytree(logs / "ppolag" / f"{ENV}_1", folder / "ppolag" / f"{ENV}_1")
+    run = folder / "ppolag" / f"{ENV}_1"
+    (run / "best_model_vecnormalize.pkl").unlink()  # a run from before they were saved with the best model
+    with pytest.warns(UserWarning, match="best_model.zip has no normalisation statistics of its own"):
+        assert enjoy_main(_enjoy(folder, "-n", "5", "--load-best")) == 0
+    assert f"with {run.resolve() / ENV / 'vecnormalize.pkl'}" in capsys.readouterr().out
 
 
 def test_latest_run_and_clear_errors(logs: pathlib.Path, tmp_path: pathlib.Path, capsys) -> None:
@@ -119,6 +131,7 @@ def test_latest_run_and_clear_errors(logs: pathlib.Path, tmp_path: pathlib.Path,
     assert enjoy_main(["--algo", "mecl", "--env", ENV, "-f", str(folder)]) == 2
     assert f"No mecl run of {ENV}" in capsys.readouterr().err
     (folder / "ppolag" / f"{ENV}_2" / ENV / "vecnormalize.pkl").unlink()
+    (folder / "ppolag" / f"{ENV}_2" / "best_model_vecnormalize.pkl").unlink()
     assert enjoy_main(_enjoy(folder, "--load-best")) == 2
     assert "statistics (vecnormalize.pkl) are missing" in capsys.readouterr().err
 

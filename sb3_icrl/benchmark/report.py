@@ -30,7 +30,7 @@ from sb3_icrl.common.evaluation import OUTCOME_KEYS, OUTCOME_RATE_KEYS
 from sb3_icrl.common.utils import atomic_write_bytes, atomic_write_json
 from sb3_icrl.zoo.compare import OUTCOME_TITLES, RunResult, evaluate_run, format_outcome_rate, summarise
 from sb3_icrl.zoo.hyperparams import env_name
-from sb3_icrl.zoo.runs import is_finished, read_finished
+from sb3_icrl.zoo.runs import BEST_VECNORMALIZE_FILE, is_finished, read_finished
 
 #: Bootstrap resamples of the confidence intervals
 BOOTSTRAP_REPS = 2000
@@ -106,8 +106,9 @@ def evaluate_finished(
     :param root: The log root
     :param suite: The suite (evaluation episodes and seed)
     :param log: Where progress lines go
-    :param model: ``"final"``: each run's final model; ``"best"``: the ``best_model.zip`` its training chose on
-        learned quantities only (a run without one is left out, and said so)
+    :param model: ``"final"``: each run's final model; ``"best"``: the ``best_model.zip`` its training chose by its
+        algorithm's selection score (ICRL methods: learned quantities only), run with the normalisation statistics
+        saved with it (a run without either is left out, and said so)
     :return: ``(run, result)`` for each finished run
     """
     if model not in REPORT_MODELS:
@@ -120,6 +121,17 @@ def evaluate_finished(
             continue
         if best and not os.path.isfile(os.path.join(folder, "best_model.zip")):
             log(f"{run.name} has no best_model.zip (trained without evaluations?): left out of the best models' report")
+            continue
+        if (
+            best
+            and os.path.isfile(os.path.join(folder, env_name(run.env_id), "vecnormalize.pkl"))
+            and not os.path.isfile(os.path.join(folder, BEST_VECNORMALIZE_FILE))
+        ):
+            # It would run on the final model's normalisation statistics: not the model that was chosen
+            log(
+                f"{run.name}: its best_model.zip has no normalisation statistics of its own (trained before they were "
+                "saved with it): left out of the best models' report"
+            )
             continue
         steps = heldout_steps(run.env_id, suite.eval_episodes)
         cache = os.path.join(folder, HELDOUT_BEST_FILE if best else HELDOUT_FILE)
@@ -156,8 +168,9 @@ def constraint_metrics(
     :param results: ``(run, held-out result)`` of the finished runs (:func:`evaluate_finished`)
     :param root: The log root
     :param log: Where progress lines and skipped runs go
-    :param model: ``"final"`` or ``"best"``: whose learned constraint is scored (transfer results are the final
-        model's, as ``sb3-icrl transfer`` wrote them)
+    :param model: ``"final"`` or ``"best"``: whose learned constraint is scored (cached in ``identification.json``
+        or ``identification_best.json``); transfer results, which ``sb3-icrl transfer`` computes for the final model,
+        are added to the final model's report only
     :return: ``{result.run: {column: value}}``
     """
     from sb3_icrl.metrics.identification import headline, identification_file, identify_run
@@ -175,7 +188,7 @@ def constraint_metrics(
                 entry.update(headline(identify_run(folder, model=model)["scores"]))
             except Exception as error:  # a run that cannot be scored leaves its columns empty, not the report unwritten
                 log(f"no identification scores for {run.name}: {type(error).__name__}: {error}")
-        for task, transfer in read_transfers(folder).items():
+        for task, transfer in (read_transfers(folder) if model == "final" else {}).items():
             entry[f"transfer_{task}_violation_rate"] = float(transfer["violation_rate"])
             entry[f"transfer_{task}_feasible_ratio"] = float(transfer["feasible_reward_ratio"])
     return metrics
@@ -528,8 +541,9 @@ def other_sources(summary: dict[str, Any]) -> list[str]:
 
 #: Under a report of best models: what they are
 BEST_MODELS_NOTE = (
-    "Models: each run's `best_model.zip`, chosen during training by the learned penalised reward (learned quantities "
-    "only; the true constraint is not used), not the final model."
+    "Models: each run's `best_model.zip`, chosen during training by its algorithm's selection score (for the ICRL "
+    "methods learned quantities only, never the true constraint), with the normalisation statistics saved with it; "
+    "not the final model."
 )
 
 
@@ -754,7 +768,8 @@ def write_report(summary: dict[str, Any], output: str) -> list[str]:
 def constraint_figures(summary: dict[str, Any], suite: Suite, root: str, output: str) -> list[str]:
     """
     Per env and variant: each method's learned cost over the constrained feature, one line per seed, the true threshold
-    marked (:func:`~sb3_icrl.metrics.identification.methods_figure`, from the runs' cached ``identification.json``).
+    marked (:func:`~sb3_icrl.metrics.identification.methods_figure`, from the runs' cached identification scores of the
+    summary's model).
     Written as ``constraint_<EnvName>_<variant>.png`` for the runs the report scored; none for envs whose constraint
     is not a threshold on a feature (the grid worlds).
 
@@ -770,10 +785,10 @@ def constraint_figures(summary: dict[str, Any], suite: Suite, root: str, output:
                 run = RunSpec(suite.name, cell["variant"], cell["algo"], cell["env"], int(seed["seed"]), 0)
                 folders.setdefault((cell["env"], cell["variant"]), []).append(run.run_folder(root))
     written = []
+    model = summary.get("model", "final")
+    suffix = " (best models)" if model == "best" else ""
     for (env_id, variant), runs in folders.items():
         try:
-            model = summary.get("model", "final")
-            suffix = " (best models)" if model == "best" else ""
             figure = methods_figure(runs, title=f"{env_name(env_id)} ({variant}): learned cost{suffix}", model=model)
         except (ValueError, OSError):  # no feature threshold to draw against, or a run's files unreadable: no figure
             continue

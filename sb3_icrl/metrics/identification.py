@@ -40,9 +40,14 @@ IDENTIFICATION_BEST_FILE = "identification_best.json"
 def identification_file(model: str) -> str:
     """
     :param model: ``"final"``, ``"best"`` or a path to a model zip
-    :return: The file in the run folder that caches that model's scores
+    :return: The file in the run folder that caches that model's scores (for a path: ``identification_<stem>.json``,
+        so that scoring a checkpoint does not replace the final model's cache)
     """
-    return IDENTIFICATION_BEST_FILE if model == "best" else IDENTIFICATION_FILE
+    if model == "final":
+        return IDENTIFICATION_FILE
+    if model == "best":
+        return IDENTIFICATION_BEST_FILE
+    return f"identification_{pathlib.Path(model).stem}.json"
 
 
 #: Bumped when the scores change meaning, so that cached results are computed again
@@ -784,7 +789,7 @@ def identify_run(
 ) -> dict[str, Any]:
     """
     Identification scores of a finished ICRL run's learned constraint, cached in ``<run>/identification.json``
-    (``identification_best.json`` for the best model).
+    (another file for the best model or a given zip: :func:`identification_file`).
 
     The probe set: the run's demonstrations, ``n_episodes`` of the learner's own episodes, ``n_episodes`` of an
     unconstrained PPO run's (``unconstrained_run``, or :func:`find_unconstrained_run`) and the sweep; the budget is

@@ -17,7 +17,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 
 from sb3_icrl.common.evaluation import evaluate_constraint
 from sb3_icrl.common.utils import atomic_save_model, atomic_save_npz, atomic_save_pickle
-from sb3_icrl.zoo.runs import CHECKPOINT_PATTERN
+from sb3_icrl.zoo.runs import BEST_VECNORMALIZE_FILE, CHECKPOINT_PATTERN
 from sb3_icrl.zoo.summary import evaluation_line, model_multiplier
 
 
@@ -414,6 +414,10 @@ class ConstraintEvalCallback(EvalCallback):
                 print(f"New best model (selection score {score:.3g})")
             if self.best_model_save_path is not None:
                 atomic_save_model(self.model, os.path.join(self.best_model_save_path, "best_model"))
+                # Its statistics as they are now: the final ones would run it on differently scaled observations
+                vec_normalize = self.model.get_vec_normalize_env()
+                if vec_normalize is not None:
+                    atomic_save_pickle(vec_normalize, os.path.join(self.best_model_save_path, BEST_VECNORMALIZE_FILE))
             if self.callback_on_new_best is not None:
                 return self.callback_on_new_best.on_step()
         return True

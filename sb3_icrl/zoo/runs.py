@@ -80,10 +80,15 @@ def check_trained_agent(path: str, algo: str) -> None:
         raise TrainedAgentError(f"{path!r} holds a {found} model, not a {algo} one: use --algo {found}.")
 
 
+#: The ``VecNormalize`` statistics saved with ``best_model.zip``, as they were when it was chosen
+BEST_VECNORMALIZE_FILE = "best_model_vecnormalize.pkl"
+
+
 def find_vecnormalize(model_path: str, name: str) -> str | None:
     """
-    The ``VecNormalize`` statistics saved with a model: a checkpoint's own (``<prefix>_vecnormalize_<steps>_steps.pkl``),
-    else the run's ``<EnvName>/vecnormalize.pkl``, else a ``vecnormalize.pkl`` beside the zip.
+    The ``VecNormalize`` statistics saved with a model: a checkpoint's own (``<prefix>_vecnormalize_<steps>_steps.pkl``)
+    or the best model's own (:data:`BEST_VECNORMALIZE_FILE`), else the run's ``<EnvName>/vecnormalize.pkl`` (the final
+    model's; for a best model saved before its own were, with a warning), else a ``vecnormalize.pkl`` beside the zip.
 
     :param model_path: The model zip
     :param name: The env name (folder name of the run's parameters)
@@ -94,8 +99,18 @@ def find_vecnormalize(model_path: str, name: str) -> str | None:
     match = CHECKPOINT_PATTERN.match(os.path.basename(model_path))
     if match:
         candidates.append(os.path.join(folder, f"{match['prefix']}_vecnormalize_{match['steps']}_steps.pkl"))
+    best = os.path.basename(model_path) == "best_model.zip"
+    if best:
+        candidates.append(os.path.join(folder, BEST_VECNORMALIZE_FILE))
     candidates += [os.path.join(folder, name, "vecnormalize.pkl"), os.path.join(folder, "vecnormalize.pkl")]
-    return next((path for path in candidates if os.path.isfile(path)), None)
+    found = next((path for path in candidates if os.path.isfile(path)), None)
+    if best and found is not None and os.path.basename(found) != BEST_VECNORMALIZE_FILE:
+        warnings.warn(
+            f"{model_path} has no normalisation statistics of its own ({BEST_VECNORMALIZE_FILE}: runs save them with "
+            f"the best model since they were added); running it with {found}, the final model's.",
+            stacklevel=2,
+        )
+    return found
 
 
 def run_vecnormalize(run: str, model_path: str, name: str) -> str | None:
