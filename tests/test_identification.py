@@ -161,7 +161,22 @@ def test_identification_separates_the_true_step_from_a_random_net_and_a_too_stri
         "identification_auroc": 1.0,
         "threshold_error": pytest.approx(0.0, abs=spacing),
         "threshold_crossing": "crosses",
+        "cost_budget": 0.1,
     }
+
+
+def test_headline_sets_the_learners_own_cost_beside_its_budget(expert):
+    """The learned cost on the learner's own pairs against its budget: the sign of a learner that ends episodes."""
+    probes = build_probe_set([X_LIMIT], {"expert": expert, "learner": expert}, n_sweep_values=11, n_sweep_states=5)
+    learner_x = probes.observations[probes.sources == "learner"][:, 0]
+    scores = identification_scores(step_cost(0.0), probes, [X_LIMIT], budget=0.25)  # too strict: x <= 0 costs 1
+    row = headline(scores)
+    assert row["learner_cost"] == pytest.approx(float(np.mean(learner_x <= 0.0)))
+    assert row["cost_budget"] == 0.25
+    # Without the learner's pairs or a budget, neither key
+    expert_only = build_probe_set([X_LIMIT], {"expert": expert}, n_sweep_values=11, n_sweep_states=5)
+    row = headline(identification_scores(step_cost(0.0), expert_only, [X_LIMIT]))
+    assert "learner_cost" not in row and "cost_budget" not in row
 
 
 def test_scores_report_each_source_and_both_levels(expert):

@@ -40,6 +40,8 @@ BOOTSTRAP_SEED = 0
 HELDOUT_FILE = "heldout.json"
 #: The same for ``best_model.zip`` (``model="best"``)
 HELDOUT_BEST_FILE = "heldout_best.json"
+#: The per-seed identification columns of ``runs.csv`` (:func:`~sb3_icrl.metrics.identification.headline`)
+IDENTIFICATION_COLUMNS = ("identification_auroc", "threshold_error", "threshold_crossing", "learner_cost", "cost_budget")
 #: What a report can evaluate: each run's final model, or the best model its training chose on learned quantities
 REPORT_MODELS = ("final", "best")
 #: Steps per held-out episode when the env declares no time limit
@@ -683,9 +685,7 @@ def csv_rows(summary: dict[str, Any]) -> str:
         [
             *header,
             *OUTCOME_COLUMNS,
-            "identification_auroc",
-            "threshold_error",
-            "threshold_crossing",
+            *IDENTIFICATION_COLUMNS,
             *TRANSFER_COLUMNS,
             "wall_time_s",
             "expert_return",
@@ -710,10 +710,7 @@ def csv_rows(summary: dict[str, Any]) -> str:
                     seed["n_episodes"],
                     _csv_number(seed.get("episode_length")),
                     *(_csv_number(seed.get(column)) for column in OUTCOME_COLUMNS),
-                    *(
-                        seed.get(column, "")
-                        for column in ("identification_auroc", "threshold_error", "threshold_crossing", *TRANSFER_COLUMNS)
-                    ),
+                    *(seed.get(column, "") for column in (*IDENTIFICATION_COLUMNS, *TRANSFER_COLUMNS)),
                     seed.get("wall_time_s", ""),
                     *("" if value is None else value for value in (cell.get("expert_return"), *numbers)),
                 ]

@@ -838,9 +838,16 @@ def headline(scores: Mapping[str, Any]) -> dict[str, float | str]:
     :return: ``{"identification_auroc": ..., "threshold_error": ..., "threshold_crossing": ...}``, the crossing
         ``"crosses"`` (a finite error), ``"everywhere"`` (the cost stays at or above 0.5 up to the safe end of the
         range: an infinite error) or ``"nowhere"`` (it never reaches 0.5: NaN). Strict JSON writes both non-finite
-        errors as ``null``; the crossing keeps them apart.
+        errors as ``null``; the crossing keeps them apart. Where the probe set has them, also ``learner_cost`` (the
+        mean learned cost per step on the learner's own pairs) and ``cost_budget`` (the learner's budget as the run
+        ended): a learner far over its budget wherever it goes tends to end its episodes early.
     """
     row: dict[str, float | str] = {"identification_auroc": float(scores["auroc"])}
+    learner = scores.get("sources", {}).get("learner")
+    if learner is not None:
+        row["learner_cost"] = float(learner["mean_cost"])
+    if "budget" in scores.get("levels", {}):
+        row["cost_budget"] = float(scores["levels"]["budget"])
     features = list(scores.get("features", {}).values())
     if features:  # grid worlds have no threshold: no column rather than a NaN
         error = float(features[0][_level_key("0.5")]["threshold_error"])
