@@ -4,6 +4,7 @@ import csv
 import io
 import json
 import os
+import pathlib
 import signal
 import subprocess
 import sys
@@ -391,3 +392,26 @@ def test_summary_json_is_strict_json(tmp_path):
     text = (tmp_path / "summary.json").read_text()
     assert "Infinity" not in text and "NaN" not in text
     assert json.loads(text)["cells"][0]["threshold_error_mean"] is None
+
+
+REPOSITORY = pathlib.Path(__file__).resolve().parents[1]
+STUDIES = sorted((REPOSITORY / "benchmarks" / "suites").glob("*.yml"))
+
+
+@pytest.mark.parametrize("path", STUDIES, ids=lambda path: path.stem)
+def test_study_suites_build_their_runs_on_tuning_seeds_and_have_a_written_rule(path):
+    """
+    The studies in benchmarks/suites decide recipes: each parses and builds every run's train.py arguments (a typo
+    would otherwise show only when its runs start), runs on the tuning seeds only, and is named in RESULTS.md, where
+    its rule is written before its runs.
+    """
+    suite = load_suite(str(path))
+    runs = suite.runs()
+    assert runs and all(run.train_argv("logs")[:2] == ["--algo", run.algo] for run in runs)
+    assert set(suite.seeds) <= {0, 1, 2}, f"{path.name}: a study decides on the tuning seeds 0, 1, 2 only"
+    results = (REPOSITORY / "benchmarks" / "RESULTS.md").read_text()
+    assert f"benchmarks/suites/{path.name}" in results, f"{path.name} has no section (and rule) in benchmarks/RESULTS.md"
+
+
+def test_there_are_study_suites():
+    assert {"walker_inputs", "gacl_termination", "highway_velocity_steps"} <= {path.stem for path in STUDIES}
