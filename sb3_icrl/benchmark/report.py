@@ -179,7 +179,7 @@ def constraint_metrics(
     from sb3_icrl.metrics.transfer import read_transfers
     from sb3_icrl.zoo.hyperparams import ICRL_ALGOS
 
-    metrics: dict[str, dict[str, Any]] = {name: dict(facts) for name, facts in run_facts(results, root).items()}
+    metrics = run_facts(results, root)
     for run, result in results:
         folder = os.path.join(root, result.run)
         entry = metrics.setdefault(result.run, {})
@@ -196,7 +196,7 @@ def constraint_metrics(
     return metrics
 
 
-def run_facts(results: Sequence[tuple[RunSpec, RunResult]], root: str) -> dict[str, dict[str, float]]:
+def run_facts(results: Sequence[tuple[RunSpec, RunResult]], root: str) -> dict[str, dict[str, Any]]:
     """
     Per finished run, its training time (``wall_time_s``, from ``finished.json``, see :func:`run_wall_time`) and the
     mean return of the demonstrations it learned from (``expert_return``, see :func:`demonstrations_source`; NaN when
@@ -207,7 +207,7 @@ def run_facts(results: Sequence[tuple[RunSpec, RunResult]], root: str) -> dict[s
     :return: ``{result.run: {column: value}}``
     """
     returns: dict[tuple[str, float | None], float | None] = {}  # one load per dataset, however many runs share it
-    facts: dict[str, dict[str, float]] = {}
+    facts: dict[str, dict[str, Any]] = {}
     for run, result in results:
         folder = os.path.join(root, result.run)
         entry: dict[str, float] = {}

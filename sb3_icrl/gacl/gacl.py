@@ -111,18 +111,18 @@ class GACL(ICRLAlgorithmMixin, PPO):
         return GACLRewardWrapper(venv, self.constraint_net.predict_feasibility)
 
     def _setup_model(self) -> None:
-        # Checked here too, not only by the wrapper: a model without an env never builds one
+        # Checked before the env is wrapped (and after ``load``, which sets it after the constructor); the wrapper's
+        # own check then covers a value assigned later
         _check_log_d_eps(self.log_d_eps)
         super()._setup_model()
 
     def _configure_constraint_wrapper(self, wrapper: VecEnvWrapper) -> None:
         assert isinstance(wrapper, GACLRewardWrapper)
-        wrapper.eps = _check_log_d_eps(self.log_d_eps)
+        wrapper.eps = self.log_d_eps
         wrapper.termination_gamma = self.gamma if self.termination_reward == "repeat" else None
 
 
-def _check_log_d_eps(log_d_eps: float) -> float:
-    """``log_d_eps``, checked: in (0, 1) (also after ``load``, which sets it after the constructor)."""
+def _check_log_d_eps(log_d_eps: float) -> None:
+    """Fail clearly unless ``log_d_eps`` is a number in (0, 1)."""
     if isinstance(log_d_eps, bool) or not isinstance(log_d_eps, (int, float)) or not 0.0 < log_d_eps < 1.0:
         raise ValueError(f"`log_d_eps` must be in (0, 1), got {log_d_eps!r}: it is the smallest D inside log D.")
-    return float(log_d_eps)
