@@ -22,13 +22,12 @@ from sb3_icrl.benchmark.report import (
     latex_table,
     markdown_table,
     run_facts,
-    run_wall_time,
     write_report,
 )
 from sb3_icrl.benchmark.suite import SuiteError
 from sb3_icrl.data import Trajectory, save
 from sb3_icrl.zoo.compare import RunResult
-from sb3_icrl.zoo.runs import FINISHED_FILE
+from sb3_icrl.zoo.runs import FINISHED_FILE, run_wall_time
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 spec = importlib.util.spec_from_file_location("readme_table", ROOT / "benchmarks" / "readme_table.py")

@@ -10,7 +10,16 @@ import yaml
 
 from sb3_icrl.zoo import enjoy
 from sb3_icrl.zoo import main as train_main
-from sb3_icrl.zoo.compare import RunFolderError, RunResult, check_runs, evaluate_run, main, recipe_differences, summarise
+from sb3_icrl.zoo.compare import (
+    RunFolderError,
+    RunResult,
+    check_runs,
+    evaluate_run,
+    main,
+    recipe_differences,
+    summarise,
+    training_wall_time,
+)
 from sb3_icrl.zoo.train import cli
 
 TINY = ["-n", "128", "-params", "n_steps:64", "batch_size:32", "--eval-freq", "-1", "--verbose", "0"]
@@ -38,6 +47,17 @@ def test_summary_means_stds_and_wilcoxon_by_seed() -> None:
     assert mecl["wilcoxon_pairs"] == 5 and mecl["wilcoxon_p"] == pytest.approx(2 / 32)
     assert "wilcoxon_p" not in summary["vicrl"] and summary["vicrl"]["feasible_reward_std"] == 0.0
     assert np.isnan(summarise([*results[:5], _result("mecl", 1, 10.0)], "vicrl")["mecl"]["wilcoxon_p"])  # no difference
+
+
+def test_training_wall_time_is_the_runs_own_record_not_the_time_it_was_stopped(tmp_path: pathlib.Path) -> None:
+    # A resumed run's monitor counts from the first start, across the hours the run was stopped
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "0.monitor.csv").write_text('#{"t_start": 0.0}\nr,l,t\n1.0,500,60.0\n2.0,500,7200.0\n')
+    assert training_wall_time(str(run)) == pytest.approx(120.0)
+    (run / "finished.json").write_text(json.dumps({"wall_time_s": 300.0, "wall_time_total_s": 1500.0}))
+    assert training_wall_time(str(run)) == pytest.approx(25.0)
+    assert np.isnan(training_wall_time(str(tmp_path / "missing")))
 
 
 def test_summary_rejects_two_runs_of_one_seed_and_an_absent_reference() -> None:

@@ -30,7 +30,7 @@ from sb3_icrl.common.evaluation import OUTCOME_KEYS, OUTCOME_RATE_KEYS
 from sb3_icrl.common.utils import atomic_write_bytes, atomic_write_json
 from sb3_icrl.zoo.compare import OUTCOME_TITLES, RunResult, evaluate_run, format_outcome_rate, summarise
 from sb3_icrl.zoo.hyperparams import env_name
-from sb3_icrl.zoo.runs import BEST_VECNORMALIZE_FILE, is_finished, read_finished
+from sb3_icrl.zoo.runs import BEST_VECNORMALIZE_FILE, is_finished, run_wall_time
 
 #: Bootstrap resamples of the confidence intervals
 BOOTSTRAP_REPS = 2000
@@ -46,9 +46,6 @@ IDENTIFICATION_COLUMNS = ("identification_auroc", "threshold_error", "threshold_
 REPORT_MODELS = ("final", "best")
 #: Steps per held-out episode when the env declares no time limit
 DEFAULT_EPISODE_STEPS = 1000
-#: Keys of ``finished.json`` holding a run's training time in seconds, the first present wins: a resumed run's
-#: ``wall_time_s`` may cover only its last segment, ``wall_time_total_s`` the whole run
-WALL_TIME_KEYS = ("wall_time_total_s", "wall_time_s")
 
 
 def iqm(scores: Sequence[float] | np.ndarray) -> float:
@@ -253,28 +250,6 @@ def _transfer_text(seed: dict[str, Any]) -> str:
             ratio = seed[f"transfer_{task}_feasible_ratio"]
             parts.append(f"{task} {100 * seed[f'transfer_{task}_violation_rate']:.0f}% / {_fmt(ratio, 2)}")
     return ", ".join(parts) or "-"
-
-
-def run_wall_time(folder: str | os.PathLike) -> float | None:
-    """
-    The training time of a finished run, from its ``finished.json`` (see :data:`WALL_TIME_KEYS`).
-
-    :param folder: The run folder
-    :return: Seconds; ``None`` when the run is not finished or its ``finished.json`` records no time
-    """
-    return finished_wall_time(read_finished(folder))
-
-
-def finished_wall_time(finished: dict[str, Any] | None) -> float | None:
-    """
-    :param finished: A run's ``finished.json`` (:func:`~sb3_icrl.zoo.runs.read_finished`)
-    :return: Its training time in seconds (see :data:`WALL_TIME_KEYS`), ``None`` when it records none
-    """
-    for key in WALL_TIME_KEYS:
-        value = finished.get(key) if finished is not None else None
-        if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value >= 0:
-            return float(value)
-    return None
 
 
 def demonstrations_source(run: RunSpec, folder: str | os.PathLike | None = None) -> tuple[str, float | None]:

@@ -11,10 +11,9 @@ from typing import Any
 
 import yaml
 
-from sb3_icrl.benchmark.report import finished_wall_time
 from sb3_icrl.benchmark.suite import RunSpec
 from sb3_icrl.zoo.hyperparams import env_name, load_hyperparams
-from sb3_icrl.zoo.runs import checkpoints, failure, is_finished, read_finished
+from sb3_icrl.zoo.runs import checkpoints, failure, finished_wall_time, is_finished, read_finished
 
 #: The states of a run, in the order the summary line counts them
 STATES = ("finished", "running", "interrupted", "failed", "not started")

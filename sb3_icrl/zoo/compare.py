@@ -33,7 +33,7 @@ from sb3_icrl.common.evaluation import OUTCOME_KEYS, OUTCOME_RATE_KEYS
 from sb3_icrl.common.utils import atomic_write_json
 from sb3_icrl.zoo import enjoy
 from sb3_icrl.zoo.hyperparams import ALGOS, env_name, import_gym_packages
-from sb3_icrl.zoo.runs import FINISHED_FILE, failure, is_finished
+from sb3_icrl.zoo.runs import FINISHED_FILE, failure, is_finished, run_wall_time
 from sb3_icrl.zoo.train import non_negative_int, positive_int
 
 
@@ -111,7 +111,14 @@ def describe_run(run: str) -> tuple[str, str, int, str]:
 
 
 def training_wall_time(run: str) -> float:
-    """Minutes from the training monitor's start to its last finished episode (``nan`` without a monitor file)."""
+    """
+    Minutes of training: the run's own record in ``finished.json`` (:func:`~sb3_icrl.zoo.runs.run_wall_time`, the
+    time spent training, whole across resumes), else the training monitor's time from its start to its last finished
+    episode (which also counts the time a resumed run was stopped), ``nan`` with neither.
+    """
+    seconds = run_wall_time(run)
+    if seconds is not None:
+        return seconds / 60.0
     path = os.path.join(run, "0.monitor.csv")
     if not os.path.isfile(path):
         return float("nan")

@@ -8,6 +8,7 @@ A run folder ``<folder>/<algo>/<EnvName>_<N>/`` holds ``<EnvName>.zip`` (final),
 """
 
 import json
+import math
 import os
 import re
 import warnings
@@ -152,6 +153,9 @@ def run_vecnormalize(run: str, model_path: str, name: str) -> str | None:
 
 #: Written (atomically) into a run folder once its training has run to the end; a run folder without it is unfinished
 FINISHED_FILE = "finished.json"
+#: Keys of ``finished.json`` holding a run's training time in seconds, the first present wins: a resumed run's
+#: ``wall_time_s`` may cover only its last segment, ``wall_time_total_s`` the whole run
+WALL_TIME_KEYS = ("wall_time_total_s", "wall_time_s")
 
 
 #: Written (atomically) into a run folder whose training raised an error; such a run has no final model
@@ -192,6 +196,28 @@ def read_finished(run: str | os.PathLike) -> dict[str, Any] | None:
     except (OSError, ValueError):
         return None
     return finished if isinstance(finished, dict) else None
+
+
+def run_wall_time(folder: str | os.PathLike) -> float | None:
+    """
+    The training time of a finished run, from its ``finished.json`` (see :data:`WALL_TIME_KEYS`).
+
+    :param folder: The run folder
+    :return: Seconds; ``None`` when the run is not finished or its ``finished.json`` records no time
+    """
+    return finished_wall_time(read_finished(folder))
+
+
+def finished_wall_time(finished: dict[str, Any] | None) -> float | None:
+    """
+    :param finished: A run's ``finished.json`` (:func:`~sb3_icrl.zoo.runs.read_finished`)
+    :return: Its training time in seconds (see :data:`WALL_TIME_KEYS`), ``None`` when it records none
+    """
+    for key in WALL_TIME_KEYS:
+        value = finished.get(key) if finished is not None else None
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value >= 0:
+            return float(value)
+    return None
 
 
 def checkpoints(run: str) -> list[tuple[int, str]]:
