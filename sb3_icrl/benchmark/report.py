@@ -30,7 +30,7 @@ from sb3_icrl.common.evaluation import OUTCOME_KEYS, OUTCOME_RATE_KEYS
 from sb3_icrl.common.utils import atomic_write_bytes, atomic_write_json
 from sb3_icrl.zoo.compare import OUTCOME_TITLES, RunResult, evaluate_run, format_outcome_rate, summarise
 from sb3_icrl.zoo.hyperparams import env_name
-from sb3_icrl.zoo.runs import BEST_VECNORMALIZE_FILE, is_finished, run_wall_time
+from sb3_icrl.zoo.runs import find_vecnormalize, is_finished, lacks_own_statistics, run_wall_time
 
 #: Bootstrap resamples of the confidence intervals
 BOOTSTRAP_REPS = 2000
@@ -121,11 +121,8 @@ def evaluate_finished(
         if best and not os.path.isfile(os.path.join(folder, "best_model.zip")):
             log(f"{run.name} has no best_model.zip (trained without evaluations?): left out of the best models' report")
             continue
-        if (
-            best
-            and os.path.isfile(os.path.join(folder, env_name(run.env_id), "vecnormalize.pkl"))
-            and not os.path.isfile(os.path.join(folder, BEST_VECNORMALIZE_FILE))
-        ):
+        best_path = os.path.join(folder, "best_model.zip")
+        if best and lacks_own_statistics(best_path, find_vecnormalize(best_path, env_name(run.env_id), warn=False)):
             # It would run on the final model's normalisation statistics: not the model that was chosen
             log(
                 f"{run.name}: its best_model.zip has no normalisation statistics of its own (trained before they were "

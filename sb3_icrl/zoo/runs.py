@@ -85,7 +85,7 @@ def check_trained_agent(path: str, algo: str) -> None:
 BEST_VECNORMALIZE_FILE = "best_model_vecnormalize.pkl"
 
 
-def find_vecnormalize(model_path: str, name: str) -> str | None:
+def find_vecnormalize(model_path: str, name: str, warn: bool = True) -> str | None:
     """
     The ``VecNormalize`` statistics saved with a model: a checkpoint's own (``<prefix>_vecnormalize_<steps>_steps.pkl``)
     or the best model's own (:data:`BEST_VECNORMALIZE_FILE`), else the run's ``<EnvName>/vecnormalize.pkl`` (the final
@@ -93,6 +93,8 @@ def find_vecnormalize(model_path: str, name: str) -> str | None:
 
     :param model_path: The model zip
     :param name: The env name (folder name of the run's parameters)
+    :param warn: Warn when a best model would run on the final model's statistics (callers that leave such a model
+        out check :func:`lacks_own_statistics` themselves)
     :return: The path, or ``None`` when there is none
     """
     folder = os.path.dirname(os.path.abspath(model_path))
@@ -105,13 +107,26 @@ def find_vecnormalize(model_path: str, name: str) -> str | None:
         candidates.append(os.path.join(folder, BEST_VECNORMALIZE_FILE))
     candidates += [os.path.join(folder, name, "vecnormalize.pkl"), os.path.join(folder, "vecnormalize.pkl")]
     found = next((path for path in candidates if os.path.isfile(path)), None)
-    if best and found is not None and os.path.basename(found) != BEST_VECNORMALIZE_FILE:
+    if best and warn and lacks_own_statistics(model_path, found):
         warnings.warn(
             f"{model_path} has no normalisation statistics of its own ({BEST_VECNORMALIZE_FILE}: runs save them with "
             f"the best model since they were added); running it with {found}, the final model's.",
             stacklevel=2,
         )
     return found
+
+
+def lacks_own_statistics(model_path: str, stats_path: str | None) -> bool:
+    """
+    Whether a best model would run on statistics that are not its own: :func:`find_vecnormalize` found some, but not
+    :data:`BEST_VECNORMALIZE_FILE` (a best model saved before runs saved its statistics with it). Such a model runs on
+    the final model's statistics, i.e. not as it was when it was chosen.
+
+    :param model_path: The best model's zip
+    :param stats_path: What :func:`find_vecnormalize` found for it
+    """
+    own = os.path.join(os.path.dirname(os.path.abspath(model_path)), BEST_VECNORMALIZE_FILE)
+    return stats_path is not None and os.path.abspath(stats_path) != own
 
 
 def run_vecnormalize(run: str, model_path: str, name: str) -> str | None:
