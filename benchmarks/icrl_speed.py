@@ -1,8 +1,8 @@
 """
-Training speed of PPO, PPOLagrangian, MECL and VICRL on BlockedHalfCheetah-v0 at the same settings, and where the
-time goes.
+Training speed of PPO, PPOLagrangian, MECL and VICRL on a benchmark env (BlockedHalfCheetah-v0 unless ``--env``) at
+the same settings, and where the time goes.
 
-All four use the PPO settings of the shipped BlockedHalfCheetah VICRL recipe (``zoo_hyperparams/vicrl.yml``: envs,
+All four use the PPO settings of the env's shipped VICRL recipe (``zoo_hyperparams/vicrl.yml``: envs,
 rollout length, minibatch, epochs, networks) and the same VecEnv stack as ``train.py`` (DummyVecEnv, Monitor,
 VecNormalize). PPO is SB3's; PPOLagrangian learns on the env's true cost with the recipe's PID multiplier; MECL and
 VICRL are their full recipes on the shipped demonstrations. Runs are interleaved (PPO, PPOLag, MECL, VICRL, PPO, ...)
@@ -14,6 +14,7 @@ coverage line says how closely; the timers cost about 1 us a call).
 
     python benchmarks/icrl_speed.py --steps 20480 --repeats 2
     python benchmarks/icrl_speed.py --steps 10240 -params n_envs:1 n_steps:512   # the recipe's settings overridden
+    python benchmarks/icrl_speed.py --env BlockedAnt-v0 --steps 20480            # another env's recipes
 """
 
 import argparse
@@ -37,7 +38,7 @@ from sb3_icrl.icrl.recorder import TrajectoryRecorderVecEnvWrapper
 from sb3_icrl.zoo.hyperparams import algo_kwargs, load_hyperparams, preprocess_hyperparams, resolve_env_id
 from sb3_icrl.zoo.train import StoreDict, create_env
 
-ENV_ID = "BlockedHalfCheetah-v0"
+DEFAULT_ENV = "BlockedHalfCheetah-v0"
 ALGOS = ("ppo", "ppolag", "mecl", "vicrl")
 #: The PPO settings every algorithm shares; the rest of an ICRL entry (constraint model, trainer) is the algorithm's
 PPO_KEYS = (
@@ -176,17 +177,18 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=20480, help="env steps per run (a multiple of n_envs x n_steps)")
     parser.add_argument("--repeats", type=int, default=2, help="interleaved rounds of the four algorithms")
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
+    parser.add_argument("--env", default=DEFAULT_ENV, help="a benchmark env with shipped demonstrations and recipes")
     parser.add_argument("--algos", nargs="+", default=list(ALGOS), choices=ALGOS)
     parser.add_argument("-params", "--hyperparams", nargs="+", type=str, action=StoreDict, default={}, help="overrides k:v")
     args = parser.parse_args()
     th.set_num_threads(args.threads)
-    env_id = resolve_env_id(ENV_ID)
+    env_id = resolve_env_id(args.env)
     params = recipe(env_id, args.hyperparams)
-    demos = load_demonstrations(ENV_ID)
+    demos = load_demonstrations(args.env)
     shared = params["vicrl"]
     print(
-        f"{ENV_ID}: n_envs {shared['n_envs']}, n_steps {shared['n_steps']}, batch_size {shared['batch_size']}, "
-        f"n_epochs {shared['n_epochs']}, {args.steps} steps per run, torch threads {args.threads}",
+        f"{args.env}: n_envs {shared['n_envs']}, n_steps {shared['n_steps']}, batch_size {shared['batch_size']}, "
+        f"n_epochs {shared.get('n_epochs', 'SB3 default')}, {args.steps} steps per run, torch threads {args.threads}",
         flush=True,
     )
 

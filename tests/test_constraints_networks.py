@@ -179,12 +179,13 @@ def test_cvar_matches_the_tail_mean_by_integration(alpha, beta, confidence):
     assert cvar == pytest.approx(tail_mean, rel=1e-6)
 
 
+@pytest.mark.parametrize("obs_select_dim", [[0, 3], [3, 0], None, [0, 1, 2, 3, 4]])
 @pytest.mark.parametrize("activation_fn", [nn.ReLU, nn.Tanh, nn.LeakyReLU, nn.ELU, nn.Sigmoid])
 @pytest.mark.parametrize("net_class", [FeasibilityNet, BetaFeasibilityNet])
-def test_numpy_cost_equals_torch_forward(net_class, activation_fn):
-    """The per-step NumPy path gives the torch forward pass's feasibility, for every activation it knows."""
+def test_numpy_cost_equals_torch_forward(net_class, activation_fn, obs_select_dim):
+    """The per-step NumPy path gives the torch forward pass's feasibility, for every activation and feature choice."""
     rng = np.random.default_rng(0)
-    net = net_class(5, 2, hidden_sizes=[16, 8], activation_fn=activation_fn, obs_select_dim=[0, 3], clip_input=2.0)
+    net = net_class(5, 2, hidden_sizes=[16, 8], activation_fn=activation_fn, obs_select_dim=obs_select_dim, clip_input=2.0)
     expert_obs, expert_acts = rng.normal(size=(200, 5)), rng.normal(size=(200, 2))
     net.fit_normalizer(expert_obs, expert_acts)
     obs, acts = 3 * rng.normal(size=(4, 5)), rng.normal(size=(4, 2))  # some inputs clipped by the normaliser

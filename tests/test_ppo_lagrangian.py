@@ -464,3 +464,48 @@ def test_target_kl_stop_on_a_non_finite_minibatch_is_not_divergence():
     model.rollout_buffer._sampling_tensors = None  # (made again from the fields)
     model.train()  # no FloatingPointError
     assert model.logger.name_to_value["train/policy_gradient_loss"] == float("inf")  # the stopped minibatch's loss
+
+
+@pytest.mark.parametrize("batch", [1, 3])
+@pytest.mark.parametrize("deterministic", [False, True])
+def test_act_computes_what_sb3s_gaussian_distribution_computes(batch: int, deterministic: bool) -> None:
+    # The rollouts' actor skips SB3's distribution objects for a diagonal Gaussian: same actions, log-probabilities
+    # and draws from the random generator, bit for bit
+    env = gym.make("sb3_icrl/BlockedAnt-v0")  # 8-d actions
+    policy = PPOLagrangian("MlpPolicy", env, seed=0, **TINY).policy
+    with th.no_grad():
+        policy.log_std.fill_(-0.7)
+    obs = th.as_tensor(np.stack([env.observation_space.sample() for _ in range(batch)]), dtype=th.float32)
+
+    def sb3_act() -> tuple[th.Tensor, th.Tensor]:
+        features = super(ActorCriticPolicy, policy).extract_features(obs, policy.pi_features_extractor)
+        distribution = policy._get_action_dist_from_latent(policy.mlp_extractor.forward_actor(features))
+        actions = distribution.get_actions(deterministic=deterministic)
+        return actions, distribution.log_prob(actions)
+
+    with th.no_grad():
+        th.manual_seed(3)
+        expected = [sb3_act() for _ in range(3)], th.rand(4)
+        th.manual_seed(3)
+        got = [policy.act(obs, deterministic=deterministic) for _ in range(3)], th.rand(4)
+    for (actions, log_prob), (want_actions, want_log_prob) in zip(got[0], expected[0], strict=True):
+        assert actions.shape == (batch, 8) and log_prob.shape == (batch,)
+        assert th.equal(actions, want_actions) and th.equal(log_prob, want_log_prob)
+    assert th.equal(got[1], expected[1])  # the generator is where SB3's path leaves it
+    assert deterministic or not th.equal(got[0][0][0], got[0][1][0])  # samples, not the mean
+
+
+def test_lean_actor_trains_exactly_as_sb3s_distribution_path(monkeypatch) -> None:
+    def via_distribution(policy: CostActorCriticPolicy, mean: th.Tensor, deterministic: bool):
+        distribution = policy.action_dist.proba_distribution(mean, policy.log_std)
+        actions = distribution.get_actions(deterministic=deterministic)
+        return actions, distribution.log_prob(actions)
+
+    def run() -> list[th.Tensor]:
+        model = PPOLagrangian("MlpPolicy", PendulumWithCost(), n_steps=64, batch_size=16, n_epochs=2, seed=3)
+        return [param.detach().clone() for param in model.learn(256).policy.parameters()]
+
+    lean = run()
+    monkeypatch.setattr(CostActorCriticPolicy, "_diag_gaussian_act", via_distribution)
+    reference = run()
+    assert all(th.equal(mine, theirs) for mine, theirs in zip(lean, reference, strict=True))

@@ -2,6 +2,7 @@
 
 import contextlib
 import functools
+import math
 import threading
 from collections.abc import Callable, Iterator, Sequence
 from functools import partial
@@ -10,6 +11,7 @@ from typing import Any, TypeVar
 import numpy as np
 import torch as th
 from gymnasium import spaces
+from stable_baselines3.common.distributions import DiagGaussianDistribution
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, NatureCNN, create_mlp
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
@@ -228,10 +230,34 @@ class CostActorCriticPolicy(ActorCriticPolicy):
         :return: Actions and their log-probabilities
         """
         features = super(ActorCriticPolicy, self).extract_features(obs, self.pi_features_extractor)
-        distribution = self._get_action_dist_from_latent(self.mlp_extractor.forward_actor(features))
-        actions = distribution.get_actions(deterministic=deterministic)
-        log_prob = distribution.log_prob(actions)
+        latent = self.mlp_extractor.forward_actor(features)
+        if type(self.action_dist) is DiagGaussianDistribution:
+            actions, log_prob = self._diag_gaussian_act(self.action_net(latent), deterministic)
+        else:
+            distribution = self._get_action_dist_from_latent(latent)
+            actions = distribution.get_actions(deterministic=deterministic)
+            log_prob = distribution.log_prob(actions)
         return actions.reshape((-1, *self.action_space.shape)), log_prob  # type: ignore[misc]
+
+    def _diag_gaussian_act(self, mean: th.Tensor, deterministic: bool) -> tuple[th.Tensor, th.Tensor]:
+        """
+        What SB3's ``DiagGaussianDistribution`` computes for ``get_actions`` and ``log_prob``, operation for operation
+        (the same values and the same draws from the random generator), without building its distribution objects:
+        at a rollout's batch of one or a few observations, building them costs more than the actor's matmuls.
+
+        :param mean: The action means, ``(batch, action_dim)``
+        :param deterministic: Whether to return the means instead of samples
+        :return: Actions and their log-probabilities (summed over action dimensions)
+        """
+        std = th.ones_like(mean) * self.log_std.exp()
+        if deterministic:
+            actions = mean
+        else:
+            # torch's Normal.rsample: loc + eps * scale, eps from empty(shape).normal_()
+            actions = mean + th.empty(mean.shape, dtype=mean.dtype, device=mean.device).normal_() * std
+        # torch's Normal.log_prob, summed over the action dimensions as SB3's sum_independent_dims does
+        log_prob = -((actions - mean) ** 2) / (2 * std**2) - std.log() - math.log(math.sqrt(2 * math.pi))
+        return actions, log_prob.sum(dim=1) if log_prob.dim() > 1 else log_prob.sum()
 
     def predict_all_values(self, obs: PyTorchObs) -> tuple[th.Tensor, th.Tensor]:
         """
