@@ -487,7 +487,11 @@ def test_act_computes_what_sb3s_gaussian_distribution_computes(batch: int, deter
         th.manual_seed(3)
         expected = [sb3_act() for _ in range(3)], th.rand(4)
         th.manual_seed(3)
+        lean = policy._diag_gaussian_act
+        calls = []
+        policy._diag_gaussian_act = lambda *args: calls.append(1) or lean(*args)  # the lean path is the one taken
         got = [policy.act(obs, deterministic=deterministic) for _ in range(3)], th.rand(4)
+    assert len(calls) == 3
     for (actions, log_prob), (want_actions, want_log_prob) in zip(got[0], expected[0], strict=True):
         assert actions.shape == (batch, 8) and log_prob.shape == (batch,)
         assert th.equal(actions, want_actions) and th.equal(log_prob, want_log_prob)
@@ -509,3 +513,20 @@ def test_lean_actor_trains_exactly_as_sb3s_distribution_path(monkeypatch) -> Non
     monkeypatch.setattr(CostActorCriticPolicy, "_diag_gaussian_act", via_distribution)
     reference = run()
     assert all(th.equal(mine, theirs) for mine, theirs in zip(lean, reference, strict=True))
+
+
+def test_a_policy_that_builds_its_own_distribution_keeps_it_in_rollouts() -> None:
+    # A subclass that changes the distribution in _get_action_dist_from_latent: rollouts must sample from it, so that
+    # the stored log-probabilities are those the update computes again
+    class ClampedStd(CostActorCriticPolicy):
+        def _get_action_dist_from_latent(self, latent_pi: th.Tensor):
+            return self.action_dist.proba_distribution(self.action_net(latent_pi), self.log_std.clamp(min=-1.0))
+
+    space = gym.spaces.Box(-1.0, 1.0, (4,))
+    policy = ClampedStd(space, gym.spaces.Box(-1.0, 1.0, (2,)), lambda _: 1e-3, log_std_init=-3.0)
+    obs = th.as_tensor(np.stack([space.sample() for _ in range(3)]))
+    with th.no_grad():
+        actions, log_prob = policy.act(obs)
+        _, expected, _ = policy.evaluate_actions(obs, actions)
+    th.testing.assert_close(log_prob, expected)
+    assert not policy._plain_diag_gaussian()

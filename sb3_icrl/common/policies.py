@@ -223,7 +223,9 @@ class CostActorCriticPolicy(ActorCriticPolicy):
         """
         The actor half of ``forward``: sample actions and their log-probabilities without running the critics
         (rollouts compute the values of all their observations in one batch afterwards). Consumes the random
-        generator exactly as ``forward`` does.
+        generator exactly as ``forward`` does. A plain diagonal Gaussian is computed without distribution objects
+        (:meth:`_diag_gaussian_act`), so torch's argument checks do not run there: the caller checks the actions
+        (PPOLagrangian's rollouts do).
 
         :param obs: Observation batch
         :param deterministic: Whether to use deterministic actions
@@ -231,13 +233,25 @@ class CostActorCriticPolicy(ActorCriticPolicy):
         """
         features = super(ActorCriticPolicy, self).extract_features(obs, self.pi_features_extractor)
         latent = self.mlp_extractor.forward_actor(features)
-        if type(self.action_dist) is DiagGaussianDistribution:
+        if self._plain_diag_gaussian():
             actions, log_prob = self._diag_gaussian_act(self.action_net(latent), deterministic)
         else:
             distribution = self._get_action_dist_from_latent(latent)
             actions = distribution.get_actions(deterministic=deterministic)
             log_prob = distribution.log_prob(actions)
         return actions.reshape((-1, *self.action_space.shape)), log_prob  # type: ignore[misc]
+
+    def _plain_diag_gaussian(self) -> bool:
+        """
+        Whether the actor is SB3's diagonal Gaussian as SB3 builds it: the distribution class itself (not gSDE or a
+        squashed one), and ``_get_action_dist_from_latent`` not replaced by a subclass or on the instance (a policy
+        that changes its distribution there must keep its own way in rollouts too).
+        """
+        return (
+            type(self.action_dist) is DiagGaussianDistribution
+            and type(self)._get_action_dist_from_latent is ActorCriticPolicy._get_action_dist_from_latent
+            and "_get_action_dist_from_latent" not in vars(self)
+        )
 
     def _diag_gaussian_act(self, mean: th.Tensor, deterministic: bool) -> tuple[th.Tensor, th.Tensor]:
         """
