@@ -118,10 +118,10 @@ def evaluate_finished(
         folder = run.run_folder(root)
         if not is_finished(folder):
             continue
-        if best and not os.path.isfile(os.path.join(folder, "best_model.zip")):
+        best_path = os.path.join(folder, "best_model.zip")
+        if best and not os.path.isfile(best_path):
             log(f"{run.name} has no best_model.zip (trained without evaluations?): left out of the best models' report")
             continue
-        best_path = os.path.join(folder, "best_model.zip")
         if best and lacks_own_statistics(best_path, find_vecnormalize(best_path, env_name(run.env_id), warn=False)):
             # It would run on the final model's normalisation statistics: not the model that was chosen
             log(
