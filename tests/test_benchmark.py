@@ -267,6 +267,35 @@ def test_figures_follow_the_cells_the_report_keeps(tmp_path, monkeypatch):
     assert [os.path.basename(path) for path in written] == ["curves_GridWorldWall-v0_base.png"]
 
 
+def test_an_updated_report_draws_the_rerun_methods_and_says_so(tmp_path, monkeypatch):
+    """``report --update``: the figures of the re-run cells' envs show those methods, titled as such; others stay."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    import sb3_icrl.plots.figures as figures
+    from sb3_icrl.benchmark.report import write_figures
+
+    text = TINY_SUITE.replace("envs: [GridWorldWall-v0]", "envs: [GridWorldWall-v0, GridWorldSquare-v0]")
+    suite = load_suite(write(tmp_path, text))
+    summary = summarise_suite(suite, suite.runs(), [(run, _result(run.algo, run.seed, 1.0, 0.0)) for run in suite.runs()])
+    drawn = []
+    monkeypatch.setattr(figures, "load_runs", lambda folder, algos, env_id, skip_missing: drawn.append((env_id, algos)) or [])
+    titles = []
+    monkeypatch.setattr(figures, "training_curves_figure", lambda runs, title: titles.append(title) or Figure())
+    rerun = [run.name for run in suite.runs() if run.env_id.endswith("GridWorldWall-v0") and run.algo == suite.algos[0]]
+    written = write_figures(summary, suite, str(tmp_path / "logs"), str(tmp_path / "report"), runs_drawn=rerun)
+    assert drawn == [("sb3_icrl/GridWorldWall-v0", [suite.algos[0]])]
+    assert titles == [f"GridWorldWall-v0 (base, re-run: {suite.algos[0]})"]
+    assert [os.path.basename(path) for path in written] == ["curves_GridWorldWall-v0_base.png"]
+    # Every method of the env re-run: a plain title
+    titles.clear()
+    every = [run.name for run in suite.runs() if run.env_id.endswith("GridWorldWall-v0")]
+    write_figures(summary, suite, str(tmp_path / "logs"), str(tmp_path / "report"), runs_drawn=every)
+    assert titles == ["GridWorldWall-v0 (base)"]
+
+
 # ---------------------------------------------------------------- running suites
 
 

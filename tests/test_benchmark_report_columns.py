@@ -386,3 +386,82 @@ def test_report_of_best_models_evaluates_best_model_zip_with_its_own_cache(finis
     (tmp_path / "results" / "final" / "summary.json").unlink()
     only_best = readme_table.table(tmp_path / "results").splitlines()
     assert only_best[-1] == "Compute: 2.1 core-hours over 7 runs (suite 2.1 over 7)."
+
+
+# ---------------------------------------------------------------- report --update: re-runs of some cells
+
+
+def _strict(summary: dict) -> dict:
+    """A summary as its summary.json reads back."""
+    return json.loads(json.dumps(report.finite_or_null(summary)))
+
+
+def test_an_earlier_report_reads_back_into_the_same_summary(finished_suite):
+    suite, root, results = finished_suite
+    summary = _strict(summarise_suite(suite, suite.runs(), results, run_facts(results, root)))
+    kept, metrics, missing = report.previous_results(summary, suite, root)
+    assert sorted(run.name for run, _ in kept) == sorted(run.name for run in suite.runs()) and missing == []
+    assert {result.run for _, result in kept} == {result.run for _, result in results}  # keyed as the fresh ones
+    assert _strict(summarise_suite(suite, suite.runs(), kept, metrics)) == summary
+
+    other = {**summary, "suite": "noise"}
+    with pytest.raises(ValueError, match="report to update is of suite 'noise', not 'suite'"):
+        report.previous_results(other, suite, root)
+    renamed = json.loads(json.dumps(summary))
+    renamed["cells"][0]["variant"] = "gone"
+    with pytest.raises(ValueError, match="holds run 'gone/bc2l/GridWorld-v0/seed 0', which suite 'suite' no longer has"):
+        report.previous_results(renamed, suite, root)
+
+
+def test_update_replaces_the_rerun_seeds_and_keeps_every_other_cell(finished_suite, tmp_path, monkeypatch, capsys):
+    from sb3_icrl.benchmark import cli
+
+    suite, root, results = finished_suite
+    path = write(tmp_path, SUITE)
+    output = str(tmp_path / "results" / "suite")
+    # The earlier report: one run had not finished
+    earlier_results = [(run, result) for run, result in results if run.name != "base/vicrl/GridWorld-v0/seed 1"]
+    earlier = summarise_suite(suite, suite.runs(), earlier_results, run_facts(earlier_results, root))
+    write_report(earlier, output)
+    assert earlier["runs_missing"] == ["base/vicrl/GridWorld-v0/seed 1"]
+
+    # VICRL on GridWorldWall run again, with other results
+    rerun = {run.name: run for run, _ in results if run.cell == ("GridWorldWall-v0", "base", "vicrl")}
+    fresh = [
+        (
+            run,
+            RunResult(
+                os.path.relpath(run.run_folder(root), root), "vicrl", run.env_id, run.seed, 100, 1.0, 0.5, feasible, 3.0, 2
+            ),
+        )
+        for feasible, run in zip([2.0, 3.0], rerun.values(), strict=True)
+    ]
+    monkeypatch.setattr(cli, "evaluate_finished", lambda runs, *args, **kwargs: [item for item in fresh if item[0] in runs])
+    argv = ["report", path, "-f", root, "--only", "env=GridWorldWall-v0", "algo=vicrl", "-o", output, "--no-figures"]
+    assert cli.main([*argv, "--update"]) == 0
+    updated = json.loads(pathlib.Path(output, "summary.json").read_text())
+
+    vicrl = _cell(updated, "GridWorldWall-v0", "vicrl")
+    assert [seed["feasible_reward"] for seed in vicrl["per_seed"]] == [2.0, 3.0]
+    assert vicrl["feasible_reward_mean"] == pytest.approx(2.5) and vicrl["violation_rate_mean"] == pytest.approx(0.5)
+    old_cells = {(cell["env"], cell["algo"]): cell for cell in _strict(earlier)["cells"]}
+    for key in [("GridWorldWall-v0", "bc2l"), ("GridWorld-v0", "bc2l"), ("GridWorld-v0", "vicrl")]:
+        assert _cell(updated, *key)["per_seed"] == old_cells[key]["per_seed"]
+    # bc2l's test against VICRL is made again, against the new VICRL seeds: 0.5 / 0.7 against 2.0 / 3.0
+    assert _cell(updated, "GridWorldWall-v0", "bc2l")["wilcoxon_pairs"] == 2
+    assert _cell(updated, "GridWorldWall-v0", "bc2l")["feasible_reward_mean"] == pytest.approx(0.6)
+    assert updated["runs_missing"] == ["base/vicrl/GridWorld-v0/seed 1"]
+    assert updated["core_hours"] == pytest.approx(earlier["core_hours"])  # the re-runs' own times: 900 s each again
+    assert "| GridWorld-v0 | base | bc2l |" in pathlib.Path(output, "table.md").read_text()
+
+    # Without --update the report holds the selected cell only
+    assert cli.main(argv) == 0
+    assert [(cell["env"], cell["algo"]) for cell in json.loads(pathlib.Path(output, "summary.json").read_text())["cells"]] == [
+        ("GridWorldWall-v0", "vicrl")
+    ]
+    capsys.readouterr()
+    # Nothing to update, or a report of the other models: said so
+    assert cli.main([*argv[:-3], "-o", str(tmp_path / "empty"), "--no-figures", "--update"]) == 2
+    assert "--update: no report in" in capsys.readouterr().err
+    assert cli.main([*argv, "--update", "--model", "best"]) == 2
+    assert "evaluated the final models, this one the best models: pass --model final" in capsys.readouterr().err

@@ -6,6 +6,7 @@
     sb3-icrl benchmark run table3 -f logs/ --backend ray --address auto
     sb3-icrl benchmark status table3 -f logs/
     sb3-icrl benchmark report table3 -f logs/ -o results/table3
+    sb3-icrl benchmark report table3 -f logs/ --only env=BlockedHalfCheetah-v0 -o results/table3 --update
     sb3-icrl benchmark list
 
 Every run is a ``train.py`` run in ``<folder>/<suite>/<variant>/<algo>/<EnvName>_<seed>/`` (an rl-zoo run folder, so
@@ -15,6 +16,7 @@ again skips the finished runs and resumes the others from their last checkpoint.
 
 import argparse
 import dataclasses
+import json
 import os
 import sys
 import time
@@ -25,13 +27,15 @@ from sb3_icrl.benchmark.report import (
     constraint_metrics,
     evaluate_finished,
     markdown_table,
+    previous_results,
     summarise_suite,
     write_figures,
     write_report,
 )
 from sb3_icrl.benchmark.runner import BACKENDS, RunOutcome, make_backend, run_all
 from sb3_icrl.benchmark.status import status_lines, suite_status
-from sb3_icrl.benchmark.suite import SUITES_DIR, Suite, SuiteError, load_suite
+from sb3_icrl.benchmark.suite import SUITES_DIR, RunSpec, Suite, SuiteError, load_suite
+from sb3_icrl.zoo.compare import RunResult
 from sb3_icrl.zoo.hyperparams import import_gym_packages
 
 
@@ -78,6 +82,11 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
         help="evaluate each run's final model (default) or the best_model.zip its training chose on learned quantities",
     )
     report.add_argument("--no-figures", action="store_true", help="tables only")
+    report.add_argument(
+        "--update",
+        action="store_true",
+        help="update the report in -o with these runs: their cells' seeds replace the ones it has, its other cells stay",
+    )
     commands.add_parser("list", help="the shipped suites")
     return parser
 
@@ -176,6 +185,38 @@ def status_command(args: argparse.Namespace) -> int:
     return 0
 
 
+def _with_earlier_report(
+    suite: Suite,
+    runs: list[RunSpec],
+    results: list[tuple[RunSpec, RunResult]],
+    metrics: dict[str, dict[str, Any]],
+    output: str,
+    root: str,
+    model: str,
+) -> tuple[list[RunSpec], list[tuple[RunSpec, RunResult]]]:
+    """
+    ``report --update``: the runs and results of the report in ``output`` that the fresh ``results`` do not replace,
+    added to them (their metrics into ``metrics``); the runs it listed as not finished stay listed unless finished now.
+    """
+    path = os.path.join(output, "summary.json")
+    if not os.path.isfile(path):
+        raise SuiteError(f"--update: no report in {output!r} (no summary.json): pass its folder with -o, or drop --update.")
+    with open(path) as file:
+        earlier = json.load(file)
+    if earlier.get("model", "final") != model:
+        raise SuiteError(
+            f"--update: the report in {output!r} evaluated the {earlier.get('model')} models, this one the {model} models: "
+            f"pass --model {earlier.get('model')}, or another -o folder."
+        )
+    kept, kept_metrics, missing = previous_results(earlier, suite, root)
+    fresh = {run for run, _ in results}
+    kept = [(run, result) for run, result in kept if run not in fresh]
+    metrics.update({result.run: kept_metrics[result.run] for _, result in kept})
+    selected = set(runs)
+    runs = runs + [run for run in missing if run not in selected] + [run for run, _ in kept if run not in selected]
+    return runs, kept + results
+
+
 def report_command(args: argparse.Namespace) -> int:
     suite = _load_suite(args)
     runs = suite.select(_only(args.only))
@@ -186,11 +227,16 @@ def report_command(args: argparse.Namespace) -> int:
             f"No finished run of suite {suite.name!r} in {os.path.join(args.log_folder, suite.name)}: train them first with "
             f"`sb3-icrl benchmark run {args.suite} -f {args.log_folder}` (or check -f and --only)."
         )
-    summary = summarise_suite(suite, runs, results, constraint_metrics(results, args.log_folder, model=model), model=model)
     output = args.output or os.path.join(args.log_folder, suite.name, "report" if model == "final" else "report_best")
+    metrics = constraint_metrics(results, args.log_folder, model=model)
+    fresh = [run.name for run, _ in results]
+    update = getattr(args, "update", False)  # (``benchmark run`` writes a report of its own runs)
+    if update:
+        runs, results = _with_earlier_report(suite, runs, results, metrics, output, args.log_folder, model)
+    summary = summarise_suite(suite, runs, results, metrics, model=model)
     written = write_report(summary, output)
     if not args.no_figures:
-        written += write_figures(summary, suite, args.log_folder, output)
+        written += write_figures(summary, suite, args.log_folder, output, runs_drawn=fresh if update else None)
     print(markdown_table(summary))
     print("wrote " + ", ".join(written))
     return 0

@@ -16,7 +16,7 @@ import json
 import math
 import os
 import pathlib
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import asdict, fields
 from typing import Any
 
@@ -211,6 +211,69 @@ def run_facts(results: Sequence[tuple[RunSpec, RunResult]], root: str) -> dict[s
         entry["expert_return"] = _expert_return_once(demonstrations_source(run, folder), returns)
         facts[result.run] = entry
     return facts
+
+
+#: The per-seed entries of a summary that are the held-out result itself; the others are the run's metrics
+_RESULT_KEYS = ("seed", "feasible_reward", "violation_rate", "reward", "timesteps", "n_episodes", "episode_length")
+
+
+def previous_results(
+    summary: dict[str, Any], suite: Suite, root: str
+) -> tuple[list[tuple[RunSpec, RunResult]], dict[str, dict[str, Any]], list[RunSpec]]:
+    """
+    An earlier report's runs, read back from its ``summary.json``: what ``sb3-icrl benchmark report --update`` keeps
+    of the cells that its fresh runs do not replace (their run folders may be gone; their figures are not redrawn).
+
+    :param summary: The earlier report's summary
+    :param suite: The suite it reported (its name must match)
+    :param root: The log root of the fresh runs (the earlier runs are keyed as if their folders were there)
+    :return: ``(run, held-out result)`` per earlier run, their metrics keyed by ``result.run`` (as
+        :func:`constraint_metrics` keys them), and the runs the earlier report listed as not finished
+    """
+    if summary.get("suite") != suite.name:
+        raise ValueError(
+            f"The report to update is of suite {summary.get('suite')!r}, not {suite.name!r}: pass the suite it reports, "
+            "or another -o folder."
+        )
+    by_name = {run.name: run for run in suite.runs()}
+    results: list[tuple[RunSpec, RunResult]] = []
+    metrics: dict[str, dict[str, Any]] = {}
+    for cell in summary.get("cells", []):
+        for seed in cell["per_seed"]:
+            name = f"{cell['variant']}/{cell['algo']}/{cell['env']}/seed {seed['seed']}"
+            if name not in by_name:
+                raise ValueError(
+                    f"The report to update holds run {name!r}, which suite {suite.name!r} no longer has: report into "
+                    "another -o folder (or without --update)."
+                )
+            run = by_name[name]
+            key = os.path.relpath(run.run_folder(root), root)
+            rates = {column: seed[column] for column in OUTCOME_RATE_KEYS.values() if column in seed}
+            length = seed.get("episode_length")
+            wall_time = seed.get("wall_time_s")
+            result = RunResult(
+                key,
+                run.algo,
+                run.env_id,
+                run.seed,
+                int(seed["timesteps"]),
+                wall_time / 60 if wall_time is not None else float("nan"),
+                _float(seed["violation_rate"]),
+                _float(seed["feasible_reward"]),
+                _float(seed["reward"]),
+                int(seed["n_episodes"]),
+                episode_length=_float(length),
+                outcome_rates=rates,
+            )
+            results.append((run, result))
+            metrics[key] = {column: value for column, value in seed.items() if column not in (*_RESULT_KEYS, *rates)}
+    missing = [by_name[name] for name in summary.get("runs_missing", []) if name in by_name]
+    return results, metrics, missing
+
+
+def _float(value: float | None) -> float:
+    """A number of a strict-JSON summary: ``null`` was a non-finite float."""
+    return float("nan") if value is None else float(value)
 
 
 def _mean_of(values: Sequence[float | None]) -> float | None:
@@ -734,7 +797,9 @@ def write_report(summary: dict[str, Any], output: str) -> list[str]:
     return written
 
 
-def constraint_figures(summary: dict[str, Any], suite: Suite, root: str, output: str) -> list[str]:
+def constraint_figures(
+    summary: dict[str, Any], suite: Suite, root: str, output: str, runs_drawn: Collection[str] | None = None
+) -> list[str]:
     """
     Per env and variant: each method's learned cost over the constrained feature, one line per seed, the true threshold
     marked (:func:`~sb3_icrl.metrics.identification.methods_figure`, from the runs' cached identification scores of the
@@ -742,6 +807,8 @@ def constraint_figures(summary: dict[str, Any], suite: Suite, root: str, output:
     Written as ``constraint_<EnvName>_<variant>.png`` for the runs the report scored; none for envs whose constraint
     is not a threshold on a feature (the grid worlds).
 
+    :param runs_drawn: Names of the runs to draw (:attr:`RunSpec.name`; default: every run of the summary); an env and
+        variant without any keeps the figure it has
     :return: The paths written
     """
     from sb3_icrl.metrics.identification import methods_figure
@@ -750,27 +817,45 @@ def constraint_figures(summary: dict[str, Any], suite: Suite, root: str, output:
     folders: dict[tuple[str, str], list[str]] = {}
     for cell in summary["cells"]:
         for seed in cell["per_seed"]:
-            if "identification_auroc" in seed:
-                run = RunSpec(suite.name, cell["variant"], cell["algo"], cell["env"], int(seed["seed"]), 0)
+            run = RunSpec(suite.name, cell["variant"], cell["algo"], cell["env"], int(seed["seed"]), 0)
+            if "identification_auroc" in seed and (runs_drawn is None or run.name in runs_drawn):
                 folders.setdefault((cell["env"], cell["variant"]), []).append(run.run_folder(root))
     written = []
     model = summary.get("model", "final")
     suffix = " (best models)" if model == "best" else ""
     for (env_id, variant), runs in folders.items():
+        title = f"{env_name(env_id)} ({variant}{_partial(summary, env_id, variant, runs_drawn)}): learned cost{suffix}"
         try:
-            figure = methods_figure(runs, title=f"{env_name(env_id)} ({variant}): learned cost{suffix}", model=model)
+            figure = methods_figure(runs, title=title, model=model)
         except (ValueError, OSError):  # no feature threshold to draw against, or a run's files unreadable: no figure
             continue
         written.append(str(save_figure(figure, os.path.join(output, f"constraint_{env_name(env_id)}_{variant}.png"))))
     return written
 
 
-def write_figures(summary: dict[str, Any], suite: Suite, root: str, output: str) -> list[str]:
+def _partial(summary: dict[str, Any], env: str, variant: str, runs_drawn: Collection[str] | None) -> str:
+    """``", re-run: mecl, vicrl"`` in a figure's title when it draws only some of the env and variant's methods."""
+    if runs_drawn is None:
+        return ""
+    cells = [cell for cell in summary["cells"] if (cell["env"], cell["variant"]) == (env_name(env), variant)]
+    drawn = [
+        cell["algo"]
+        for cell in cells
+        if any(f"{variant}/{cell['algo']}/{cell['env']}/seed {seed['seed']}" in runs_drawn for seed in cell["per_seed"])
+    ]
+    return "" if len(drawn) == len(cells) else f", re-run: {', '.join(drawn)}"
+
+
+def write_figures(
+    summary: dict[str, Any], suite: Suite, root: str, output: str, runs_drawn: Collection[str] | None = None
+) -> list[str]:
     """
     Per env and variant: training curves (mean +- std over seeds, from ``evaluations.npz``) and each method's learned
     cost over the constrained feature (:func:`constraint_figures`); per suite: ours against the paper, cell by cell.
     PNG files in ``output``.
 
+    :param runs_drawn: Names of the runs whose curves and learned costs to draw (:attr:`RunSpec.name`; default: every
+        run in ``root``): a report updated with the re-runs of some cells draws those, and keeps the other envs' figures
     :return: The paths written
     """
     from sb3_icrl.plots.figures import load_runs, new_figure, save_figure, training_curves_figure
@@ -779,18 +864,24 @@ def write_figures(summary: dict[str, Any], suite: Suite, root: str, output: str)
     reported = {(cell["env"], cell["variant"]) for cell in summary["cells"]}  # the report's cells (its --only filter)
     for env_id in suite.envs:
         for variant in suite.variants:
-            if (env_name(env_id), variant) not in reported:
+            algos = [
+                algo
+                for algo in suite.algos
+                if runs_drawn is None or any(name.startswith(f"{variant}/{algo}/{env_name(env_id)}/") for name in runs_drawn)
+            ]
+            if (env_name(env_id), variant) not in reported or not algos:
                 continue
             try:
-                runs = load_runs(os.path.join(root, suite.name, variant), suite.algos, env_id, skip_missing=True)
+                runs = load_runs(os.path.join(root, suite.name, variant), algos, env_id, skip_missing=True)
             except (FileNotFoundError, ValueError):
                 continue
+            title = f"{env_name(env_id)} ({variant}{_partial(summary, env_id, variant, runs_drawn)})"
             try:
-                figure = training_curves_figure(runs, title=f"{env_name(env_id)} ({variant})")
+                figure = training_curves_figure(runs, title=title)
             except ValueError:
                 continue
             written.append(str(save_figure(figure, os.path.join(output, f"curves_{env_name(env_id)}_{variant}.png"))))
-    written += constraint_figures(summary, suite, root, output)
+    written += constraint_figures(summary, suite, root, output, runs_drawn)
     compared = [cell for cell in summary["cells"] if cell["paper_feasible_reward"] is not None]
     if compared:
         figure = new_figure(width=max(6.4, 0.5 * len(compared)), height=4.8)
