@@ -78,8 +78,10 @@ def table(results: pathlib.Path = RESULTS) -> str:
         # Runs take one core each: the sum of their wall times
         total = sum(summary["core_hours"] for summary in timed)
         runs = sum(summary.get("core_hours_runs", 0) for summary in timed)
+        repeated = {name for name in (s["suite"] for s in timed) if sum(s["suite"] == name for s in timed) > 1}
         parts = ", ".join(
-            f"{summary['suite']} {format_hours(summary['core_hours'])} over {summary.get('core_hours_runs', 0)}"
+            f"{compute_label(summary, summary['suite'] in repeated)} {format_hours(summary['core_hours'])} over "
+            f"{summary.get('core_hours_runs', 0)}"
             for summary in timed
         )
         lines += f"\nCompute: {format_hours(total)} core-hours over {runs} runs ({parts}).\n"
@@ -89,6 +91,14 @@ def table(results: pathlib.Path = RESULTS) -> str:
 def suite_label(summary: dict) -> str:
     """The suite's name, marked when the summary evaluated each run's best model instead of its final one."""
     return f"{summary['suite']} (best models)" if summary.get("model") == "best" else summary["suite"]
+
+
+def compute_label(summary: dict, with_variants: bool) -> str:
+    """The suite's name in the compute line; with its variants where several reports of one suite are listed."""
+    if not with_variants:
+        return summary["suite"]
+    variants = sorted({cell["variant"] for cell in summary["cells"]})
+    return f"{summary['suite']} ({', '.join(variants)})"
 
 
 def scoreboard(summary: dict) -> str | None:

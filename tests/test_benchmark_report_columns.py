@@ -465,3 +465,19 @@ def test_update_replaces_the_rerun_seeds_and_keeps_every_other_cell(finished_sui
     assert "--update: no report in" in capsys.readouterr().err
     assert cli.main([*argv, "--update", "--model", "best"]) == 2
     assert "evaluated the final models, this one the best models: pass --model final" in capsys.readouterr().err
+
+
+def test_compute_line_names_the_variants_of_a_suite_reported_in_parts(finished_suite, tmp_path):
+    """Two reports of one suite (one per variant): the compute line tells them apart by their variants."""
+    suite, root, results = finished_suite
+    for variant in ("n4", "n4-match"):
+        summary = summarise_suite(suite, suite.runs(), results, run_facts(results, root))
+        for cell in summary["cells"]:
+            cell["variant"] = variant
+        write_report(summary, str(tmp_path / "results" / f"suite_{variant}"))
+    line = readme_table.table(tmp_path / "results").splitlines()[-1]
+    assert line == "Compute: 4.2 core-hours over 14 runs (suite (n4) 2.1 over 7, suite (n4-match) 2.1 over 7)."
+    # A suite reported once keeps its plain name
+    (tmp_path / "results" / "suite_n4" / "summary.json").unlink()
+    line = readme_table.table(tmp_path / "results").splitlines()[-1]
+    assert line == "Compute: 2.1 core-hours over 7 runs (suite 2.1 over 7)."
