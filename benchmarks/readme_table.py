@@ -9,6 +9,7 @@ The table sits between the two marker lines below in README.md; the summaries ar
 """
 
 import argparse
+import collections
 import json
 import pathlib
 import sys
@@ -78,9 +79,9 @@ def table(results: pathlib.Path = RESULTS) -> str:
         # Runs take one core each: the sum of their wall times
         total = sum(summary["core_hours"] for summary in timed)
         runs = sum(summary.get("core_hours_runs", 0) for summary in timed)
-        repeated = {name for name in (s["suite"] for s in timed) if sum(s["suite"] == name for s in timed) > 1}
+        reports_per_suite = collections.Counter(summary["suite"] for summary in timed)
         parts = ", ".join(
-            f"{compute_label(summary, summary['suite'] in repeated)} {format_hours(summary['core_hours'])} over "
+            f"{compute_label(summary, reports_per_suite[summary['suite']] > 1)} {format_hours(summary['core_hours'])} over "
             f"{summary.get('core_hours_runs', 0)}"
             for summary in timed
         )
@@ -94,7 +95,10 @@ def suite_label(summary: dict) -> str:
 
 
 def compute_label(summary: dict, with_variants: bool) -> str:
-    """The suite's name in the compute line; with its variants where several reports of one suite are listed."""
+    """
+    The suite's name in the compute line; with its variants where several reports of one suite are listed (reports
+    split by variant; reports of one variant split by env or method keep the same label).
+    """
     if not with_variants:
         return summary["suite"]
     variants = sorted({cell["variant"] for cell in summary["cells"]})

@@ -284,14 +284,14 @@ def test_an_updated_report_draws_the_rerun_methods_and_says_so(tmp_path, monkeyp
     monkeypatch.setattr(figures, "load_runs", lambda folder, algos, env_id, skip_missing: drawn.append((env_id, algos)) or [])
     titles = []
     monkeypatch.setattr(figures, "training_curves_figure", lambda runs, title: titles.append(title) or Figure())
-    rerun = [run.name for run in suite.runs() if run.env_id.endswith("GridWorldWall-v0") and run.algo == suite.algos[0]]
+    rerun = [run for run in suite.runs() if run.env_id.endswith("GridWorldWall-v0") and run.algo == suite.algos[0]]
     written = write_figures(summary, suite, str(tmp_path / "logs"), str(tmp_path / "report"), runs_drawn=rerun)
     assert drawn == [("sb3_icrl/GridWorldWall-v0", [suite.algos[0]])]
     assert titles == [f"GridWorldWall-v0 (base, re-run: {suite.algos[0]})"]
     assert [os.path.basename(path) for path in written] == ["curves_GridWorldWall-v0_base.png"]
     # Every method of the env re-run: a plain title
     titles.clear()
-    every = [run.name for run in suite.runs() if run.env_id.endswith("GridWorldWall-v0")]
+    every = [run for run in suite.runs() if run.env_id.endswith("GridWorldWall-v0")]
     write_figures(summary, suite, str(tmp_path / "logs"), str(tmp_path / "report"), runs_drawn=every)
     assert titles == ["GridWorldWall-v0 (base)"]
 

@@ -4,6 +4,7 @@ our expert's return, and the compute the runs took; in summary.json, the tables 
 """
 
 import csv
+import dataclasses
 import functools
 import importlib.util
 import io
@@ -398,11 +399,31 @@ def _strict(summary: dict) -> dict:
 
 def test_an_earlier_report_reads_back_into_the_same_summary(finished_suite):
     suite, root, results = finished_suite
-    summary = _strict(summarise_suite(suite, suite.runs(), results, run_facts(results, root)))
+    # Every kind of column a run can carry: driving outcome rates, a non-finite feasible reward, identification scores
+    # with each kind of threshold error (a crossing; a cost at or above 0.5 everywhere; one that never reaches it, as
+    # the identification headline pairs them), transfer results
+    results = [
+        (run, dataclasses.replace(result, outcome_rates={"collision_rate": 0.25, "off_road_rate": 0.0}, episode_length=9.5))
+        for run, result in results
+    ]
+    results[0] = (results[0][0], dataclasses.replace(results[0][1], feasible_reward=float("nan")))
+    facts = run_facts(results, root)
+    for index, (_, result) in enumerate(results):
+        facts[result.run].update(
+            identification_auroc=0.5 + index / 100,
+            threshold_error=[-0.25 * index, float("inf"), float("nan")][index % 3],
+            threshold_crossing=["crosses", "everywhere", "nowhere"][index % 3],
+            transfer_same_violation_rate=0.1 * index,
+            transfer_same_feasible_ratio=0.9,
+        )
+    original = summarise_suite(suite, suite.runs(), results, facts)
+    summary = _strict(original)
     kept, metrics, missing = report.previous_results(summary, suite, root)
     assert sorted(run.name for run, _ in kept) == sorted(run.name for run in suite.runs()) and missing == []
     assert {result.run for _, result in kept} == {result.run for _, result in results}  # keyed as the fresh ones
+    assert {result.outcome_rates["collision_rate"] for _, result in kept} == {0.25}
     assert _strict(summarise_suite(suite, suite.runs(), kept, metrics)) == summary
+    assert markdown_table(summarise_suite(suite, suite.runs(), kept, metrics)) == markdown_table(original)
 
     other = {**summary, "suite": "noise"}
     with pytest.raises(ValueError, match="report to update is of suite 'noise', not 'suite'"):
@@ -453,6 +474,18 @@ def test_update_replaces_the_rerun_seeds_and_keeps_every_other_cell(finished_sui
     assert updated["runs_missing"] == ["base/vicrl/GridWorld-v0/seed 1"]
     assert updated["core_hours"] == pytest.approx(earlier["core_hours"])  # the re-runs' own times: 900 s each again
     assert "| GridWorld-v0 | base | bc2l |" in pathlib.Path(output, "table.md").read_text()
+
+    # A selected seed that has not finished this time loses its old result (its cell must not mix two recipes) and is
+    # listed as not finished; the earlier report here is the one just updated
+    def only_the_first(runs, *args, **kwargs):
+        return [item for item in fresh[:1] if item[0] in runs]
+
+    monkeypatch.setattr(cli, "evaluate_finished", only_the_first)
+    assert cli.main([*argv, "--update"]) == 0
+    partly = json.loads(pathlib.Path(output, "summary.json").read_text())
+    assert [seed["feasible_reward"] for seed in _cell(partly, "GridWorldWall-v0", "vicrl")["per_seed"]] == [2.0]
+    assert sorted(partly["runs_missing"]) == ["base/vicrl/GridWorld-v0/seed 1", "base/vicrl/GridWorldWall-v0/seed 1"]
+    assert _cell(partly, "GridWorldWall-v0", "bc2l")["per_seed"] == old_cells[("GridWorldWall-v0", "bc2l")]["per_seed"]
 
     # Without --update the report holds the selected cell only
     assert cli.main(argv) == 0

@@ -193,28 +193,30 @@ def _with_earlier_report(
     output: str,
     root: str,
     model: str,
-) -> tuple[list[RunSpec], list[tuple[RunSpec, RunResult]]]:
+) -> tuple[list[RunSpec], list[tuple[RunSpec, RunResult]], dict[str, dict[str, Any]]]:
     """
-    ``report --update``: the runs and results of the report in ``output`` that the fresh ``results`` do not replace,
-    added to them (their metrics into ``metrics``); the runs it listed as not finished stay listed unless finished now.
+    ``report --update``: the selected ``runs`` (finished or not) replace their seeds in the report in ``output``; its
+    other runs are added to the fresh ``results`` and ``metrics``, and the runs it listed as not finished stay listed.
+
+    :return: The runs (to list the unfinished ones), the results and the metrics of the whole updated report
     """
     path = os.path.join(output, "summary.json")
     if not os.path.isfile(path):
         raise SuiteError(f"--update: no report in {output!r} (no summary.json): pass its folder with -o, or drop --update.")
     with open(path) as file:
         earlier = json.load(file)
-    if earlier.get("model", "final") != model:
+    earlier_model = earlier.get("model", "final")
+    if earlier_model != model:
         raise SuiteError(
-            f"--update: the report in {output!r} evaluated the {earlier.get('model')} models, this one the {model} models: "
-            f"pass --model {earlier.get('model')}, or another -o folder."
+            f"--update: the report in {output!r} evaluated the {earlier_model} models, this one the {model} models: "
+            f"pass --model {earlier_model}, or another -o folder."
         )
     kept, kept_metrics, missing = previous_results(earlier, suite, root)
-    fresh = {run for run, _ in results}
-    kept = [(run, result) for run, result in kept if run not in fresh]
-    metrics.update({result.run: kept_metrics[result.run] for _, result in kept})
+    # A selected run that has not finished (again) loses its old result: its cell must not mix two recipes
     selected = set(runs)
-    runs = runs + [run for run in missing if run not in selected] + [run for run, _ in kept if run not in selected]
-    return runs, kept + results
+    kept = [(run, result) for run, result in kept if run not in selected]
+    metrics = {**metrics, **{result.run: kept_metrics[result.run] for _, result in kept}}
+    return runs + [run for run in missing if run not in selected], kept + results, metrics
 
 
 def report_command(args: argparse.Namespace) -> int:
@@ -229,10 +231,10 @@ def report_command(args: argparse.Namespace) -> int:
         )
     output = args.output or os.path.join(args.log_folder, suite.name, "report" if model == "final" else "report_best")
     metrics = constraint_metrics(results, args.log_folder, model=model)
-    fresh = [run.name for run, _ in results]
+    fresh = [run for run, _ in results]
     update = getattr(args, "update", False)  # (``benchmark run`` writes a report of its own runs)
     if update:
-        runs, results = _with_earlier_report(suite, runs, results, metrics, output, args.log_folder, model)
+        runs, results, metrics = _with_earlier_report(suite, runs, results, metrics, output, args.log_folder, model)
     summary = summarise_suite(suite, runs, results, metrics, model=model)
     written = write_report(summary, output)
     if not args.no_figures:

@@ -250,14 +250,13 @@ def previous_results(
             key = os.path.relpath(run.run_folder(root), root)
             rates = {column: seed[column] for column in OUTCOME_RATE_KEYS.values() if column in seed}
             length = seed.get("episode_length")
-            wall_time = seed.get("wall_time_s")
             result = RunResult(
                 key,
                 run.algo,
                 run.env_id,
                 run.seed,
                 int(seed["timesteps"]),
-                wall_time / 60 if wall_time is not None else float("nan"),
+                _float(seed.get("wall_time_s")) / 60,
                 _float(seed["violation_rate"]),
                 _float(seed["feasible_reward"]),
                 _float(seed["reward"]),
@@ -798,7 +797,7 @@ def write_report(summary: dict[str, Any], output: str) -> list[str]:
 
 
 def constraint_figures(
-    summary: dict[str, Any], suite: Suite, root: str, output: str, runs_drawn: Collection[str] | None = None
+    summary: dict[str, Any], suite: Suite, root: str, output: str, runs_drawn: Collection[RunSpec] | None = None
 ) -> list[str]:
     """
     Per env and variant: each method's learned cost over the constrained feature, one line per seed, the true threshold
@@ -807,18 +806,19 @@ def constraint_figures(
     Written as ``constraint_<EnvName>_<variant>.png`` for the runs the report scored; none for envs whose constraint
     is not a threshold on a feature (the grid worlds).
 
-    :param runs_drawn: Names of the runs to draw (:attr:`RunSpec.name`; default: every run of the summary); an env and
-        variant without any keeps the figure it has
+    :param runs_drawn: The runs to draw (default: every run of the summary); an env and variant without any keeps the
+        figure it has
     :return: The paths written
     """
     from sb3_icrl.metrics.identification import methods_figure
     from sb3_icrl.plots.figures import save_figure
 
+    names = None if runs_drawn is None else {run.name for run in runs_drawn}
     folders: dict[tuple[str, str], list[str]] = {}
     for cell in summary["cells"]:
         for seed in cell["per_seed"]:
             run = RunSpec(suite.name, cell["variant"], cell["algo"], cell["env"], int(seed["seed"]), 0)
-            if "identification_auroc" in seed and (runs_drawn is None or run.name in runs_drawn):
+            if "identification_auroc" in seed and (names is None or run.name in names):
                 folders.setdefault((cell["env"], cell["variant"]), []).append(run.run_folder(root))
     written = []
     model = summary.get("model", "final")
@@ -833,42 +833,37 @@ def constraint_figures(
     return written
 
 
-def _partial(summary: dict[str, Any], env: str, variant: str, runs_drawn: Collection[str] | None) -> str:
+def _partial(summary: dict[str, Any], env: str, variant: str, runs_drawn: Collection[RunSpec] | None) -> str:
     """``", re-run: mecl, vicrl"`` in a figure's title when it draws only some of the env and variant's methods."""
     if runs_drawn is None:
         return ""
     cells = [cell for cell in summary["cells"] if (cell["env"], cell["variant"]) == (env_name(env), variant)]
-    drawn = [
-        cell["algo"]
-        for cell in cells
-        if any(f"{variant}/{cell['algo']}/{cell['env']}/seed {seed['seed']}" in runs_drawn for seed in cell["per_seed"])
-    ]
+    drawn_cells = {run.cell for run in runs_drawn}
+    drawn = [cell["algo"] for cell in cells if (cell["env"], variant, cell["algo"]) in drawn_cells]
     return "" if len(drawn) == len(cells) else f", re-run: {', '.join(drawn)}"
 
 
 def write_figures(
-    summary: dict[str, Any], suite: Suite, root: str, output: str, runs_drawn: Collection[str] | None = None
+    summary: dict[str, Any], suite: Suite, root: str, output: str, runs_drawn: Collection[RunSpec] | None = None
 ) -> list[str]:
     """
     Per env and variant: training curves (mean +- std over seeds, from ``evaluations.npz``) and each method's learned
     cost over the constrained feature (:func:`constraint_figures`); per suite: ours against the paper, cell by cell.
     PNG files in ``output``.
 
-    :param runs_drawn: Names of the runs whose curves and learned costs to draw (:attr:`RunSpec.name`; default: every
-        run in ``root``): a report updated with the re-runs of some cells draws those, and keeps the other envs' figures
+    :param runs_drawn: The runs whose learned costs, and whose cells' training curves (every seed in ``root``), to draw
+        (default: every run in ``root``): a report updated with the re-runs of some cells draws those, and keeps the
+        other envs' figures
     :return: The paths written
     """
     from sb3_icrl.plots.figures import load_runs, new_figure, save_figure, training_curves_figure
 
     written = []
     reported = {(cell["env"], cell["variant"]) for cell in summary["cells"]}  # the report's cells (its --only filter)
+    drawn_cells = None if runs_drawn is None else {run.cell for run in runs_drawn}
     for env_id in suite.envs:
         for variant in suite.variants:
-            algos = [
-                algo
-                for algo in suite.algos
-                if runs_drawn is None or any(name.startswith(f"{variant}/{algo}/{env_name(env_id)}/") for name in runs_drawn)
-            ]
+            algos = [algo for algo in suite.algos if drawn_cells is None or (env_name(env_id), variant, algo) in drawn_cells]
             if (env_name(env_id), variant) not in reported or not algos:
                 continue
             try:
