@@ -273,7 +273,8 @@ def test_benchmark_recipes(algo: str, env_id: str) -> None:
 def test_halfcheetah_entries_are_the_recipe_of_the_results() -> None:
     """
     HalfCheetah departs from the reference (benchmarks/RESULTS.md): expert budget, PID multiplier, rollouts of 512
-    steps, 1M steps; it keeps the reference's raw constraint inputs, and VICRL its KL weight and full-batch updates.
+    steps (four envs of 128), 1M steps; it keeps the reference's raw constraint inputs, and VICRL its KL weight and
+    full-batch updates.
     """
     for algo in ("mecl", "vicrl"):
         params = preprocess_hyperparams(load_hyperparams(algo, "BlockedHalfCheetah-v0")[0])
@@ -283,6 +284,10 @@ def test_halfcheetah_entries_are_the_recipe_of_the_results() -> None:
         assert params["cost_budget"] == "expert" and params["lagrange_update"] == "pid"
         assert params["lagrange_kwargs"] == {"init": 1.0, "kp": 5.0, "ki": 0.005, "kd": 0.0}
         assert (params["update_every"], params["n_envs"] * params["n_steps"], params["n_timesteps"]) == (100_000, 512, 10**6)
+        # The faster recipe: four envs of 128 steps, 10 epochs at twice rl-zoo's learning rate; VICRL skips an update
+        # while its learner is within 0.05 of the expert's feasibility
+        assert (params["n_envs"], params["n_epochs"], params["learning_rate"]) == (4, 10, pytest.approx(2 * 2.0633e-05))
+        assert params.get("trainer_kwargs") == ({"match_tolerance": 0.05} if algo == "vicrl" else None)
         # MECL's KL bound stops its updates early; VICRL takes the reference's full-batch steps
         assert params["constraint_batch_size"] == {"mecl": 1000, "vicrl": None}[algo]
 
