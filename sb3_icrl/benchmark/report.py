@@ -236,20 +236,20 @@ def previous_results(
             "or another -o folder."
         )
     by_name = {run.name: run for run in suite.runs()}
+    by_cell_and_seed = {(*run.cell, run.seed): run for run in suite.runs()}
     results: list[tuple[RunSpec, RunResult]] = []
     metrics: dict[str, dict[str, Any]] = {}
     for cell in summary.get("cells", []):
         for seed in cell["per_seed"]:
-            name = f"{cell['variant']}/{cell['algo']}/{cell['env']}/seed {seed['seed']}"
-            if name not in by_name:
+            run = by_cell_and_seed.get((cell["env"], cell["variant"], cell["algo"], int(seed["seed"])))
+            if run is None:
+                gone = RunSpec(suite.name, cell["variant"], cell["algo"], cell["env"], int(seed["seed"]), 0)
                 raise ValueError(
-                    f"The report to update holds run {name!r}, which suite {suite.name!r} no longer has: report into "
-                    "another -o folder (or without --update)."
+                    f"The report to update holds run {gone.name!r}, which suite {suite.name!r} no longer has: report "
+                    "into another -o folder (or without --update)."
                 )
-            run = by_name[name]
             key = os.path.relpath(run.run_folder(root), root)
             rates = {column: seed[column] for column in OUTCOME_RATE_KEYS.values() if column in seed}
-            length = seed.get("episode_length")
             result = RunResult(
                 key,
                 run.algo,
@@ -261,7 +261,7 @@ def previous_results(
                 _float(seed["feasible_reward"]),
                 _float(seed["reward"]),
                 int(seed["n_episodes"]),
-                episode_length=_float(length),
+                episode_length=_float(seed.get("episode_length")),
                 outcome_rates=rates,
             )
             results.append((run, result))
