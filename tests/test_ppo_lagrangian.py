@@ -10,12 +10,15 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import configure
 from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from sb3_icrl import PPOLagrangian
 from sb3_icrl.common.callbacks import EpisodeCostRecorder
 from sb3_icrl.common.envs import ConstrainedCorridorEnv
 from sb3_icrl.common.policies import CostActorCriticPolicy, clip_grad_norms_
+from sb3_icrl.data.registry import EXPERTS_DIR
+from sb3_icrl.ppo_lagrangian.ppo_lagrangian import merge_cost_optimizer
 
 TINY = dict(n_steps=32, batch_size=16, n_epochs=2, policy_kwargs=dict(net_arch=[16]))
 
@@ -51,8 +54,17 @@ def test_zero_multiplier_update_equals_ppo_update(env_fn):
 
     lag.learn(64)  # fills the buffer (and updates once)
     ppo.policy.load_state_dict({key: value for key, value in lag.policy.state_dict().items() if key in ppo_params})
-    # deepcopy: load_state_dict would share the Adam moment tensors between the two optimizers
-    ppo.policy.optimizer.load_state_dict(copy.deepcopy(lag.policy.optimizer.state_dict()))
+    # PPOLagrangian's one optimizer holds the actor-critic's parameters first, then the cost critic's: PPO takes the
+    # first part (deepcopy: load_state_dict would share the Adam moment tensors between the two optimizers)
+    lag_optimizer = copy.deepcopy(lag.policy.optimizer.state_dict())
+    n_actor_critic = len(ppo.policy.optimizer.param_groups[0]["params"])
+    assert len(lag_optimizer["param_groups"][0]["params"]) == n_actor_critic + len(lag.policy.cost_critic_parameters())
+    ppo.policy.optimizer.load_state_dict(
+        {
+            "state": {index: value for index, value in lag_optimizer["state"].items() if index < n_actor_critic},
+            "param_groups": [{**lag_optimizer["param_groups"][0], "params": list(range(n_actor_critic))}],
+        }
+    )
     ppo._logger, ppo._current_progress_remaining = lag.logger, lag._current_progress_remaining
     ppo.rollout_buffer = copy.deepcopy(lag.rollout_buffer)  # a CostRolloutBuffer is a RolloutBuffer
     state = np.random.get_state()
@@ -181,8 +193,8 @@ def test_save_load_round_trip_restores_everything(tmp_path, lagrange_update):
     )
     obs_tensor = th.as_tensor(observations)
     assert th.equal(loaded.policy.predict_cost_values(obs_tensor), model.policy.predict_cost_values(obs_tensor))
-    for key, value in model.policy.cost_optimizer.state_dict()["state"].items():
-        assert th.equal(loaded.policy.cost_optimizer.state_dict()["state"][key]["exp_avg"], value["exp_avg"])
+    for key, value in model.policy.optimizer.state_dict()["state"].items():
+        assert th.equal(loaded.policy.optimizer.state_dict()["state"][key]["exp_avg"], value["exp_avg"])
 
     # Both multipliers continue identically on the same data, and training resumes
     np.testing.assert_array_equal(
@@ -277,17 +289,15 @@ def test_episode_statistic_uses_the_episodes_ended_since_the_last_update():
 
 
 def test_optimizers_fused_by_default_with_sb3_adam_settings():
-    """Both optimisers take torch's fused Adam with SB3's eps; a caller's own choice (foreach, other kwargs) is kept."""
+    """The optimiser takes torch's fused Adam with SB3's eps; a caller's own choice (foreach, other kwargs) is kept."""
     model = PPOLagrangian("MlpPolicy", PendulumWithCost(), n_steps=64, batch_size=16)
-    for optimizer in (model.policy.optimizer, model.policy.cost_optimizer):
-        assert optimizer.defaults["fused"] is True
-        assert optimizer.defaults["eps"] == 1e-5
+    assert model.policy.optimizer.defaults["fused"] is True
+    assert model.policy.optimizer.defaults["eps"] == 1e-5
     own = PPOLagrangian(
         "MlpPolicy", PendulumWithCost(), n_steps=64, batch_size=16, policy_kwargs=dict(optimizer_kwargs=dict(foreach=True))
     )
-    for optimizer in (own.policy.optimizer, own.policy.cost_optimizer):
-        assert optimizer.defaults["foreach"] is True and not optimizer.defaults["fused"]
-        assert optimizer.defaults["eps"] == 1e-8  # torch's default: the caller gave kwargs, as in SB3
+    assert own.policy.optimizer.defaults["foreach"] is True and not own.policy.optimizer.defaults["fused"]
+    assert own.policy.optimizer.defaults["eps"] == 1e-8  # torch's default: the caller gave kwargs, as in SB3
     rmsprop = PPOLagrangian(
         "MlpPolicy", PendulumWithCost(), n_steps=64, batch_size=16, policy_kwargs=dict(optimizer_class=th.optim.RMSprop)
     )
@@ -344,12 +354,14 @@ def test_train_clips_the_actor_critic_and_the_cost_critic_apart(monkeypatch) -> 
     model = PPOLagrangian("MlpPolicy", ConstrainedCorridorEnv(), n_steps=32, batch_size=16, n_epochs=2, max_grad_norm=0.3)
     model.learn(32)
     assert len(calls) == 4  # 2 epochs x 2 minibatches
-    actor_critic = [param for group in model.policy.optimizer.param_groups for param in group["params"]]
-    cost_critic = model.policy.cost_critic_parameters()
+    # The one optimizer holds the actor-critic's parameters, then the cost critic's
+    optimized = [id(param) for group in model.policy.optimizer.param_groups for param in group["params"]]
+    cost_critic = [id(param) for param in model.policy.cost_critic_parameters()]
+    assert len(cost_critic) == 6 and optimized[-6:] == cost_critic
     for groups, max_norm in calls:
         assert max_norm == 0.3 and len(groups) == 2
-        assert [id(p) for p in groups[0]] == [id(p) for p in actor_critic]
-        assert [id(p) for p in groups[1]] == [id(p) for p in cost_critic]
+        assert [id(p) for p in groups[0]] == optimized[:-6]
+        assert [id(p) for p in groups[1]] == cost_critic
 
 
 def test_distribution_validation_comes_back_after_nested_overlapping_and_failing_blocks():
@@ -530,3 +542,34 @@ def test_a_policy_that_builds_its_own_distribution_keeps_it_in_rollouts() -> Non
         _, expected, _ = policy.evaluate_actions(obs, actions)
     th.testing.assert_close(log_prob, expected)
     assert not policy._plain_diag_gaussian()
+
+
+def test_load_merges_the_cost_optimizer_of_a_model_saved_with_two_optimizers():
+    """
+    A zip saved when the cost critic had an optimizer of its own (the shipped experts) loads into the one optimizer:
+    every Adam state lands on its own parameter, and the model saves back in the one-optimizer format.
+    """
+    path = EXPERTS_DIR / "BiasedPendulum-v0.zip"
+    _, saved, _ = load_from_zip_file(path, load_data=False)
+    assert "policy.cost_optimizer" in saved  # the older format, or this test proves nothing
+    model = PPOLagrangian.load(path)
+    params = model.policy.optimizer.param_groups[0]["params"]
+    state = model.policy.optimizer.state_dict()["state"]
+    n_actor_critic = len(saved["policy.optimizer"]["param_groups"][0]["params"])
+    assert len(params) == n_actor_critic + len(model.policy.cost_critic_parameters())
+    for offset, name in ((0, "policy.optimizer"), (n_actor_critic, "policy.cost_optimizer")):
+        assert saved[name]["state"]
+        for index, value in saved[name]["state"].items():
+            assert th.equal(state[offset + index]["exp_avg_sq"], value["exp_avg_sq"])
+            assert state[offset + index]["exp_avg"].shape == params[offset + index].shape
+    merged = merge_cost_optimizer(saved)
+    assert "policy.cost_optimizer" in saved and "policy.cost_optimizer" not in merged  # the caller's dict is kept
+    assert set(model.get_parameters()) == {"policy", "policy.optimizer"}
+
+
+def test_merge_cost_optimizer_refuses_several_parameter_groups():
+    group = {"lr": 1e-3, "params": [0]}
+    params = {"policy.optimizer": {"state": {}, "param_groups": [group, {**group, "params": [1]}]}}
+    assert merge_cost_optimizer(params) is params  # nothing to merge
+    with pytest.raises(ValueError, match="one parameter group"):
+        merge_cost_optimizer({**params, "policy.cost_optimizer": {"state": {}, "param_groups": [group]}})

@@ -160,8 +160,10 @@ class CostActorCriticPolicy(ActorCriticPolicy):
     The cost critic is a network of its own (own features extractor and MLP): its loss never changes the actor or
     the reward critic, so with a zero Lagrange multiplier the actor-critic update is exactly PPO's. It is built after
     the actor and critic, under a forked random state, so that those get the same initial weights as in SB3 at the
-    same seed. It has its own optimizer (``cost_optimizer``, same class and settings as ``optimizer``). Both are fused
-    where torch offers it (:func:`fused_optimizer_kwargs`), which more than pays for the extra critic.
+    same seed. One optimizer (``optimizer``) updates the actor-critic and the cost critic: Adam treats every parameter
+    alone, so this is the update of two optimizers in one ``step()`` call, which saves the second call's Python
+    overhead (about 0.1 ms per minibatch). It is fused where torch offers it (:func:`fused_optimizer_kwargs`), which
+    more than pays for the extra critic.
 
     :param observation_space: Observation space
     :param action_space: Action space
@@ -211,13 +213,20 @@ class CostActorCriticPolicy(ActorCriticPolicy):
                     (self.cost_value_net, 1.0),
                 ):
                     module.apply(partial(self.init_weights, gain=gain))
-        self.cost_optimizer = self.optimizer_class(  # type: ignore[call-arg]
-            self.cost_critic_parameters(), lr=lr_schedule(1), **self.optimizer_kwargs
+        # SB3's optimizer holds the actor-critic's parameters; the cost critic's follow them in the same group
+        actor_critic = [param for group in self.optimizer.param_groups for param in group["params"]]
+        self.optimizer = self.optimizer_class(  # type: ignore[call-arg]
+            [*actor_critic, *self.cost_critic_parameters()], lr=lr_schedule(1), **self.optimizer_kwargs
         )
 
     def cost_critic_parameters(self) -> list[nn.Parameter]:
         """The parameters of the cost critic."""
         return [*self.cost_features_extractor.parameters(), *self.cost_mlp.parameters(), *self.cost_value_net.parameters()]
+
+    def actor_critic_parameters(self) -> list[nn.Parameter]:
+        """The parameters of the actor and the reward critic (every parameter but the cost critic's), in SB3's order."""
+        cost_critic = {id(param) for param in self.cost_critic_parameters()}
+        return [param for param in self.parameters() if id(param) not in cost_critic]
 
     def act(self, obs: PyTorchObs, deterministic: bool = False) -> tuple[th.Tensor, th.Tensor]:
         """

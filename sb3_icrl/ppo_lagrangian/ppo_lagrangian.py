@@ -13,6 +13,7 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import explained_variance, obs_as_tensor
 from stable_baselines3.common.vec_env import VecEnv
@@ -290,7 +291,26 @@ class PPOLagrangian(PPO):
         self.cost_fn = cost_fn
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
-        return ["policy", "policy.optimizer", "policy.cost_optimizer"], []
+        return ["policy", "policy.optimizer"], []
+
+    def set_parameters(
+        self,
+        load_path_or_dict: str | dict[str, Any],
+        exact_match: bool = True,
+        device: th.device | str = "auto",
+    ) -> None:
+        """
+        SB3's ``set_parameters``; also takes the parameters of a model saved when the cost critic had an optimizer of
+        its own (``policy.cost_optimizer``), whose state joins the one optimizer's (:func:`merge_cost_optimizer`).
+
+        :param load_path_or_dict: A saved model's zip, or a dict of state dicts (as ``get_parameters`` returns)
+        :param exact_match: Whether the parameters must name every object that ``save`` writes
+        :param device: Device on which the parameters are loaded
+        """
+        params = load_path_or_dict
+        if not isinstance(params, dict):
+            _, params, _ = load_from_zip_file(params, device=device, load_data=False)
+        super().set_parameters(merge_cost_optimizer(params), exact_match=exact_match, device=device)  # type: ignore[arg-type]
 
     @classmethod
     def load(  # type: ignore[override]
@@ -529,7 +549,7 @@ class PPOLagrangian(PPO):
         """
         assert self.lagrange_multiplier is not None
         self.policy.set_training_mode(True)
-        self._update_learning_rate([self.policy.optimizer, self.policy.cost_optimizer])
+        self._update_learning_rate(self.policy.optimizer)
         clip_range = self.clip_range(self._current_progress_remaining)  # type: ignore[operator]
         if self.clip_range_vf is not None:
             clip_range_vf = self.clip_range_vf(self._current_progress_remaining)  # type: ignore[operator]
@@ -540,7 +560,7 @@ class PPOLagrangian(PPO):
             self._record_per_constraint("train/constraint_value", constraint_values)
         multipliers = th.as_tensor(self.lagrange_multiplier.value, dtype=th.float32, device=self.device)
         advantage_scale = 1.0 + multipliers.sum()  # fixed for the whole update: computed once, not per minibatch
-        actor_critic_params = [param for group in self.policy.optimizer.param_groups for param in group["params"]]
+        actor_critic_params = self.policy.actor_critic_parameters()
         cost_critic_params = self.policy.cost_critic_parameters()
         every_param = actor_critic_params + cost_critic_params
         applied_losses_finite = th.ones((), dtype=th.bool, device=self.device)  # a tensor: no sync per minibatch
@@ -607,15 +627,14 @@ class PPOLagrangian(PPO):
                         print(f"Early stopping at step {epoch} due to reaching max kl: {approx_kl_div:.2f}")
                     break
 
-                # What both optimisers' zero_grad() do (set_to_none), without their per-call overhead
+                # What the optimiser's zero_grad() does (set_to_none), without its per-call overhead
                 for param in every_param:
                     param.grad = None
                 applied_losses_finite &= th.isfinite(loss)
                 loss.backward()
                 # Clip separately: the cost critic's gradients must not rescale the actor-critic's
                 clip_grad_norms_([actor_critic_params, cost_critic_params], self.max_grad_norm)
-                self.policy.optimizer.step()
-                self.policy.cost_optimizer.step()
+                self.policy.optimizer.step()  # the actor, the reward critic and the cost critic
 
             self._n_updates += 1
             if not continue_training:
@@ -684,6 +703,33 @@ def check_total_timesteps(total_timesteps: Any) -> None:
         raise TypeError(f"`total_timesteps` must be a number of steps, got {total_timesteps!r}.")
     if not np.isfinite(total_timesteps) or total_timesteps < 0:
         raise ValueError(f"`total_timesteps` must be a finite number >= 0, got {total_timesteps!r}.")
+
+
+def merge_cost_optimizer(params: dict[str, Any]) -> dict[str, Any]:
+    """
+    The state dicts of a model saved when its cost critic had an optimizer of its own (``policy.cost_optimizer``),
+    rewritten for one optimizer: the cost critic's parameters and their states follow the actor-critic's, in one group
+    (the order :class:`~sb3_icrl.common.policies.CostActorCriticPolicy` builds). Other dicts are returned as they are.
+
+    :param params: State dicts by object name, as ``save`` writes them
+    :return: The same, with ``policy.optimizer`` covering every parameter and no ``policy.cost_optimizer``
+    """
+    if "policy.cost_optimizer" not in params:
+        return params
+    params = dict(params)  # the caller's dict is left as it was
+    actor_critic, cost_critic = params["policy.optimizer"], params.pop("policy.cost_optimizer")
+    if len(actor_critic["param_groups"]) != 1 or len(cost_critic["param_groups"]) != 1:
+        raise ValueError(
+            "Cannot merge the saved optimizers of the actor-critic and the cost critic: each should have one parameter "
+            f"group, they have {len(actor_critic['param_groups'])} and {len(cost_critic['param_groups'])}. "
+            "Load the policy weights alone with `model.policy.load_state_dict(...)`."
+        )
+    n_actor_critic = len(actor_critic["param_groups"][0]["params"])
+    n_cost_critic = len(cost_critic["param_groups"][0]["params"])
+    state = {**actor_critic["state"], **{n_actor_critic + index: value for index, value in cost_critic["state"].items()}}
+    group = {**actor_critic["param_groups"][0], "params": list(range(n_actor_critic + n_cost_critic))}
+    params["policy.optimizer"] = {"state": state, "param_groups": [group]}
+    return params
 
 
 def _mean(values: list[th.Tensor]) -> float:
