@@ -309,6 +309,24 @@ BAD_INPUTS: list[tuple[str, Callable[[dict[str, str]], Any], type[BaseException]
         "reported a negative cost",
     ),
     ("cost-nan-in-info", lambda r: costs_from_infos([{"cost": float("nan")}], "cost", 1, ["Env-v0"]), CostError, "non-finite"),
+    (
+        "cost-inf-in-second-env",
+        lambda r: costs_from_infos([{"cost": 0.0}, {"cost": np.inf}], "cost", 1, ["Env-v0", "Other-v0"]),
+        CostError,
+        "'Other-v0' (env index 1) reported a non-finite cost",
+    ),
+    (
+        "cost-numpy-negative-in-info",
+        lambda r: costs_from_infos([{"cost": np.float64(-0.5)}], "cost", 1, ["Env-v0"]),
+        CostError,
+        "reported a negative cost",
+    ),
+    (
+        "cost-beyond-float32-in-info",
+        lambda r: costs_from_infos([{"cost": 1e39}], "cost", 1, ["Env-v0"]),
+        CostError,
+        "beyond float32's range",
+    ),
     ("cost-text-in-info", lambda r: costs_from_infos([{"cost": "0.5"}], "cost", 1, ["Env-v0"]), CostError, "not numbers"),
     ("cost-word-in-info", lambda r: costs_from_infos([{"cost": "high"}], "cost", 1, ["Env-v0"]), CostError, "not numbers"),
     (

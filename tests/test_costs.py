@@ -75,6 +75,15 @@ def test_as_cost_array_shapes():
     assert costs_from_infos([{"cost": np.float32(1.0)}, {"cost": 0}], "cost", 1, ["a", "b"]).tolist() == [[1.0], [0.0]]
 
 
+def test_costs_from_infos_reads_every_scalar_type_and_the_edges_of_float32():
+    """Python and NumPy scalars of any width, zero and the largest float32, stored as float32 without change."""
+    largest = float(np.finfo(np.float32).max)
+    infos = [{"cost": 0.25}, {"cost": np.float64(2.5)}, {"cost": np.int64(3)}, {"cost": True}, {"cost": largest}, {"cost": 0}]
+    costs = costs_from_infos(infos, "cost", 1, ["env"] * len(infos))
+    assert costs.dtype == np.float32 and costs.shape == (6, 1)
+    np.testing.assert_array_equal(costs[:, 0], np.array([0.25, 2.5, 3.0, 1.0, largest, 0.0], dtype=np.float32))
+
+
 def test_cost_fn_replaces_info_and_can_be_swapped_between_learn_calls():
     model = make_model(None, cost_fn=lambda obs, actions: np.ones(len(obs)))
     policy = model.policy
