@@ -82,6 +82,12 @@ def test_costs_from_infos_reads_every_scalar_type_and_the_edges_of_float32():
     costs = costs_from_infos(infos, "cost", 1, ["env"] * len(infos))
     assert costs.dtype == np.float32 and costs.shape == (6, 1)
     np.testing.assert_array_equal(costs[:, 0], np.array([0.25, 2.5, 3.0, 1.0, largest, 0.0], dtype=np.float32))
+    # float16 and a float just above float32's largest, which float32 rounds down to it, as NumPy stores them
+    edge = np.nextafter(largest, np.inf)
+    costs = costs_from_infos([{"cost": np.float16(0.5)}, {"cost": edge}], "cost", 1, ["env"] * 2)
+    np.testing.assert_array_equal(costs[:, 0], np.array([0.5, edge], dtype=np.float32))
+    with pytest.raises(CostError, match="non-finite"):
+        costs_from_infos([{"cost": np.float16("inf")}], "cost", 1, ["env"])
 
 
 def test_cost_fn_replaces_info_and_can_be_swapped_between_learn_calls():

@@ -573,3 +573,5 @@ def test_merge_cost_optimizer_refuses_several_parameter_groups():
     assert merge_cost_optimizer(params) is params  # nothing to merge
     with pytest.raises(ValueError, match="one parameter group"):
         merge_cost_optimizer({**params, "policy.cost_optimizer": {"state": {}, "param_groups": [group]}})
+    with pytest.raises(ValueError, match="without the actor-critic's"):
+        merge_cost_optimizer({"policy.cost_optimizer": {"state": {}, "param_groups": [group]}})

@@ -11,8 +11,8 @@ import numpy as np
 CostFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
-#: The largest finite float32: a cost above it would be stored as infinity
-FLOAT32_MAX = float(np.finfo(np.float32).max)
+#: The smallest float that float32 rounds to infinity (half an ulp above its largest finite value)
+FLOAT32_OVERFLOW = 2.0**128 - 2.0**103
 
 
 class CostError(ValueError):
@@ -74,10 +74,12 @@ def costs_from_infos(infos: Sequence[dict[str, Any]], key: str, n_costs: int, en
         value = info[key]
         if n_costs == 1 and isinstance(value, (float, int, np.floating, np.integer)):
             # The common case, checked in Python: this runs every step, where NumPy's checks cost ~10x more.
-            # False for NaN, infinities, negatives and floats that would overflow float32
-            if not 0.0 <= value <= FLOAT32_MAX:
-                _check_env_costs(np.array([value], dtype=np.float64), env_names[env_idx], env_idx)
-            costs[env_idx, 0] = value
+            # As a Python float: NumPy would compare a float16 in float16. False for NaN, infinities, negatives and
+            # floats that would overflow float32
+            cost = float(value)
+            if not 0.0 <= cost < FLOAT32_OVERFLOW:
+                _check_env_costs(np.array([cost], dtype=np.float64), env_names[env_idx], env_idx)
+            costs[env_idx, 0] = cost
         else:
             source = f"Environment {env_names[env_idx]!r} (env index {env_idx}) info[{key!r}]"
             # A scalar or a flat vector: one row for this env (checked by as_cost_array)
@@ -94,8 +96,8 @@ def _check_env_costs(costs: np.ndarray, env_name: str, env_idx: int) -> None:
             f"Environment {env_name!r} (env index {env_idx}) reported a negative cost: {costs.tolist()}. A cost "
             "counts violations and must be >= 0 (shift or clip it in the env)."
         )
-    if np.any(costs > FLOAT32_MAX):
+    if np.any(costs >= FLOAT32_OVERFLOW):
         raise CostError(
             f"Environment {env_name!r} (env index {env_idx}) reported a cost beyond float32's range: {costs.tolist()} "
-            f"(costs are stored as float32, up to {FLOAT32_MAX:.4g}): rescale the cost in the env."
+            f"(costs are stored as float32, up to {float(np.finfo(np.float32).max):.4g}): rescale the cost in the env."
         )

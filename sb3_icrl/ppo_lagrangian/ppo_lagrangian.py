@@ -716,6 +716,11 @@ def merge_cost_optimizer(params: dict[str, Any]) -> dict[str, Any]:
     """
     if "policy.cost_optimizer" not in params:
         return params
+    if "policy.optimizer" not in params:
+        raise ValueError(
+            "The parameters hold the cost critic's optimizer state ('policy.cost_optimizer') without the actor-critic's "
+            "('policy.optimizer'), and the two are one optimizer now: pass both, or neither."
+        )
     params = dict(params)  # the caller's dict is left as it was
     actor_critic, cost_critic = params["policy.optimizer"], params.pop("policy.cost_optimizer")
     if len(actor_critic["param_groups"]) != 1 or len(cost_critic["param_groups"]) != 1:
