@@ -213,10 +213,9 @@ class CostActorCriticPolicy(ActorCriticPolicy):
                     (self.cost_value_net, 1.0),
                 ):
                     module.apply(partial(self.init_weights, gain=gain))
-        # SB3's optimizer holds the actor-critic's parameters; the cost critic's follow them in the same group
-        actor_critic = [param for group in self.optimizer.param_groups for param in group["params"]]
+        # SB3's optimizer, rebuilt over the cost critic's parameters too (after the actor-critic's, in one group)
         self.optimizer = self.optimizer_class(  # type: ignore[call-arg]
-            [*actor_critic, *self.cost_critic_parameters()], lr=lr_schedule(1), **self.optimizer_kwargs
+            [*self.actor_critic_parameters(), *self.cost_critic_parameters()], lr=lr_schedule(1), **self.optimizer_kwargs
         )
 
     def cost_critic_parameters(self) -> list[nn.Parameter]:
