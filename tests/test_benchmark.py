@@ -54,7 +54,8 @@ def test_shipped_suites_parse(name):
 def test_shipped_suites_are_the_benchmark():
     assert {"table3", "noise", "imperfect", "multi", "experts", "smoke"} <= set(SHIPPED)
     table3 = load_suite("table3")
-    assert len(table3.envs) == 7 and table3.algos == ["gacl", "bc2l", "mecl", "vicrl"]
+    assert len(table3.envs) == 7 and table3.algos == ["gacl", "bc2l", "mecl", "vicrl", "ppo", "ppolag"]
+    assert table3.forward_recipe == "mecl"  # the reference rows learn as MECL's forward learner does
     assert table3.seeds == [123, 321, 456, 654, 666]
     assert table3.paper["BlockedHalfCheetah-v0"]["vicrl"] == (3806.0, 0.0)
     assert [settings["transition_noise"] for settings in load_suite("noise").variants.values()] == [0.001, 0.01, 0.1]
@@ -157,8 +158,9 @@ def test_summary_cells_hold_hand_computed_statistics(tmp_path):
     summary = summarise_suite(suite, suite.runs(), results)
     bc2l = next(cell for cell in summary["cells"] if cell["algo"] == "bc2l")
     assert bc2l["feasible_reward_mean"] == pytest.approx(3.0)
-    assert bc2l["feasible_reward_std"] == pytest.approx(np.sqrt(2.0))  # ddof=0
+    assert bc2l["feasible_reward_std"] == pytest.approx(np.sqrt(10 / 4))  # the sample std: squares summing to 10, n - 1 = 4
     assert bc2l["feasible_reward_iqm"] == pytest.approx(3.0)  # trim 25% of 5: one score each side
+    assert bc2l["feasible_reward_spread"]["kind"] == "iqm"  # five seeds: an IQM with its bootstrap interval
     # bc2l is below vicrl on all five seeds: the exact two-sided signed-rank p is 2 / 2^5
     assert bc2l["wilcoxon_p"] == pytest.approx(2 / 32)
     assert bc2l["wilcoxon_p"] == pytest.approx(scipy.stats.wilcoxon(np.subtract(feasible["bc2l"], feasible["vicrl"])).pvalue)
@@ -167,6 +169,9 @@ def test_summary_cells_hold_hand_computed_statistics(tmp_path):
     table = markdown_table(summary)
     # Per-seed rewards at the precision their size asks for: a small reward keeps two decimals
     assert "0: 1.00 / 0%, 1: 2.00 / 10%" in table and "| vicrl |" in table
+    assert "| IQM 3.00 [" in table
+    # Five pairs cannot reach p < 0.05 in a two-sided Wilcoxon test: the table has no column for it
+    assert "Wilcoxon" not in table
     partial = summarise_suite(suite, suite.runs(), results[:-1])
     assert partial["runs_missing"] == [suite.runs()[-1].name]
 

@@ -41,7 +41,8 @@ def test_summary_means_stds_and_wilcoxon_by_seed() -> None:
     assert mecl["seeds"] == [1, 2, 3, 4, 5, 6]
     feasible = np.array([11.0, 12.0, 13.0, 14.0, 15.0, 100.0])
     assert mecl["feasible_reward_mean"] == pytest.approx(feasible.mean())
-    assert mecl["feasible_reward_std"] == pytest.approx(np.sqrt(np.mean((feasible - feasible.mean()) ** 2)))  # ddof 0
+    # the sample std: squared deviations over n - 1
+    assert mecl["feasible_reward_std"] == pytest.approx(np.sqrt(np.sum((feasible - feasible.mean()) ** 2) / 5))
     assert mecl["violation_rate_mean"] == pytest.approx(0.5 / 6)
     # five positive paired differences: the exact two-sided p is 2 / 2**5
     assert mecl["wilcoxon_pairs"] == 5 and mecl["wilcoxon_p"] == pytest.approx(2 / 32)
@@ -146,7 +147,7 @@ def test_merge_compare_joins_the_json_of_several_calls(tmp_path: pathlib.Path) -
     merged = subprocess.run(
         [sys.executable, str(script), *paths, "--reference", "vicrl"], capture_output=True, text=True, check=True
     ).stdout
-    assert "| mecl | 1, 2 | 0% +- 0% | 19 +- 7 |" in merged and "| vicrl | 1, 2 | 0% +- 0% | 15 +- 5 |" in merged
+    assert "| mecl | 1, 2 | 0% +- 0% | 19 +- 10 |" in merged and "| vicrl | 1, 2 | 0% +- 0% | 15 +- 7 |" in merged
     other_seed = tmp_path / "other.json"
     other_seed.write_text(json.dumps({"runs": [], "eval_seed": 7}))
     refused = subprocess.run([sys.executable, str(script), paths[0], str(other_seed)], capture_output=True, text=True)

@@ -5,9 +5,15 @@ interval, the Wilcoxon signed-rank test against a reference algorithm, the paper
 re-runs, the feasible reward as a fraction of our expert's return, and the compute the runs took, written as Markdown,
 CSV, LaTeX and JSON, with figures.
 
-IQM and the stratified bootstrap follow rliable (Agarwal et al. 2021): the IQM is the mean of the middle 50% of the
-scores (``scipy.stats.trim_mean(scores, 0.25)``), and the percentile interval resamples the seeds of each task
-independently. They are computed here with NumPy and SciPy, so the report needs no extra package.
+IQM, optimality gap, probability of improvement and the stratified bootstrap follow rliable (Agarwal et al. 2021; see
+:mod:`sb3_icrl.common.statistics`). Each statistic is labelled for what it is at its sample size: under
+:data:`~sb3_icrl.common.statistics.MIN_SEEDS_FOR_INTERVAL` seeds a cell shows its mean and [min, max], not an IQM with
+an interval, and under :data:`~sb3_icrl.common.statistics.MIN_PAIRS_FOR_WILCOXON` pairs no Wilcoxon p-value.
+
+With the reference rows in a suite (``ppo``, unconstrained, and ``ppolag`` on the true cost, the oracle), each run's
+feasible reward is also normalised, ``(F - F_ppo) / (F_oracle - F_ppo)`` with the two rows' means on the same env and
+variant, and the suite's ``success`` rule (a violation rate at most ``max_violation_rate`` and a normalised score at
+least ``min_normalised_score``) gives each cell a success probability with its Wilson 95% interval.
 """
 
 import csv
@@ -22,20 +28,26 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-import scipy.stats
 import yaml
 
 from sb3_icrl.benchmark.suite import RunSpec, Suite
 from sb3_icrl.common.evaluation import OUTCOME_KEYS, OUTCOME_RATE_KEYS
+from sb3_icrl.common.statistics import (
+    MIN_PAIRS_FOR_WILCOXON,
+    MIN_SEEDS_FOR_INTERVAL,
+    iqm,
+    normalised_score,
+    optimality_gap,
+    probability_of_improvement,
+    probability_of_improvement_ci,
+    stratified_bootstrap_ci,
+    wilson_interval,
+)
 from sb3_icrl.common.utils import atomic_write_bytes, atomic_write_json
 from sb3_icrl.zoo.compare import OUTCOME_TITLES, RunResult, evaluate_run, format_outcome_rate, summarise
 from sb3_icrl.zoo.hyperparams import env_name
 from sb3_icrl.zoo.runs import find_vecnormalize, is_finished, lacks_own_statistics, run_wall_time
 
-#: Bootstrap resamples of the confidence intervals
-BOOTSTRAP_REPS = 2000
-#: Seed of the bootstrap, so that a report is reproducible
-BOOTSTRAP_SEED = 0
 #: Held-out evaluation cached in each run folder
 HELDOUT_FILE = "heldout.json"
 #: The same for ``best_model.zip`` (``model="best"``)
@@ -46,45 +58,6 @@ IDENTIFICATION_COLUMNS = ("identification_auroc", "threshold_error", "threshold_
 REPORT_MODELS = ("final", "best")
 #: Steps per held-out episode when the env declares no time limit
 DEFAULT_EPISODE_STEPS = 1000
-
-
-def iqm(scores: Sequence[float] | np.ndarray) -> float:
-    """Interquartile mean: the mean of the scores left after cutting the lowest and highest 25%."""
-    values = np.asarray(scores, dtype=float).ravel()
-    if values.size == 0:
-        return float("nan")
-    return float(scipy.stats.trim_mean(values, proportiontocut=0.25))
-
-
-def stratified_bootstrap_ci(
-    scores_by_task: Sequence[Sequence[float] | np.ndarray],
-    statistic: Callable[[np.ndarray], float] = iqm,
-    reps: int = BOOTSTRAP_REPS,
-    confidence: float = 0.95,
-    seed: int = BOOTSTRAP_SEED,
-) -> tuple[float, float]:
-    """
-    Percentile confidence interval of ``statistic`` over all scores, resampling the runs (seeds) of each task with
-    replacement, independently per task (rliable's stratified bootstrap). One task: the plain bootstrap over seeds.
-
-    :param scores_by_task: One array of per-seed scores per task
-    :param statistic: Function of the concatenated resampled scores
-    :param reps: Number of resamples
-    :param confidence: Interval size
-    :param seed: Seed of the resampling
-    :return: ``(lower, upper)``; ``(nan, nan)`` without scores
-    """
-    tasks = [np.asarray(scores, dtype=float).ravel() for scores in scores_by_task]
-    tasks = [task for task in tasks if task.size]
-    if not tasks:
-        return float("nan"), float("nan")
-    rng = np.random.default_rng(seed)
-    estimates = np.empty(reps)
-    for rep in range(reps):
-        estimates[rep] = statistic(np.concatenate([task[rng.integers(0, task.size, task.size)] for task in tasks]))
-    tail = 100 * (1 - confidence) / 2
-    lower, upper = np.percentile(estimates, [tail, 100 - tail])
-    return float(lower), float(upper)
 
 
 def heldout_steps(env_id: str, episodes: int) -> int:
@@ -434,6 +407,149 @@ def _fmt(value: float, digits: int = 1) -> str:
     return f"{value:.{digits}f}"
 
 
+#: The reference rows of a suite: unconstrained PPO (normalised score 0) and PPO-Lagrangian on the true cost, the
+#: oracle (normalised score 1)
+PPO_ROW, ORACLE_ROW = "ppo", "ppolag"
+
+
+def spread(values: Sequence[float]) -> dict[str, Any]:
+    """
+    A cell's centre and interval, labelled for what they are at its number of seeds: from
+    :data:`~sb3_icrl.common.statistics.MIN_SEEDS_FOR_INTERVAL` seeds on, the IQM with its 95% bootstrap CI
+    (``kind: "iqm"``); below, the mean with the seeds' [min, max] (``kind: "mean"``). NaN values are left out.
+
+    :param values: Per-seed values
+    :return: ``{"kind", "centre", "interval", "n"}``
+    """
+    finite = np.asarray([value for value in values if value is not None and math.isfinite(value)], dtype=float)
+    if finite.size == 0:
+        return {"kind": "mean", "centre": math.nan, "interval": [math.nan, math.nan], "n": 0}
+    if finite.size >= MIN_SEEDS_FOR_INTERVAL:
+        return {"kind": "iqm", "centre": iqm(finite), "interval": list(stratified_bootstrap_ci([finite])), "n": finite.size}
+    return {
+        "kind": "mean",
+        "centre": float(finite.mean()),
+        "interval": [float(finite.min()), float(finite.max())],
+        "n": finite.size,
+    }
+
+
+def format_spread(entry: dict[str, Any] | None, percent: bool = False) -> str:
+    """``IQM c [lo, hi]`` or ``mean c [min, max]`` (:func:`spread`), ``-`` without values."""
+    if not entry or not entry["n"]:
+        return "-"
+
+    def shown(value: float) -> str:
+        return f"{100 * value:.0f}%" if percent else format_reward(value)
+
+    low, high = entry["interval"]
+    return f"{'IQM' if entry['kind'] == 'iqm' else 'mean'} {shown(entry['centre'])} [{shown(low)}, {shown(high)}]"
+
+
+def add_reference_scores(cells: list[dict[str, Any]], success: dict[str, float] | None) -> None:
+    """
+    Where an env and variant have both reference rows, each of their cells' runs gets ``normalised_score``
+    (:func:`~sb3_icrl.common.statistics.normalised_score` between the two rows' mean feasible rewards), each cell
+    ``normalised_score_mean`` and ``normalised_score_spread``; with a ``success`` rule, each run ``success`` and each cell
+    ``success_count``, ``success_probability`` and its Wilson 95% interval (``success_ci95``). In place.
+
+    :param cells: The cells of :func:`summarise_suite`
+    :param success: The suite's rule (``max_violation_rate``, ``min_normalised_score``), or ``None``
+    """
+    rows = {(cell["env"], cell["variant"], cell["algo"]): cell for cell in cells}
+    for cell in cells:
+        low = rows.get((cell["env"], cell["variant"], PPO_ROW))
+        high = rows.get((cell["env"], cell["variant"], ORACLE_ROW))
+        if low is None or high is None:
+            continue
+        cell["reference_feasible_reward"] = {PPO_ROW: low["feasible_reward_mean"], ORACLE_ROW: high["feasible_reward_mean"]}
+        scores = []
+        for seed in cell["per_seed"]:
+            seed["normalised_score"] = normalised_score(
+                seed["feasible_reward"], low["feasible_reward_mean"], high["feasible_reward_mean"]
+            )
+            scores.append(seed["normalised_score"])
+        finite = [score for score in scores if math.isfinite(score)]
+        cell["normalised_score_mean"] = float(np.mean(finite)) if finite else math.nan
+        cell["normalised_score_spread"] = spread(scores)
+        if success is None or not finite:
+            continue
+        for seed in cell["per_seed"]:
+            seed["success"] = bool(
+                seed["violation_rate"] <= success["max_violation_rate"] + 1e-9
+                and seed["normalised_score"] >= success["min_normalised_score"]
+            )
+        count = sum(seed["success"] for seed in cell["per_seed"])
+        cell["success_count"] = count
+        cell["success_probability"] = count / len(cell["per_seed"])
+        cell["success_ci95"] = list(wilson_interval(count, len(cell["per_seed"])))
+
+
+def normalised_aggregates(
+    cells: list[dict[str, Any]], algos: Sequence[str]
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """
+    Across envs, per algorithm: the IQM, mean and optimality gap (below 1, the oracle) of the normalised scores with
+    stratified bootstrap 95% CIs; and for each pair of algorithms other than the reference rows, the probability of
+    improvement with its CI, over the envs both have scores on.
+
+    :param cells: The cells, after :func:`add_reference_scores`
+    :param algos: The algorithms, in the suite's order
+    :return: ``(aggregates, improvements)``
+    """
+
+    def tasks(algo: str) -> dict[tuple[str, str], list[float]]:
+        return {
+            (cell["env"], cell["variant"]): [
+                s["normalised_score"] for s in cell["per_seed"] if math.isfinite(s["normalised_score"])
+            ]
+            for cell in cells
+            if cell["algo"] == algo and "normalised_score_mean" in cell
+        }
+
+    by_algo = {algo: tasks(algo) for algo in algos}
+    aggregates = []
+    for algo, scores in by_algo.items():
+        groups = [values for values in scores.values() if values]
+        if not groups:
+            continue
+        flat = np.concatenate(groups)
+        aggregates.append(
+            {
+                "algo": algo,
+                "n_cells": len(groups),
+                "n_runs": int(flat.size),
+                "normalised_score_iqm": iqm(flat),
+                "normalised_score_iqm_ci95": list(stratified_bootstrap_ci(groups)),
+                # rliable's mean: of the per-env means (the flat mean when every env has as many seeds)
+                "normalised_score_mean": float(np.mean([np.mean(values) for values in groups])),
+                "normalised_score_mean_ci95": list(stratified_bootstrap_ci(groups, statistic=np.mean)),
+                "optimality_gap": optimality_gap(flat),
+                "optimality_gap_ci95": list(stratified_bootstrap_ci(groups, statistic=optimality_gap)),
+            }
+        )
+    methods = [algo for algo in algos if algo not in (PPO_ROW, ORACLE_ROW) and by_algo[algo]]
+    improvements = []
+    for x in methods:
+        for y in methods:
+            if x == y:
+                continue
+            shared = sorted(set(by_algo[x]) & set(by_algo[y]))
+            if not shared:
+                continue
+            xs, ys = [by_algo[x][task] for task in shared], [by_algo[y][task] for task in shared]
+            improvements.append(
+                {
+                    "x": x,
+                    "y": y,
+                    "n_cells": len(shared),
+                    "probability": probability_of_improvement(xs, ys),
+                    "ci95": list(probability_of_improvement_ci(xs, ys)),
+                }
+            )
+    return aggregates, improvements
+
+
 def summarise_suite(
     suite: Suite,
     runs: Sequence[RunSpec],
@@ -505,10 +621,19 @@ def summarise_suite(
                     ],
                     "identification_auroc_mean": _mean_of([metrics.get(r.run, {}).get("identification_auroc") for r in mine]),
                     **{key: value for key, value in entry.items() if key != "seeds"},
-                    "feasible_reward_iqm": iqm(feasible),
-                    "feasible_reward_iqm_ci95": list(stratified_bootstrap_ci([feasible])),
-                    "violation_rate_iqm": iqm(violation),
-                    "violation_rate_iqm_ci95": list(stratified_bootstrap_ci([violation])),
+                    "feasible_reward_spread": spread(feasible),
+                    "violation_rate_spread": spread(violation),
+                    # An IQM with a bootstrap interval only where there are seeds enough for one to mean anything
+                    **(
+                        {
+                            "feasible_reward_iqm": iqm(feasible),
+                            "feasible_reward_iqm_ci95": list(stratified_bootstrap_ci([feasible])),
+                            "violation_rate_iqm": iqm(violation),
+                            "violation_rate_iqm_ci95": list(stratified_bootstrap_ci([violation])),
+                        }
+                        if len(mine) >= MIN_SEEDS_FOR_INTERVAL
+                        else {}
+                    ),
                     "reference": reference if algo != reference else None,
                     "paper_feasible_reward": paper[0] if paper else None,
                     "paper_violation_rate": paper[1] if paper else None,
@@ -529,6 +654,8 @@ def summarise_suite(
             )
             # Higher feasible reward and no higher violation rate than each published number of the same method
             cells[-1]["beats"] = {source: beats(cells[-1], pair) for source, pair in published_pairs(cells[-1]).items()}
+    add_reference_scores(cells, suite.success)
+    normalised, improvements = normalised_aggregates(cells, suite.algos)
     aggregates = []
     for algo in suite.algos:
         tasks = [[seed["violation_rate"] for seed in cell["per_seed"]] for cell in cells if cell["algo"] == algo]
@@ -553,6 +680,9 @@ def summarise_suite(
         "reference": suite.reference,
         "cells": cells,
         "aggregates": aggregates,
+        "normalised_aggregates": normalised,
+        "improvements": improvements,
+        "success_rule": suite.success,
         "runs_missing": missing,
         "others_sources": list(suite.others),
         "core_hours": _core_hours(list(wall_time.values())),
@@ -585,41 +715,60 @@ BEST_MODELS_NOTE = (
 
 def markdown_table(summary: dict[str, Any]) -> str:
     """
-    The cells as a Markdown table: ours (mean +- std, IQM [CI], fraction of our expert's return) beside the paper's
-    and other sources', per-seed values visible, then the compute line.
+    The cells as a Markdown table: ours (mean ± sample std, and IQM [95% CI] from 5 seeds on or mean [min, max] below,
+    fraction of our expert's return; with the reference rows, the normalised score and the success probability with its
+    Wilson interval) beside the paper's and other sources', per-seed values visible, a Wilcoxon column only where some
+    cell has 6 pairs or more; then the cross-env aggregates and the compute line.
     """
     sources = other_sources(summary)
-    lines = [
-        "| env | variant | algo | seeds | feasible reward (mean ± std) | IQM [95% CI] | vs our expert | violation rate "
-        "| Wilcoxon p | paper | " + "".join(f"{source} | " for source in sources) + "per seed (feasible / violation) "
-        "| identification per seed (AUROC / threshold error) | transfer per seed (violation / feasible reward ÷ oracle's) "
-        "| core-hours |",
-        "|---" * (14 + len(sources)) + "|",
+    cells = summary["cells"]
+    normalised = any("normalised_score_spread" in cell for cell in cells)
+    success = any("success_probability" in cell for cell in cells)
+    wilcoxon = any((cell.get("wilcoxon_pairs") or 0) >= MIN_PAIRS_FOR_WILCOXON for cell in cells)
+    headings = ["env", "variant", "algo", "seeds", "feasible reward (mean ± std)", "IQM [95% CI] or mean [min, max]"]
+    headings += ["normalised score"] * normalised + ["success [Wilson 95%]"] * success
+    headings += ["vs our expert", "violation rate"] + ["Wilcoxon p"] * wilcoxon + ["paper", *sources]
+    headings += [
+        "per seed (feasible / violation" + (" / normalised" if normalised else "") + ")",
+        "identification per seed (AUROC / threshold error)",
+        "transfer per seed (violation / feasible reward ÷ oracle's)",
+        "core-hours",
     ]
-    for cell in summary["cells"]:
-        low, high = cell["feasible_reward_iqm_ci95"]
+    lines = ["| " + " | ".join(headings) + " |", "|---" * len(headings) + "|"]
+    for cell in cells:
         paper = (
             f"{cell['paper_feasible_reward']:g} / {100 * cell['paper_violation_rate']:.0f}%"
             if cell["paper_feasible_reward"] is not None
             else "-"
         )
         per_seed = ", ".join(
-            f"{s['seed']}: {format_reward(s['feasible_reward'])} / {100 * s['violation_rate']:.0f}%" for s in cell["per_seed"]
+            f"{s['seed']}: {format_reward(s['feasible_reward'])} / {100 * s['violation_rate']:.0f}%"
+            + (f" / {_fmt(s['normalised_score'], 2)}" if "normalised_score" in s else "")
+            for s in cell["per_seed"]
         )
         identification = ", ".join(f"{s['seed']}: {_identification_text(s)}" for s in cell["per_seed"])
         transfer = ", ".join(f"{s['seed']}: {_transfer_text(s)}" for s in cell["per_seed"] if _transfer_text(s) != "-")
-        p_value = cell.get("wilcoxon_p")
-        others = "".join(f"{_published((cell.get('others') or {}).get(source))} | " for source in sources)
         hours = cell.get("core_hours")
-        lines.append(
-            f"| {cell['env']} | {cell['variant']} | {cell['algo']} | {cell['n_seeds']} | "
-            f"{_fmt(cell['feasible_reward_mean'])} ± {_fmt(cell['feasible_reward_std'])} | "
-            f"{_fmt(cell['feasible_reward_iqm'])} [{_fmt(low)}, {_fmt(high)}] | {_fraction_text(cell)} | "
-            f"{100 * cell['violation_rate_mean']:.0f}% ± {100 * cell['violation_rate_std']:.0f}% | "
-            f"{_fmt(p_value, 3) if p_value is not None else '-'} | {paper} | {others}{per_seed} | "
-            f"{identification if any('identification_auroc' in s for s in cell['per_seed']) else '-'} | {transfer or '-'} | "
-            f"{format_hours(hours) if hours is not None else '-'} |"
-        )
+        pairs = cell.get("wilcoxon_pairs") or 0
+        p_value = cell.get("wilcoxon_p") if pairs >= MIN_PAIRS_FOR_WILCOXON else None
+        row = [cell["env"], cell["variant"], cell["algo"], str(cell["n_seeds"])]
+        row += [f"{_fmt(cell['feasible_reward_mean'])} ± {_fmt(cell['feasible_reward_std'])}"]
+        row += [format_spread(cell.get("feasible_reward_spread") or spread([s["feasible_reward"] for s in cell["per_seed"]]))]
+        if normalised:
+            row.append(_normalised_text(cell.get("normalised_score_spread")))
+        if success:
+            row.append(_success_text(cell))
+        row += [
+            _fraction_text(cell),
+            f"{100 * cell['violation_rate_mean']:.0f}% ± {_fmt(100 * cell['violation_rate_std'], 0)}%",
+        ]
+        if wilcoxon:
+            row.append(_fmt(p_value, 3) if p_value is not None else "-")
+        row += [paper, *(_published((cell.get("others") or {}).get(source)) for source in sources), per_seed]
+        row += [identification if any("identification_auroc" in s for s in cell["per_seed"]) else "-", transfer or "-"]
+        row.append(format_hours(hours) if hours is not None else "-")
+        lines.append("| " + " | ".join(row) + " |")
+    lines += aggregate_lines(summary)
     lines += outcome_lines(summary)
     if summary.get("model") == "best":
         lines += ["", BEST_MODELS_NOTE]
@@ -630,6 +779,64 @@ def markdown_table(summary: dict[str, Any]) -> str:
     if compute is not None:
         lines += ["", compute]
     return "\n".join(lines) + "\n"
+
+
+def _normalised_text(entry: dict[str, Any] | None) -> str:
+    if not entry or not entry["n"]:
+        return "-"
+    low, high = entry["interval"]
+    return f"{'IQM' if entry['kind'] == 'iqm' else 'mean'} {entry['centre']:.2f} [{low:.2f}, {high:.2f}]"
+
+
+def _success_text(cell: dict[str, Any]) -> str:
+    if "success_probability" not in cell:
+        return "-"
+    low, high = cell["success_ci95"]
+    return f"{cell['success_count']}/{cell['n_seeds']} [{low:.2f}, {high:.2f}]"
+
+
+def aggregate_lines(summary: dict[str, Any]) -> list[str]:
+    """
+    The cross-env aggregates of the normalised score (IQM, mean, optimality gap, each with its stratified bootstrap 95%
+    CI) and the probabilities of improvement between methods, as Markdown lines after a blank line; none without
+    reference rows.
+    """
+    aggregates = summary.get("normalised_aggregates") or []
+    if not aggregates:
+        return []
+    rule = summary.get("success_rule")
+    lines = [
+        "",
+        "Normalised score: (F - F_ppo) / (F_oracle - F_ppo) per run, with the mean feasible rewards of unconstrained PPO "
+        "(0) and PPO-Lagrangian on the true cost (1) on the same env and variant."
+        + (
+            f" Success: violation rate <= {100 * rule['max_violation_rate']:g}% and normalised score >= "
+            f"{rule['min_normalised_score']:g}, with the Wilson 95% interval of its probability."
+            if rule
+            else ""
+        ),
+        "",
+        "Across envs (stratified bootstrap 95% CIs over the seeds of each env):",
+        "",
+        "| algo | envs | runs | IQM | mean | optimality gap |",
+        "|---|---|---|---|---|---|",
+    ]
+    for entry in aggregates:
+        cells = [
+            f"{entry[key]:.2f} [{entry[key + '_ci95'][0]:.2f}, {entry[key + '_ci95'][1]:.2f}]"
+            for key in ("normalised_score_iqm", "normalised_score_mean", "optimality_gap")
+        ]
+        lines.append(f"| {entry['algo']} | {entry['n_cells']} | {entry['n_runs']} | " + " | ".join(cells) + " |")
+    improvements = summary.get("improvements") or []
+    if improvements:
+        lines += ["", "Probability of improvement, P(X > Y) on the normalised score:", ""]
+        lines += ["| X | Y | envs | P(X > Y) [95% CI] |", "|---|---|---|---|"]
+        for entry in improvements:
+            low, high = entry["ci95"]
+            lines.append(
+                f"| {entry['x']} | {entry['y']} | {entry['n_cells']} | {entry['probability']:.2f} [{low:.2f}, {high:.2f}] |"
+            )
+    return lines
 
 
 #: The per-seed keys of the driving outcome rates, in :data:`OUTCOME_KEYS` order

@@ -12,7 +12,7 @@ from typing import Any
 import yaml
 
 from sb3_icrl.benchmark.suite import RunSpec
-from sb3_icrl.zoo.hyperparams import env_name, load_hyperparams
+from sb3_icrl.zoo.hyperparams import REFERENCE_ALGOS, env_name, load_hyperparams
 from sb3_icrl.zoo.runs import checkpoints, failure, finished_wall_time, is_finished, read_finished
 
 #: The states of a run, in the order the summary line counts them
@@ -69,7 +69,7 @@ def held_lock_inodes(proc_locks: str = PROC_LOCKS) -> set[int] | None:
     return inodes
 
 
-def planned_steps(run: RunSpec, root: str, recipes: dict[tuple[str, str, str], int | None] | None = None) -> int | None:
+def planned_steps(run: RunSpec, root: str, recipes: dict[tuple[str, ...], int | None] | None = None) -> int | None:
     """
     The steps a run trains for: the suite's ``steps``, else ``n_timesteps`` of the recipe the run saved
     (``config.yml``), else of the shipped recipe with the variant's hyper-parameters.
@@ -88,13 +88,14 @@ def planned_steps(run: RunSpec, root: str, recipes: dict[tuple[str, str, str], i
     except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError):
         pass
     overrides = run.variant_settings.get("hyperparams") or {}
-    key = (run.algo, run.env_id, repr(sorted(overrides.items())))
+    forward_recipe = run.forward_recipe if run.algo in REFERENCE_ALGOS else None
+    key = (run.algo, run.env_id, repr(sorted(overrides.items())), forward_recipe or "")
     if recipes is not None and key in recipes:
         return recipes[key]
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the fallback entry of an unknown env says so once per process
-            entry, _ = load_hyperparams(run.algo, run.env_id, dict(overrides))
+            entry, _ = load_hyperparams(run.algo, run.env_id, dict(overrides), forward_recipe=forward_recipe)
         steps: int | None = int(float(entry["n_timesteps"]))
     except Exception:  # a recipe that cannot be read here is reported as unknown steps, not as an error
         steps = None
@@ -104,7 +105,7 @@ def planned_steps(run: RunSpec, root: str, recipes: dict[tuple[str, str, str], i
 
 
 def run_status(
-    run: RunSpec, root: str, locked_inodes: set[int] | None, recipes: dict[tuple[str, str, str], int | None] | None = None
+    run: RunSpec, root: str, locked_inodes: set[int] | None, recipes: dict[tuple[str, ...], int | None] | None = None
 ) -> RunStatus:
     """
     :param run: The run
@@ -140,7 +141,7 @@ def run_status(
 def suite_status(runs: list[RunSpec], root: str) -> list[RunStatus]:
     """The status of each run, in the order given."""
     locked = held_lock_inodes()
-    recipes: dict[tuple[str, str, str], int | None] = {}
+    recipes: dict[tuple[str, ...], int | None] = {}
     return [run_status(run, root, locked, recipes) for run in runs]
 
 

@@ -5,6 +5,7 @@ again finds the runs it already made.
 """
 
 import dataclasses
+import math
 import os
 import pathlib
 from dataclasses import dataclass, field
@@ -12,7 +13,7 @@ from typing import Any
 
 import yaml
 
-from sb3_icrl.zoo.hyperparams import ALGOS, env_name, import_gym_packages, resolve_env_id
+from sb3_icrl.zoo.hyperparams import ALGOS, REFERENCE_ALGOS, env_name, import_gym_packages, resolve_env_id
 
 #: Where the shipped suites live
 SUITES_DIR = pathlib.Path(__file__).resolve().parent / "suites"
@@ -28,10 +29,16 @@ SUITE_KEYS = {
     "eval_seed": "seed of the held-out episodes (default 100, a seed no run trains on)",
     "train_args": "extra train.py settings for every run: eval_freq, eval_episodes, save_freq, num_threads, device",
     "reference": "algorithm the report tests the others against (Wilcoxon signed-rank)",
+    "forward_recipe": f"the reference rows ({', '.join(REFERENCE_ALGOS)}) learn with this algorithm's forward learner and "
+    "steps, env by env, so that they stand on the same footing as the ICRL cells (default: their own recipes)",
     "paper": "mapping env -> algo -> [feasible reward, violation rate] of the paper, shown beside ours",
     "others": "mapping source name -> env -> algo -> [feasible reward, violation rate] of other published runs",
     "gym_packages": "modules to import first: they register your own envs",
+    "success": "what counts as a run that succeeded, written before any run: {max_violation_rate: 0.05, "
+    "min_normalised_score: 0.5} (the normalised score needs the reference rows ppo and ppolag)",
 }
+#: The settings of a suite's ``success`` rule
+SUCCESS_KEYS = ("max_violation_rate", "min_normalised_score")
 #: What a variant may change, with the train.py flag it becomes
 VARIANT_KEYS = {
     "transition_noise": "--transition-noise",
@@ -77,6 +84,7 @@ class RunSpec:
     :param variant_settings: The variant's settings (see :data:`VARIANT_KEYS`)
     :param train_args: train.py settings (see :data:`TRAIN_ARGS`)
     :param gym_packages: Modules that register the env (``--gym-packages``)
+    :param forward_recipe: For the reference rows: the algorithm whose forward learner they use (``--forward-recipe``)
     """
 
     suite: str
@@ -88,6 +96,7 @@ class RunSpec:
     variant_settings: dict[str, Any] = field(default_factory=dict, compare=False, hash=False)
     train_args: dict[str, Any] = field(default_factory=dict, compare=False, hash=False)
     gym_packages: tuple[str, ...] = field(default=(), compare=False, hash=False)
+    forward_recipe: str | None = field(default=None, compare=False, hash=False)
 
     @property
     def cell(self) -> tuple[str, str, str]:
@@ -120,6 +129,8 @@ class RunSpec:
             argv += ["--gym-packages", *self.gym_packages]
         if self.steps is not None:
             argv += ["-n", str(self.steps)]
+        if self.forward_recipe is not None and self.algo in REFERENCE_ALGOS:
+            argv += ["--forward-recipe", self.forward_recipe]
         for key, flag in TRAIN_ARGS.items():
             if key in self.train_args:
                 argv += [flag, str(self.train_args[key])]
@@ -157,13 +168,27 @@ class Suite:
     reference: str | None
     paper: dict[str, dict[str, tuple[float, float]]]
     gym_packages: tuple[str, ...] = ()
+    forward_recipe: str | None = None
+    #: The success rule (:data:`SUCCESS_KEYS`), ``None`` when the suite defines none
+    success: dict[str, float] | None = None
     #: source name -> env name -> algo -> (feasible reward, violation rate), in the file's order
     others: dict[str, dict[str, dict[str, tuple[float, float]]]] = field(default_factory=dict)
 
     def runs(self) -> list[RunSpec]:
         """Every run, env by env, then variant, algorithm and seed."""
         return [
-            RunSpec(self.name, variant, algo, env_id, seed, self.steps[env_id], settings, self.train_args, self.gym_packages)
+            RunSpec(
+                self.name,
+                variant,
+                algo,
+                env_id,
+                seed,
+                self.steps[env_id],
+                settings,
+                self.train_args,
+                self.gym_packages,
+                self.forward_recipe,
+            )
             for env_id in self.envs
             for variant, settings in self.variants.items()
             for algo in self.algos
@@ -363,6 +388,29 @@ class _SuiteReader:
                 numbers.setdefault(name, {})[algo] = (float(pair[0]), float(pair[1]))
         return numbers
 
+    def success(self, algos: list[str]) -> dict[str, float] | None:
+        raw = self.content.get("success")
+        if raw is None:
+            return None
+        example = "{max_violation_rate: 0.05, min_normalised_score: 0.5}"
+        if not isinstance(raw, dict) or set(raw) != set(SUCCESS_KEYS):
+            raise self.error(("success",), f"`success` maps {' and '.join(SUCCESS_KEYS)} to numbers, e.g. {example}.")
+        rule = {}
+        for key in SUCCESS_KEYS:
+            value = raw[key]
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise self.error(("success", key), f"`success.{key}` is a number, got {value!r}.")
+            if key == "max_violation_rate" and not 0 <= value <= 1:
+                raise self.error(("success", key), f"`success.{key}` is a rate within [0, 1], got {value!r}.")
+            rule[key] = float(value)
+        if not set(REFERENCE_ALGOS) <= set(algos):
+            raise self.error(
+                ("success",),
+                f"`success` needs the normalised score, which needs the reference rows {' and '.join(REFERENCE_ALGOS)} "
+                "among the algos: add them, or leave `success` out.",
+            )
+        return rule
+
     def paper(self) -> dict[str, dict[str, tuple[float, float]]]:
         return self.numbers(self.content.get("paper"), ("paper",), "paper")
 
@@ -411,6 +459,15 @@ def load_suite(name_or_path: str | os.PathLike) -> Suite:
     reference = content.get("reference")
     if reference is not None and reference not in algos:
         raise reader.error(("reference",), f"reference {reference!r} is not one of the suite's algos ({', '.join(algos)}).")
+    forward_recipe = content.get("forward_recipe")
+    if forward_recipe is not None and forward_recipe not in ALGOS:
+        raise reader.error(("forward_recipe",), f"unknown algorithm {forward_recipe!r}: use one of {', '.join(ALGOS)}.")
+    if forward_recipe is not None and not set(algos) & set(REFERENCE_ALGOS):
+        raise reader.error(
+            ("forward_recipe",),
+            f"`forward_recipe` sets the forward learner of the reference rows ({', '.join(REFERENCE_ALGOS)}), and the "
+            "suite's algos have none: add them, or leave it out.",
+        )
     return Suite(
         name=path.stem,
         path=str(path),
@@ -426,5 +483,7 @@ def load_suite(name_or_path: str | os.PathLike) -> Suite:
         reference=reference,
         paper=reader.paper(),
         gym_packages=tuple(gym_packages),
+        forward_recipe=forward_recipe,
+        success=reader.success(algos),
         others=reader.others(),
     )

@@ -25,11 +25,11 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
-import scipy.stats
 import yaml
 from stable_baselines3.common.save_util import load_from_zip_file
 
 from sb3_icrl.common.evaluation import OUTCOME_KEYS, OUTCOME_RATE_KEYS
+from sb3_icrl.common.statistics import MIN_PAIRS_FOR_WILCOXON, sample_std, wilcoxon_p
 from sb3_icrl.common.utils import atomic_write_json
 from sb3_icrl.zoo import enjoy
 from sb3_icrl.zoo.hyperparams import ALGOS, env_name, import_gym_packages
@@ -165,8 +165,9 @@ def evaluate_run(run: str, n_timesteps: int, eval_seed: int, load_best: bool = F
 
 def summarise(results: list[RunResult], reference: str | None = None) -> dict[str, dict[str, Any]]:
     """
-    Per algorithm: the seeds, mean and std (``ddof=0``) of violation rate and feasible reward over its runs, and the
-    Wilcoxon signed-rank test of its per-seed feasible rewards against ``reference`` on the seeds both ran.
+    Per algorithm: the seeds, mean and sample std (``ddof=1``; ``nan`` for one seed) of violation rate and feasible
+    reward over its runs, and the Wilcoxon signed-rank test of its per-seed feasible rewards against ``reference`` on the
+    seeds both ran (see :func:`wilcoxon_warnings` for what too few pairs mean).
 
     :param results: One entry per run; at most one run per (algorithm, seed)
     :param reference: Algorithm to test the others against (``None``: no test)
@@ -186,9 +187,9 @@ def summarise(results: list[RunResult], reference: str | None = None) -> dict[st
         entry: dict[str, Any] = {
             "seeds": sorted(runs),
             "violation_rate_mean": float(violations.mean()),
-            "violation_rate_std": float(violations.std()),
+            "violation_rate_std": sample_std(violations),
             "feasible_reward_mean": float(feasible.mean()),
-            "feasible_reward_std": float(feasible.std()),
+            "feasible_reward_std": sample_std(feasible),
         }
         outcomes = outcome_rate_means(list(runs.values()))
         if outcomes:
@@ -197,7 +198,7 @@ def summarise(results: list[RunResult], reference: str | None = None) -> dict[st
             paired = sorted(set(runs) & set(by_algo[reference]))
             differences = [runs[s].feasible_reward - by_algo[reference][s].feasible_reward for s in paired]
             entry["wilcoxon_pairs"] = len(paired)
-            entry["wilcoxon_p"] = _wilcoxon_p(differences)
+            entry["wilcoxon_p"] = wilcoxon_p(differences)
         summary[algo] = entry
     return summary
 
@@ -259,7 +260,7 @@ def check_reference(runs: list[str], reference: str | None) -> None:
 
 
 #: Fewest pairs with which a two-sided Wilcoxon signed-rank test can reach p < 0.05 (its smallest p is 2 / 2**n)
-WILCOXON_MIN_PAIRS = 6
+WILCOXON_MIN_PAIRS = MIN_PAIRS_FOR_WILCOXON
 
 
 def wilcoxon_warnings(summary: dict[str, dict[str, Any]], reference: str | None) -> list[str]:
@@ -350,13 +351,6 @@ def recipe_differences(runs: list[str]) -> dict[str, dict[str, list[str]]]:
         if differing:
             differences[algo] = differing
     return differences
-
-
-def _wilcoxon_p(differences: list[float]) -> float:
-    """Two-sided Wilcoxon signed-rank p-value of paired differences (``nan`` with no pair or all differences zero)."""
-    if not differences or not np.any(np.asarray(differences) != 0):
-        return float("nan")
-    return float(scipy.stats.wilcoxon(differences).pvalue)
 
 
 def format_table(results: list[RunResult], summary: dict[str, dict[str, Any]], reference: str | None) -> str:

@@ -8,6 +8,7 @@ string, ``env_wrapper`` and ``callback`` as import paths (optionally ``{path: kw
 """
 
 import importlib
+import inspect
 import json
 import os
 import pathlib
@@ -72,6 +73,9 @@ UNKNOWN_ENV_ICRL_DEFAULTS: dict[str, Any] = {
     "lagrange_update": "pid",
     "lagrange_kwargs": "dict(init=1.0, kp=5.0, ki=0.005, kd=0.0)",
 }
+#: Algorithms that can learn on another algorithm's forward learner (``forward_recipe``): the reference rows of a
+#: benchmark, unconstrained PPO and PPO-Lagrangian on the true cost (the oracle)
+REFERENCE_ALGOS = ("ppo", "ppolag")
 #: Top-level keys of a hyper-parameter file that name entries (``default``, ``MyEnv-v0``), not hyper-parameters
 _ENTRY_KEY = re.compile(r"^default$|-v\d+$")
 #: Algorithms whose fallback to ``default`` has been announced in this process
@@ -237,6 +241,7 @@ def load_hyperparams(
     overrides: dict[str, Any] | None = None,
     directory: str | os.PathLike | None = None,
     conf_file: str | None = None,
+    forward_recipe: str | None = None,
 ) -> tuple[dict[str, Any], str]:
     """
     The raw entry for ``env_id`` (falling back to ``default``) with ``overrides`` applied, as saved in ``config.yml``.
@@ -251,10 +256,16 @@ def load_hyperparams(
     :param overrides: ``-params`` values (replace the file's)
     :param directory: Folder of the yml files
     :param conf_file: Explicit file, or a JSON object
+    :param forward_recipe: For ``ppo`` and ``ppolag``: take the forward learner of this algorithm's entry instead
+        (see :func:`forward_learner_entry`); not with ``conf_file``
     :return: The entry (strings not yet evaluated) and the key it came from
     """
     if algo not in ALGOS:
         raise HyperparameterError(f"Unknown algo {algo!r}: use one of {', '.join(ALGOS)}.")
+    if forward_recipe is not None and conf_file:
+        raise HyperparameterError("--forward-recipe takes the entry of another algorithm: leave out -conf/--conf-file.")
+    if forward_recipe is not None:
+        return forward_learner_entry(algo, env_id, forward_recipe, overrides, directory)
     partial: dict[str, Any] = {}
     if conf_file:
         conf = read_hyperparams_file(algo, directory, conf_file)
@@ -283,6 +294,66 @@ def load_hyperparams(
     entry.update(partial)
     entry.update(overrides or {})
     return entry, key
+
+
+def constructor_defaults(algo_class: type) -> dict[str, Any]:
+    """
+    The keyword arguments ``algo_class`` takes, with their defaults (``inspect.Parameter.empty``: none): its own
+    ``__init__``'s and, where that passes ``**kwargs`` on, its bases' (the nearest class's default wins).
+    """
+    defaults: dict[str, Any] = {}
+    for klass in algo_class.__mro__:
+        if "__init__" not in vars(klass):
+            continue
+        parameters = inspect.signature(vars(klass)["__init__"]).parameters.values()
+        for parameter in parameters:
+            if parameter.kind is parameter.POSITIONAL_OR_KEYWORD and parameter.name not in ("self", "_init_setup_model"):
+                defaults.setdefault(parameter.name, parameter.default)
+        if not any(parameter.kind is parameter.VAR_KEYWORD for parameter in parameters):
+            break
+    return defaults
+
+
+def forward_learner_entry(
+    algo: str,
+    env_id: str,
+    forward_recipe: str,
+    overrides: dict[str, Any] | None = None,
+    directory: str | os.PathLike | None = None,
+) -> tuple[dict[str, Any], str]:
+    """
+    A reference row's entry: ``algo`` (``ppo`` or ``ppolag``) on the forward learner of ``forward_recipe``'s entry for
+    ``env_id``, so that the reference rows of a benchmark learn with the same settings and steps as its ICRL cells.
+
+    Only the settings ``algo`` takes are kept (and the zoo's own: envs, steps, normalisation): ``ppo`` drops the
+    constraint model's and the Lagrangian's, ``ppolag`` the constraint model's. Where the recipe's algorithm and
+    ``algo`` default a shared setting differently (the ICRL learners' budget is per step, PPOLagrangian's per episode),
+    the recipe's default is written out. A budget of ``'expert'`` (the expert's learned cost) becomes 0, the true
+    cost's budget: the expert's demonstrations break the true constraint nowhere.
+
+    :param algo: ``ppo`` or ``ppolag``
+    :param env_id: Registered or short env id
+    :param forward_recipe: The algorithm whose entry gives the forward learner (e.g. ``mecl``)
+    :param overrides: ``-params`` values, applied last
+    :param directory: Folder of the yml files
+    :return: The entry and the key it came from, as ``<forward_recipe>:<key>``
+    """
+    if algo not in REFERENCE_ALGOS:
+        raise HyperparameterError(
+            f"A forward recipe is for the reference rows ({', '.join(REFERENCE_ALGOS)}), not {algo!r}: leave it out."
+        )
+    if forward_recipe not in ALGOS:
+        raise HyperparameterError(f"Unknown forward recipe {forward_recipe!r}: use one of {', '.join(ALGOS)}.")
+    entry, key = load_hyperparams(forward_recipe, env_id, directory=directory)
+    defaults = constructor_defaults(ALGOS[algo])
+    entry = {name: value for name, value in entry.items() if name in defaults or name in ZOO_KEYS}
+    for name, default in constructor_defaults(ALGOS[forward_recipe]).items():
+        if name in defaults and name not in entry and default is not inspect.Parameter.empty and default != defaults[name]:
+            entry[name] = default
+    if entry.get("cost_budget") == "expert":
+        entry["cost_budget"] = 0.0
+    entry.update(overrides or {})
+    return entry, f"{forward_recipe}:{key}"
 
 
 def preprocess_hyperparams(entry: dict[str, Any]) -> dict[str, Any]:

@@ -213,6 +213,14 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
         help="yml file of entries by env name (replaces <algo>.yml), or one entry: a small yml file or a JSON object, "
         "applied over the shipped entry",
     )
+    parser.add_argument(
+        "--forward-recipe",
+        type=str,
+        default=None,
+        choices=list(ALGOS),
+        help="ppo and ppolag: learn with the forward learner of this algorithm's entry (its PPO settings and steps; "
+        "ppolag on the true cost with budget 0): a benchmark's reference rows, on the same footing as its ICRL cells",
+    )
     parser.add_argument("--env-kwargs", type=str, nargs="+", action=StoreDict, help="Env keyword arguments: k:v")
     parser.add_argument(
         "--progress", action="store_true", default=False, help="Show a progress bar (default: on a terminal, with -v 0)"
@@ -841,7 +849,9 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
         raise ValueError("--resume continues a run from its own checkpoints: leave out -i/--trained-agent.")
     if args.trained_agent:
         check_trained_agent(args.trained_agent, args.algo)
-    raw_params, source = load_hyperparams(args.algo, env_id, args.hyperparams, conf_file=args.conf_file)
+    raw_params, source = load_hyperparams(
+        args.algo, env_id, args.hyperparams, conf_file=args.conf_file, forward_recipe=args.forward_recipe
+    )
     params = preprocess_hyperparams(raw_params)
     n_timesteps = args.n_timesteps if args.n_timesteps is not None else params["n_timesteps"]
     kwargs = algo_kwargs(params)

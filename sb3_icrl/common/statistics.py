@@ -1,0 +1,177 @@
+"""
+Statistics of benchmark results over seeds, with labels that say what they are at their sample size.
+
+The aggregates follow rliable (Agarwal et al. 2021, "Deep reinforcement learning at the edge of the statistical
+precipice"): the interquartile mean (IQM) is the mean of the middle 50% of the scores, the optimality gap the mean
+shortfall below a target score, the probability of improvement the chance that a run of one method beats a run of
+another on the same task (the Mann-Whitney U statistic over the number of pairs, averaged over tasks), and their
+confidence intervals are percentile intervals of a stratified bootstrap that resamples the runs (seeds) of each task
+independently. They are computed with NumPy and SciPy, so that a report needs no extra package.
+"""
+
+import math
+from collections.abc import Callable, Sequence
+
+import numpy as np
+import scipy.stats
+
+#: Bootstrap resamples of the confidence intervals
+BOOTSTRAP_REPS = 2000
+#: Seed of the bootstrap, so that a report is reproducible
+BOOTSTRAP_SEED = 0
+#: Fewest seeds for which a cell reports an IQM with a bootstrap interval; below it, mean and [min, max]: with 3 seeds
+#: the IQM is the plain mean and the bootstrap's percentile interval is the range of the seeds
+MIN_SEEDS_FOR_INTERVAL = 5
+#: Fewest pairs for which a Wilcoxon signed-rank test is reported: an exact two-sided test cannot go below p = 0.0625
+#: with 5 pairs (2 / 2^5), so with fewer it can never show a difference at the 5% level
+MIN_PAIRS_FOR_WILCOXON = 6
+
+ScoresByTask = Sequence[Sequence[float] | np.ndarray]
+
+
+def iqm(scores: Sequence[float] | np.ndarray) -> float:
+    """Interquartile mean: the mean of the scores left after cutting the lowest and highest 25%."""
+    values = np.asarray(scores, dtype=float).ravel()
+    if values.size == 0:
+        return float("nan")
+    return float(scipy.stats.trim_mean(values, proportiontocut=0.25))
+
+
+def sample_std(values: Sequence[float] | np.ndarray) -> float:
+    """The sample standard deviation (``ddof=1``); ``nan`` with fewer than two values."""
+    array = np.asarray(values, dtype=float).ravel()
+    return float(array.std(ddof=1)) if array.size >= 2 else float("nan")
+
+
+def optimality_gap(scores: Sequence[float] | np.ndarray, target: float = 1.0) -> float:
+    """The mean shortfall of the scores below ``target`` (scores above it count as reaching it)."""
+    values = np.asarray(scores, dtype=float).ravel()
+    if values.size == 0:
+        return float("nan")
+    return float(np.mean(np.maximum(target - values, 0.0)))
+
+
+def stratified_bootstrap_ci(
+    scores_by_task: ScoresByTask,
+    statistic: Callable[[np.ndarray], float] = iqm,
+    reps: int = BOOTSTRAP_REPS,
+    confidence: float = 0.95,
+    seed: int = BOOTSTRAP_SEED,
+) -> tuple[float, float]:
+    """
+    Percentile confidence interval of ``statistic`` over all scores, resampling the runs (seeds) of each task with
+    replacement, independently per task (rliable's stratified bootstrap). One task: the plain bootstrap over seeds.
+
+    :param scores_by_task: One array of per-seed scores per task
+    :param statistic: Function of the concatenated resampled scores
+    :param reps: Number of resamples
+    :param confidence: Interval size
+    :param seed: Seed of the resampling
+    :return: ``(lower, upper)``; ``(nan, nan)`` without scores
+    """
+    tasks = [np.asarray(scores, dtype=float).ravel() for scores in scores_by_task]
+    tasks = [task for task in tasks if task.size]
+    if not tasks:
+        return float("nan"), float("nan")
+    rng = np.random.default_rng(seed)
+    estimates = np.empty(reps)
+    for rep in range(reps):
+        estimates[rep] = statistic(np.concatenate([task[rng.integers(0, task.size, task.size)] for task in tasks]))
+    return _percentile_interval(estimates, confidence)
+
+
+def _percentile_interval(estimates: np.ndarray, confidence: float) -> tuple[float, float]:
+    tail = 100 * (1 - confidence) / 2
+    lower, upper = np.percentile(estimates, [tail, 100 - tail])
+    return float(lower), float(upper)
+
+
+def _check_same_tasks(scores_x: ScoresByTask, scores_y: ScoresByTask) -> None:
+    if len(scores_x) != len(scores_y):
+        raise ValueError(f"Both methods need the same tasks: got {len(scores_x)} and {len(scores_y)}.")
+
+
+def probability_of_improvement(scores_x: ScoresByTask, scores_y: ScoresByTask) -> float:
+    """
+    P(X > Y): the chance that a run of method X scores higher than a run of method Y on the same task (ties count
+    half), averaged over the tasks both have runs on, as rliable defines it.
+
+    :param scores_x: Per task, the per-seed scores of X
+    :param scores_y: Per task, the per-seed scores of Y (same task order)
+    :return: A probability; ``nan`` when no task has runs of both
+    """
+    _check_same_tasks(scores_x, scores_y)
+    probabilities = []
+    for x, y in zip(scores_x, scores_y, strict=True):
+        x, y = np.asarray(x, dtype=float).ravel(), np.asarray(y, dtype=float).ravel()
+        if x.size and y.size:
+            wins = (x[:, None] > y[None, :]).sum() + 0.5 * (x[:, None] == y[None, :]).sum()
+            probabilities.append(wins / (x.size * y.size))
+    return float(np.mean(probabilities)) if probabilities else float("nan")
+
+
+def probability_of_improvement_ci(
+    scores_x: ScoresByTask,
+    scores_y: ScoresByTask,
+    reps: int = BOOTSTRAP_REPS,
+    confidence: float = 0.95,
+    seed: int = BOOTSTRAP_SEED,
+) -> tuple[float, float]:
+    """
+    Percentile interval of :func:`probability_of_improvement`, resampling the seeds of each method on each task
+    independently (rliable's stratified bootstrap for paired methods).
+    """
+    _check_same_tasks(scores_x, scores_y)
+    pairs = zip(scores_x, scores_y, strict=True)
+    tasks = [(np.asarray(x, dtype=float).ravel(), np.asarray(y, dtype=float).ravel()) for x, y in pairs]
+    tasks = [(x, y) for x, y in tasks if x.size and y.size]
+    if not tasks:
+        return float("nan"), float("nan")
+    rng = np.random.default_rng(seed)
+    estimates = np.empty(reps)
+    for rep in range(reps):
+        resampled = [(x[rng.integers(0, x.size, x.size)], y[rng.integers(0, y.size, y.size)]) for x, y in tasks]
+        estimates[rep] = probability_of_improvement([x for x, _ in resampled], [y for _, y in resampled])
+    return _percentile_interval(estimates, confidence)
+
+
+def wilson_interval(successes: int, trials: int, confidence: float = 0.95) -> tuple[float, float]:
+    """
+    The Wilson score interval of a success probability: unlike the normal approximation, it stays within [0, 1] and
+    is not empty at 0 or n successes, which small numbers of seeds make common.
+
+    :param successes: Runs that succeeded
+    :param trials: Runs
+    :param confidence: Interval size
+    :return: ``(lower, upper)``; ``(nan, nan)`` without trials
+    """
+    if trials <= 0:
+        return float("nan"), float("nan")
+    if not 0 <= successes <= trials:
+        raise ValueError(f"successes must be within [0, {trials}], got {successes}.")
+    z = float(scipy.stats.norm.ppf(0.5 + confidence / 2))
+    share = successes / trials
+    centre = (share + z * z / (2 * trials)) / (1 + z * z / trials)
+    half = z / (1 + z * z / trials) * math.sqrt(share * (1 - share) / trials + z * z / (4 * trials * trials))
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def normalised_score(value: float, low: float, high: float) -> float:
+    """
+    ``(value - low) / (high - low)``: 0 at ``low`` (unconstrained PPO's feasible reward), 1 at ``high`` (the oracle's,
+    PPO-Lagrangian on the true cost); ``nan`` where the two references coincide or one is unknown.
+    """
+    if not all(math.isfinite(x) for x in (value, low, high)) or high == low:
+        return float("nan")
+    return (value - low) / (high - low)
+
+
+def wilcoxon_p(differences: Sequence[float]) -> float:
+    """
+    Two-sided Wilcoxon signed-rank p-value of paired differences (``nan`` with no pair or all differences zero).
+    Under :data:`MIN_PAIRS_FOR_WILCOXON` pairs it cannot show a difference: reports leave it out, and ``compare`` warns.
+    """
+    values = np.asarray(differences, dtype=float).ravel()
+    if not values.size or not np.any(values != 0):
+        return float("nan")
+    return float(scipy.stats.wilcoxon(values).pvalue)

@@ -1,0 +1,156 @@
+"""The reference rows of a benchmark: PPO and the oracle on the ICRL cells' forward learner, normalised scores, success."""
+
+import math
+
+import pytest
+
+from sb3_icrl.benchmark import load_suite, summarise_suite
+from sb3_icrl.benchmark.report import markdown_table
+from sb3_icrl.benchmark.suite import SuiteError
+from sb3_icrl.common.statistics import wilson_interval
+from sb3_icrl.zoo.compare import RunResult
+from sb3_icrl.zoo.hyperparams import HyperparameterError, load_hyperparams
+from sb3_icrl.zoo.train import get_parser, train
+
+SUITE = """\
+description: reference rows
+envs: [GridWorldWall-v0]
+algos: [mecl, ppo, ppolag]
+forward_recipe: mecl
+seeds: [0, 1, 2]
+success: {max_violation_rate: 0.05, min_normalised_score: 0.5}
+"""
+
+
+def write(tmp_path, text: str) -> str:
+    path = tmp_path / "suite.yml"
+    path.write_text(text)
+    return str(path)
+
+
+def test_reference_rows_take_the_forward_learner_of_the_recipe() -> None:
+    mecl, _ = load_hyperparams("mecl", "BlockedHalfCheetah-v0")
+    oracle, source = load_hyperparams("ppolag", "BlockedHalfCheetah-v0", forward_recipe="mecl")
+    ppo, _ = load_hyperparams("ppo", "BlockedHalfCheetah-v0", forward_recipe="mecl")
+    assert source == "mecl:BlockedHalfCheetah-v0"
+    shared = ("n_timesteps", "n_envs", "n_steps", "batch_size", "n_epochs", "learning_rate", "gamma", "policy_kwargs")
+    assert all(oracle[key] == mecl[key] == ppo[key] for key in shared)
+    # The constraint model's settings go; the multiplier stays for the oracle, on the true cost's budget
+    assert not any(key.startswith("constraint_") or key in ("update_every", "regularizer_coef") for key in oracle)
+    assert mecl["cost_budget"] == "expert" and oracle["cost_budget"] == 0.0
+    assert oracle["lagrange_update"] == mecl["lagrange_update"] == "pid"
+    # MECL's per-step budget statistic is its default, PPOLagrangian's is per episode: it is written out
+    assert "budget_statistic" not in mecl and oracle["budget_statistic"] == "step"
+    assert not any(key in ppo for key in ("cost_budget", "lagrange_update", "lagrange_kwargs", "budget_statistic"))
+    # Overrides still apply last
+    assert load_hyperparams("ppo", "BlockedHalfCheetah-v0", {"n_envs": 8}, forward_recipe="mecl")[0]["n_envs"] == 8
+
+
+def test_a_forward_recipe_is_for_the_reference_rows_only() -> None:
+    with pytest.raises(HyperparameterError, match="reference rows"):
+        load_hyperparams("vicrl", "BlockedHalfCheetah-v0", forward_recipe="mecl")
+    with pytest.raises(HyperparameterError, match="Unknown forward recipe"):
+        load_hyperparams("ppo", "BlockedHalfCheetah-v0", forward_recipe="airl")
+
+
+def test_train_records_the_reference_rows_recipe(tmp_path) -> None:
+    argv = ["--algo", "ppo", "--env", "GridWorldWall-v0", "--forward-recipe", "mecl", "-n", "64", "--seed", "0"]
+    # The grid recipes plan; a reference row learns by policy gradient
+    argv += [
+        "-f",
+        str(tmp_path),
+        "--eval-freq",
+        "0",
+        "-params",
+        "n_steps:32",
+        "batch_size:32",
+        "forward_solver:policy_gradient",
+    ]
+    folder = train(get_parser().parse_args(argv), argv)
+    config = (tmp_path / "ppo" / "GridWorldWall-v0_1" / "GridWorldWall-v0" / "config.yml").read_text()
+    assert folder.endswith("GridWorldWall-v0_1") and "n_steps: 32" in config and "cost_budget" not in config
+    with pytest.raises(ValueError, match="leave out -conf"):
+        train(get_parser().parse_args([*argv, "-conf", '{"n_steps": 16}']), argv)
+
+
+def test_suite_passes_the_forward_recipe_to_the_reference_rows_alone(tmp_path) -> None:
+    suite = load_suite(write(tmp_path, SUITE))
+    assert suite.forward_recipe == "mecl" and suite.success == {"max_violation_rate": 0.05, "min_normalised_score": 0.5}
+    for run in suite.runs():
+        argv = run.train_argv("logs")
+        assert ("--forward-recipe" in argv) == (run.algo != "mecl")
+        if run.algo != "mecl":
+            assert argv[argv.index("--forward-recipe") + 1] == "mecl"
+
+
+@pytest.mark.parametrize(
+    "change, line, message",
+    [
+        (("forward_recipe: mecl", "forward_recipe: airl"), 4, "unknown algorithm 'airl'"),
+        (("algos: [mecl, ppo, ppolag]", "algos: [mecl]"), 6, "needs the normalised score"),
+        (("min_normalised_score: 0.5}", "min_normalised_score: high}"), 6, "is a number"),
+        (("max_violation_rate: 0.05", "max_violation_rate: 5"), 6, r"within \[0, 1\]"),
+        (("success: {max_violation_rate: 0.05, min_normalised_score: 0.5}", "success: {max_violation: 0.05}"), 6, "maps"),
+    ],
+)
+def test_bad_reference_settings_name_the_line(tmp_path, change, line, message) -> None:
+    text = SUITE.replace(*change)
+    if change[1] == "algos: [mecl]":
+        text = text.replace("forward_recipe: mecl\n", "")
+        line -= 1
+    with pytest.raises(SuiteError, match=rf"line {line}: .*{message}"):
+        load_suite(write(tmp_path, text))
+
+
+def _result(algo: str, seed: int, feasible: float, violation: float) -> RunResult:
+    return RunResult(f"r/{algo}/{seed}", algo, "sb3_icrl/GridWorldWall-v0", seed, 100, 1.0, violation, feasible, feasible, 20)
+
+
+def test_normalised_scores_and_success_by_hand(tmp_path) -> None:
+    suite = load_suite(write(tmp_path, SUITE))
+    values = {
+        "ppo": [(10.0, 0.9), (20.0, 1.0), (30.0, 0.8)],  # mean 20: the score's 0
+        "ppolag": [(100.0, 0.0), (120.0, 0.0), (140.0, 0.0)],  # mean 120: the score's 1
+        "mecl": [(70.0, 0.0), (95.0, 0.1), (170.0, 0.05)],
+    }
+    results = [(run, _result(run.algo, run.seed, *values[run.algo][run.seed])) for run in suite.runs()]
+    summary = summarise_suite(suite, suite.runs(), results)
+    mecl = next(cell for cell in summary["cells"] if cell["algo"] == "mecl")
+    assert [seed["normalised_score"] for seed in mecl["per_seed"]] == pytest.approx([0.5, 0.75, 1.5])
+    assert mecl["reference_feasible_reward"] == {"ppo": 20.0, "ppolag": 120.0}
+    # seed 1 breaks the constraint too often; seeds 0 and 2 are feasible enough and score at least 0.5
+    assert [seed["success"] for seed in mecl["per_seed"]] == [True, False, True]
+    assert mecl["success_count"] == 2 and mecl["success_ci95"] == pytest.approx(list(wilson_interval(2, 3)))
+    # Three seeds: the cell shows mean and [min, max], not an IQM with an interval
+    assert mecl["normalised_score_spread"] == {
+        "kind": "mean",
+        "centre": pytest.approx(11 / 12),
+        "interval": [0.5, 1.5],
+        "n": 3,
+    }
+    assert "feasible_reward_iqm" not in mecl and mecl["feasible_reward_spread"]["interval"] == [70.0, 170.0]
+    ppo = next(cell for cell in summary["cells"] if cell["algo"] == "ppo")
+    assert [seed["normalised_score"] for seed in ppo["per_seed"]] == pytest.approx([-0.1, 0.0, 0.1])
+    (aggregate,) = [entry for entry in summary["normalised_aggregates"] if entry["algo"] == "mecl"]
+    assert aggregate["normalised_score_mean"] == pytest.approx(11 / 12) and aggregate["n_runs"] == 3
+    assert aggregate["optimality_gap"] == pytest.approx((0.5 + 0.25 + 0.0) / 3)
+    assert summary["improvements"] == []  # one method besides the reference rows: nothing to compare
+    table = markdown_table(summary)
+    assert "| mean 0.92 [0.50, 1.50] | 2/3 [" in table and "0: 70.0 / 0% / 0.50" in table
+    assert "Success: violation rate <= 5% and normalised score >= 0.5" in table
+
+
+def test_cells_without_both_reference_rows_have_no_score(tmp_path) -> None:
+    suite = load_suite(
+        write(
+            tmp_path,
+            SUITE.replace("algos: [mecl, ppo, ppolag]", "algos: [mecl, ppo]").replace(
+                "success: {max_violation_rate: 0.05, min_normalised_score: 0.5}\n", ""
+            ),
+        )
+    )
+    results = [(run, _result(run.algo, run.seed, 1.0 + run.seed, 0.0)) for run in suite.runs()]
+    summary = summarise_suite(suite, suite.runs(), results)
+    assert not any("normalised_score_mean" in cell for cell in summary["cells"])
+    assert summary["normalised_aggregates"] == [] and "normalised score" not in markdown_table(summary)
+    assert math.isnan(summary["cells"][0]["per_seed"][0].get("normalised_score", math.nan))

@@ -1,0 +1,88 @@
+"""The statistics of benchmark reports against hand-computed values and rliable's own numbers on fixed sets."""
+
+import math
+
+import numpy as np
+import pytest
+
+from sb3_icrl.common.statistics import (
+    MIN_PAIRS_FOR_WILCOXON,
+    MIN_SEEDS_FOR_INTERVAL,
+    iqm,
+    normalised_score,
+    optimality_gap,
+    probability_of_improvement,
+    probability_of_improvement_ci,
+    sample_std,
+    stratified_bootstrap_ci,
+    wilcoxon_p,
+    wilson_interval,
+)
+
+#: Two methods' scores on three tasks (rows are tasks, entries seeds), and what rliable 1.2.0 computes for them, in a
+#: virtual environment of its own (``pip install rliable "pandas<3"``: it does not run with pandas 3, which the
+#: package's other extras install, so it is no test dependency): ``rliable.metrics.aggregate_iqm(X)``,
+#: ``aggregate_mean(X)``, ``aggregate_optimality_gap(X)`` and ``probability_of_improvement(X, Y)`` with
+#: ``X = np.array(X_SCORES).T`` and ``Y = np.array(Y_SCORES).T`` (runs x tasks)
+X_SCORES = [[0.9, 0.2, 0.5, 1.1, 0.7], [0.1, 0.3, 0.35, 0.0, 0.6], [1.2, 0.95, 0.8, 0.4, 1.0]]
+Y_SCORES = [[0.5, 0.4, 0.3, 0.9, 0.6], [0.2, 0.3, 0.1, 0.05, 0.25], [0.7, 1.1, 0.6, 0.65, 0.9]]
+RLIABLE = {"iqm_x": 0.6111111111111112, "mean_x": 0.6066666666666666, "gap_x": 0.41333333333333333, "poi_xy": 0.64}
+
+
+def test_sample_std_uses_n_minus_one() -> None:
+    # deviations -1.5, -0.5, 0.5, 1.5: squares sum to 5, over n - 1 = 3
+    assert sample_std([1.0, 2.0, 3.0, 4.0]) == pytest.approx(math.sqrt(5 / 3))
+    assert math.isnan(sample_std([3.0]))
+
+
+def test_wilson_interval_matches_the_formula() -> None:
+    # 3 of 5 at z = 1.96: centre (0.6 + 1.9208 / 5) / (1 + 3.8416 / 5), half-width 1.96 / 1.76832 * sqrt(0.048 + 0.038416)
+    z = 1.959963984540054
+    centre = (0.6 + z * z / 10) / (1 + z * z / 5)
+    half = z / (1 + z * z / 5) * math.sqrt(0.6 * 0.4 / 5 + z * z / 100)
+    assert wilson_interval(3, 5) == pytest.approx((centre - half, centre + half))
+    low, high = wilson_interval(0, 5)
+    assert low == 0.0 and high == pytest.approx(z * z / 5 / (1 + z * z / 5))  # not empty at 0 successes
+    assert wilson_interval(5, 5)[1] == 1.0 and wilson_interval(5, 5)[0] == pytest.approx(1 - high)
+    assert all(math.isnan(value) for value in wilson_interval(0, 0))
+    with pytest.raises(ValueError, match="within"):
+        wilson_interval(6, 5)
+
+
+def test_normalised_score_places_ppo_at_zero_and_the_oracle_at_one() -> None:
+    assert normalised_score(100.0, 100.0, 300.0) == 0.0
+    assert normalised_score(300.0, 100.0, 300.0) == 1.0
+    assert normalised_score(250.0, 100.0, 300.0) == pytest.approx(0.75)
+    assert normalised_score(50.0, 100.0, 300.0) == pytest.approx(-0.25)
+    assert math.isnan(normalised_score(1.0, 2.0, 2.0)) and math.isnan(normalised_score(1.0, float("nan"), 2.0))
+
+
+def test_optimality_gap_counts_only_the_shortfall() -> None:
+    assert optimality_gap([0.5, 1.5, 0.8]) == pytest.approx((0.5 + 0.0 + 0.2) / 3)
+
+
+def test_probability_of_improvement_counts_ties_half() -> None:
+    # task 1: x beats y in 3 of 4 pairs; task 2: one tie of one pair
+    assert probability_of_improvement([[2.0, 3.0], [1.0]], [[1.0, 2.5], [1.0]]) == pytest.approx((3 / 4 + 0.5) / 2)
+    low, high = probability_of_improvement_ci([[2.0, 3.0], [1.0]], [[1.0, 2.5], [1.0]], reps=200)
+    assert 0 <= low <= high <= 1
+    with pytest.raises(ValueError, match="same tasks"):
+        probability_of_improvement([[1.0]], [[1.0], [2.0]])
+
+
+def test_aggregates_equal_rliables_numbers() -> None:
+    flat = np.concatenate(X_SCORES)
+    assert iqm(flat) == pytest.approx(RLIABLE["iqm_x"])
+    assert np.mean([np.mean(task) for task in X_SCORES]) == pytest.approx(RLIABLE["mean_x"])
+    assert optimality_gap(flat) == pytest.approx(RLIABLE["gap_x"])
+    assert probability_of_improvement(X_SCORES, Y_SCORES) == pytest.approx(RLIABLE["poi_xy"])
+    low, high = stratified_bootstrap_ci(X_SCORES, reps=500)
+    assert low <= RLIABLE["iqm_x"] <= high
+
+
+def test_wilcoxon_needs_differences_and_the_labels_have_their_thresholds() -> None:
+    # six positive differences: the exact two-sided p is 2 / 2^6, the first below 0.05
+    assert wilcoxon_p([1, 2, 3, 4, 5, 6]) == pytest.approx(2 / 64)
+    assert math.isnan(wilcoxon_p([])) and math.isnan(wilcoxon_p([0.0, 0.0]))
+    assert 2 / 2**MIN_PAIRS_FOR_WILCOXON < 0.05 <= 2 / 2 ** (MIN_PAIRS_FOR_WILCOXON - 1)
+    assert MIN_SEEDS_FOR_INTERVAL == 5
