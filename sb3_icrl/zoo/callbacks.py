@@ -117,6 +117,8 @@ class LearnedCostRecorder(VecEnvWrapper):
         super().__init__(venv)
         self.recording = False
         self.episodes: list[RecordedEpisode] = []
+        #: The sub-env of each recorded episode
+        self.episode_envs: list[int] = []
         self._obs: Any = None  # VecEnvObs
         self._actions: np.ndarray | None = None
         self._steps: list[list[tuple[Any, np.ndarray, float]]] = [[] for _ in range(self.num_envs)]
@@ -142,9 +144,28 @@ class LearnedCostRecorder(VecEnvWrapper):
                     steps = self._steps[idx]
                     observations, episode_actions, episode_rewards = (np.array(part) for part in zip(*steps, strict=True))
                     self.episodes.append(RecordedEpisode(observations, episode_actions, episode_rewards))
+                    self.episode_envs.append(idx)
                     self._steps[idx] = []
         self._obs = obs
         return obs, rewards, dones, infos
+
+    def clear(self) -> None:
+        """Forget the recorded episodes (before an evaluation)."""
+        self.episodes, self.episode_envs = [], []
+
+    def counted_episodes(self, n_episodes: int) -> list[RecordedEpisode]:
+        """
+        The episodes an evaluation of ``n_episodes`` counted: on each sub-env, its first ones, as many as
+        :func:`~sb3_icrl.common.evaluation.evaluate_constraint` fixes for it upfront (sub-envs that finish their share go
+        on stepping, and the episodes they finish then are not counted).
+        """
+        taken = [0] * self.num_envs
+        counted = []
+        for episode, idx in zip(self.episodes, self.episode_envs, strict=True):
+            if taken[idx] < (n_episodes + idx) // self.num_envs:
+                counted.append(episode)
+                taken[idx] += 1
+        return counted
 
 
 #: The file beside ``evaluations.npz`` with the model selection's values, one per evaluation
@@ -253,6 +274,8 @@ class ConstraintEvalCallback(EvalCallback):
         self.selection_history: dict[str, list] = {}  # model_selection.npz: one value per evaluation
         self.best_score = -np.inf
         self.best_episodes: list[RecordedEpisode] = []  # the best model's recorded episodes, priced again later
+        #: Seconds spent evaluating in this process (finished.json's ``evaluation_time_s``: evaluation's share of a run)
+        self.eval_seconds = 0.0
 
     def resume_history(self, up_to_timesteps: int) -> None:
         """
@@ -323,9 +346,12 @@ class ConstraintEvalCallback(EvalCallback):
         eval_normalize.ret_rms = deepcopy(train_normalize.ret_rms)
 
     def _on_training_end(self) -> None:
-        # A run shorter than eval_freq, or not a multiple of it, still ends with an evaluation of its final model
+        # A run shorter than eval_freq, or not a multiple of it, still ends with an evaluation of its final model, unless
+        # the last one came within the final rollout: the run's length rounds up to whole rollouts, and evaluating a
+        # model that a few hundred steps changed again would only cost time
         evaluated = self.history.get("timesteps", [])
-        if self.eval_freq > 0 and self.n_calls > 0 and (not evaluated or evaluated[-1] != self.num_timesteps):
+        rollout = int(getattr(self.model, "n_steps", 1)) * int(self.model.n_envs)
+        if self.eval_freq > 0 and self.n_calls > 0 and (not evaluated or self.num_timesteps - evaluated[-1] >= rollout):
             eval_freq, self.eval_freq = self.eval_freq, 1
             try:
                 self._on_step()
@@ -343,11 +369,18 @@ class ConstraintEvalCallback(EvalCallback):
     def _on_step(self) -> bool:
         if self.eval_freq <= 0 or self.n_calls % self.eval_freq != 0:
             return True
+        start = time.process_time()
+        try:
+            return self._evaluate()
+        finally:
+            self.eval_seconds += time.process_time() - start
+
+    def _evaluate(self) -> bool:
         self._sync_normalization()
         constraint_net = getattr(self.model, "constraint_net", None)
         if self.recorder is not None:
             self.recorder.recording = constraint_net is not None
-            self.recorder.episodes = []
+            self.recorder.clear()
         result = evaluate_constraint(
             self.model, self.eval_env, n_eval_episodes=self.n_eval_episodes, deterministic=self.deterministic
         )
@@ -360,7 +393,7 @@ class ConstraintEvalCallback(EvalCallback):
             "mean_ep_length": float(np.mean(result.episode_lengths)),
             **result.outcome_rates,  # driving envs: collision, off-road, time-out and goal rates
         }
-        episodes = self.recorder.episodes[: self.n_eval_episodes] if self.recorder is not None else []
+        episodes = self.recorder.counted_episodes(self.n_eval_episodes) if self.recorder is not None else []
         learned_per_episode: dict[str, np.ndarray | None] = dict.fromkeys(LEARNED_EPISODE_KEYS.values())
         if constraint_net is not None and episodes:
             learned = learned_episode_stats(episodes, constraint_net.cost)

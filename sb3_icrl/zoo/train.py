@@ -723,10 +723,11 @@ def _callbacks(
             )
         )
     if args.eval_freq > 0:
+        # As many eval envs as there are training envs (at most one per episode): the policy's forwards are batched
         eval_env, recorder = create_env(
             env_id,
             params,
-            1,
+            min(n_envs, args.eval_episodes),
             args.seed + 1000,
             env_kwargs,
             args.transition_noise,
@@ -896,7 +897,7 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
     evaluation = _evaluation(callbacks)
     _go_on(args, model, callbacks, name, resuming)
     _pin_tensorboard(args, model, params_path, name, resuming)
-    start = time.time()
+    start, cpu_start = time.time(), time.process_time()
     clock = _wall_clock(args, callbacks, name, resuming)
     finished = False
     try:
@@ -931,6 +932,10 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
                 "num_timesteps": int(model.num_timesteps),
                 "wall_time_s": time.time() - start,
                 "wall_time_total_s": clock.elapsed(),
+                # CPU time of this process's training (this segment of a resumed run): the machine's load does not
+                # stretch it as it stretches wall time
+                "cpu_time_s": time.process_time() - cpu_start,
+                **({"evaluation_cpu_time_s": evaluation.eval_seconds} if evaluation is not None else {}),
                 "resumed_from": args.trained_agent if resuming else None,
             },
         )
