@@ -95,12 +95,10 @@ def main() -> None:
     parser.add_argument("--json", type=str, default=None, help="Also write the rows here")
     args = parser.parse_args()
     th.set_num_threads(1)
-    print(
-        f"{platform.processor() or platform.machine()}, torch threads 1, {args.episodes} held-out episodes from seed {args.eval_seed}"
-    )
-    print(
-        "| env | steps | shipped expert: return / violation | family: return / violation | ratio | CPU s (shipped's) | passes |"
-    )
+    machine = platform.processor() or platform.machine()
+    print(f"{machine}, torch threads 1, {args.episodes} held-out episodes from seed {args.eval_seed}")
+    columns = ["env", "steps", "shipped expert: return / violation", "family: return / violation", "ratio"]
+    print("| " + " | ".join([*columns, "CPU s (shipped's)", "passes"]) + " |")
     print("|---|---|---|---|---|---|---|")
     rows = []
     for run in args.runs:
