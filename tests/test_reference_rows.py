@@ -154,3 +154,32 @@ def test_cells_without_both_reference_rows_have_no_score(tmp_path) -> None:
     assert not any("normalised_score_mean" in cell for cell in summary["cells"])
     assert summary["normalised_aggregates"] == [] and "normalised score" not in markdown_table(summary)
     assert math.isnan(summary["cells"][0]["per_seed"][0].get("normalised_score", math.nan))
+
+
+def test_runs_record_the_suites_recipe_version_and_a_report_refuses_to_mix_them(tmp_path) -> None:
+    suite = load_suite(write(tmp_path, SUITE + "recipe_version: 2026-11-a\n"))
+    assert suite.recipe_version == "2026-11-a"
+    argv = suite.runs()[0].train_argv("logs")
+    assert argv[argv.index("--recipe-version") + 1] == "2026-11-a"
+    args = get_parser().parse_args(["--algo", "ppo", "--env", "GridWorldWall-v0", "--recipe-version", "2026-11-a"])
+    assert args.recipe_version == "2026-11-a"  # args.yml records every argument
+
+    values = {"ppo": (10.0, 1.0), "ppolag": (20.0, 0.0), "mecl": (15.0, 0.0)}
+    results = [(run, _result(run.algo, run.seed, *values[run.algo])) for run in suite.runs()]
+    metrics = {result.run: {"recipe_version": "2026-11-a"} for _, result in results}
+    summary = summarise_suite(suite, suite.runs(), results, metrics)
+    assert {cell["recipe_version"] for cell in summary["cells"]} == {"2026-11-a"}
+    mecl_seed_1 = next(result.run for run, result in results if run.algo == "mecl" and run.seed == 1)
+    metrics[mecl_seed_1] = {"recipe_version": "2026-11-b"}
+    with pytest.raises(
+        ValueError, match=r"mecl runs on GridWorldWall-v0 \(base\) used different recipe versions .*seed 1: 2026-11-b"
+    ):
+        summarise_suite(suite, suite.runs(), results, metrics)
+    metrics[mecl_seed_1] = {}
+    with pytest.raises(ValueError, match="seed 1: none recorded"):
+        summarise_suite(suite, suite.runs(), results, metrics)
+
+
+def test_a_recipe_version_is_a_name(tmp_path) -> None:
+    with pytest.raises(SuiteError, match="line 7: `recipe_version` is a name or a number"):
+        load_suite(write(tmp_path, SUITE + "recipe_version: [a, b]\n"))

@@ -177,11 +177,14 @@ def run_facts(results: Sequence[tuple[RunSpec, RunResult]], root: str) -> dict[s
     facts: dict[str, dict[str, Any]] = {}
     for run, result in results:
         folder = os.path.join(root, result.run)
-        entry: dict[str, float] = {}
+        entry: dict[str, Any] = {}
         seconds = run_wall_time(folder)
         if seconds is not None:
             entry["wall_time_s"] = seconds
         entry["expert_return"] = _expert_return_once(demonstrations_source(run, folder), returns)
+        version = recorded_recipe_version(folder)
+        if version is not None:
+            entry["recipe_version"] = version
         facts[result.run] = entry
     return facts
 
@@ -284,6 +287,43 @@ def _transfer_text(seed: dict[str, Any]) -> str:
     return ", ".join(parts) or "-"
 
 
+def _run_args(folder: str | os.PathLike | None) -> dict[str, Any] | None:
+    """A run folder's ``args.yml`` (``None`` when it has none, or it cannot be read)."""
+    found = sorted(pathlib.Path(folder).glob("*/args.yml")) if folder is not None else []
+    if not found:
+        return None
+    try:
+        with open(found[0]) as file:
+            content = yaml.safe_load(file)
+    except (OSError, yaml.YAMLError):
+        return None
+    return content if isinstance(content, dict) else None
+
+
+def recorded_recipe_version(folder: str | os.PathLike) -> str | None:
+    """The recipe version a run recorded (``--recipe-version`` in its ``args.yml``), ``None`` when it recorded none."""
+    version = (_run_args(folder) or {}).get("recipe_version")
+    return str(version) if version is not None else None
+
+
+def check_recipe_versions(cell: dict[str, Any]) -> None:
+    """
+    Refuse a cell whose runs recorded different recipe versions (a run that recorded none counts as its own version):
+    its statistics would mix two recipes.
+
+    :param cell: A cell of :func:`summarise_suite`
+    """
+    versions = {seed.get("recipe_version") for seed in cell["per_seed"]}
+    if len(versions) > 1:
+        shown = ", ".join(
+            f"seed {seed['seed']}: {seed.get('recipe_version') or 'none recorded'}" for seed in cell["per_seed"]
+        )
+        raise ValueError(
+            f"The {cell['algo']} runs on {cell['env']} ({cell['variant']}) used different recipe versions ({shown}): a "
+            "cell reports one recipe. Run the others again with the suite's version, or report them apart (--only)."
+        )
+
+
 def demonstrations_source(run: RunSpec, folder: str | os.PathLike | None = None) -> tuple[str, float | None]:
     """
     The demonstrations a run learned from: the ``demonstrations`` and ``violating_fraction`` of its ``args.yml``
@@ -293,14 +333,8 @@ def demonstrations_source(run: RunSpec, folder: str | os.PathLike | None = None)
     :param folder: Its run folder (``None``: the variant settings only)
     :return: ``(name or path, violating fraction)``, as :func:`sb3_icrl.data.load_demonstrations` takes them
     """
-    settings: dict[str, Any] = dict(run.variant_settings)
-    found = sorted(pathlib.Path(folder).glob("*/args.yml")) if folder is not None else []
-    if found:
-        try:
-            with open(found[0]) as file:
-                settings = yaml.safe_load(file) or {}
-        except (OSError, yaml.YAMLError):
-            pass
+    recorded = _run_args(folder)
+    settings: dict[str, Any] = recorded if recorded is not None else dict(run.variant_settings)
     name = settings.get("demonstrations") or env_name(run.env_id)
     fraction = settings.get("violating_fraction")
     return str(name), float(fraction) if isinstance(fraction, (int, float)) and fraction else None
@@ -652,6 +686,8 @@ def summarise_suite(
                     "core_hours": _core_hours([wall_time[r.run] for r in mine]),
                 }
             )
+            check_recipe_versions(cells[-1])
+            cells[-1]["recipe_version"] = cells[-1]["per_seed"][0].get("recipe_version")
             # Higher feasible reward and no higher violation rate than each published number of the same method
             cells[-1]["beats"] = {source: beats(cells[-1], pair) for source, pair in published_pairs(cells[-1]).items()}
     add_reference_scores(cells, suite.success)

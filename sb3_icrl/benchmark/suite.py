@@ -34,6 +34,8 @@ SUITE_KEYS = {
     "paper": "mapping env -> algo -> [feasible reward, violation rate] of the paper, shown beside ours",
     "others": "mapping source name -> env -> algo -> [feasible reward, violation rate] of other published runs",
     "gym_packages": "modules to import first: they register your own envs",
+    "recipe_version": "a name for the recipes the suite's runs use, frozen before its runs (each run records it; a "
+    "report refuses a cell whose runs record different ones): change it whenever a recipe of the suite changes",
     "success": "what counts as a run that succeeded, written before any run: {max_violation_rate: 0.05, "
     "min_normalised_score: 0.5} (the normalised score needs the reference rows ppo and ppolag)",
 }
@@ -85,6 +87,7 @@ class RunSpec:
     :param train_args: train.py settings (see :data:`TRAIN_ARGS`)
     :param gym_packages: Modules that register the env (``--gym-packages``)
     :param forward_recipe: For the reference rows: the algorithm whose forward learner they use (``--forward-recipe``)
+    :param recipe_version: The suite's recipe version (``--recipe-version``)
     """
 
     suite: str
@@ -97,6 +100,7 @@ class RunSpec:
     train_args: dict[str, Any] = field(default_factory=dict, compare=False, hash=False)
     gym_packages: tuple[str, ...] = field(default=(), compare=False, hash=False)
     forward_recipe: str | None = field(default=None, compare=False, hash=False)
+    recipe_version: str | None = field(default=None, compare=False, hash=False)
 
     @property
     def cell(self) -> tuple[str, str, str]:
@@ -131,6 +135,8 @@ class RunSpec:
             argv += ["-n", str(self.steps)]
         if self.forward_recipe is not None and self.algo in REFERENCE_ALGOS:
             argv += ["--forward-recipe", self.forward_recipe]
+        if self.recipe_version is not None:
+            argv += ["--recipe-version", self.recipe_version]
         for key, flag in TRAIN_ARGS.items():
             if key in self.train_args:
                 argv += [flag, str(self.train_args[key])]
@@ -169,6 +175,7 @@ class Suite:
     paper: dict[str, dict[str, tuple[float, float]]]
     gym_packages: tuple[str, ...] = ()
     forward_recipe: str | None = None
+    recipe_version: str | None = None
     #: The success rule (:data:`SUCCESS_KEYS`), ``None`` when the suite defines none
     success: dict[str, float] | None = None
     #: source name -> env name -> algo -> (feasible reward, violation rate), in the file's order
@@ -188,6 +195,7 @@ class Suite:
                 self.train_args,
                 self.gym_packages,
                 self.forward_recipe,
+                self.recipe_version,
             )
             for env_id in self.envs
             for variant, settings in self.variants.items()
@@ -468,6 +476,9 @@ def load_suite(name_or_path: str | os.PathLike) -> Suite:
             f"`forward_recipe` sets the forward learner of the reference rows ({', '.join(REFERENCE_ALGOS)}), and the "
             "suite's algos have none: add them, or leave it out.",
         )
+    recipe_version = content.get("recipe_version")
+    if recipe_version is not None and (not isinstance(recipe_version, (str, int)) or not str(recipe_version).strip()):
+        raise reader.error(("recipe_version",), f"`recipe_version` is a name or a number, got {recipe_version!r}.")
     return Suite(
         name=path.stem,
         path=str(path),
@@ -484,6 +495,7 @@ def load_suite(name_or_path: str | os.PathLike) -> Suite:
         paper=reader.paper(),
         gym_packages=tuple(gym_packages),
         forward_recipe=forward_recipe,
+        recipe_version=str(recipe_version) if recipe_version is not None else None,
         success=reader.success(algos),
         others=reader.others(),
     )

@@ -221,6 +221,12 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
         help="ppo and ppolag: learn with the forward learner of this algorithm's entry (its PPO settings and steps; "
         "ppolag on the true cost with budget 0): a benchmark's reference rows, on the same footing as its ICRL cells",
     )
+    parser.add_argument(
+        "--recipe-version",
+        type=str,
+        default=None,
+        help="A name for the recipe this run uses (a benchmark suite's recipe_version), recorded in its args.yml",
+    )
     parser.add_argument("--env-kwargs", type=str, nargs="+", action=StoreDict, help="Env keyword arguments: k:v")
     parser.add_argument(
         "--progress", action="store_true", default=False, help="Show a progress bar (default: on a terminal, with -v 0)"
