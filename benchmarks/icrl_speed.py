@@ -6,7 +6,9 @@ All four use the PPO settings of the env's shipped VICRL recipe (``zoo_hyperpara
 rollout length, minibatch, epochs, networks) and the same VecEnv stack as ``train.py`` (DummyVecEnv, Monitor,
 VecNormalize). PPO is SB3's; PPOLagrangian learns on the env's true cost with the recipe's PID multiplier; MECL and
 VICRL are their full recipes on the shipped demonstrations. Runs are interleaved (PPO, PPOLag, MECL, VICRL, PPO, ...)
-with one torch thread, so that machine noise hits all alike; fps is env steps over the wall time of ``learn``.
+with one torch thread, so that machine noise hits all alike. Speed is env steps over the CPU time of this process in
+``learn`` (what a shared machine's load does not stretch) and over its wall time; ratios are per round, with their
+median and range.
 
 Each run is also timed by part: every timed function books the time spent in it, less the time of timed functions it
 calls, to one category; ``learn`` itself is the root, so the categories add up to the wall time of ``learn`` (the
@@ -19,6 +21,7 @@ coverage line says how closely; the timers cost about 1 us a call).
 
 import argparse
 import functools
+import os
 import platform
 import statistics
 import time
@@ -160,16 +163,31 @@ def instrument(model: BaseAlgorithm, timer: SectionTimer) -> None:
         timer.patch(env.unwrapped, "do_simulation", CATEGORIES[8])
 
 
-def measure(algo: str, params: dict[str, Any], env_id: str, steps: int, seed: int, demos: Any) -> tuple[float, dict]:
-    """fps of ``learn(steps)`` and the time per category (model construction is not timed)."""
+def measure(algo: str, params: dict[str, Any], env_id: str, steps: int, seed: int, demos: Any) -> tuple[dict, dict]:
+    """
+    Env steps per second of ``learn(steps)``, on the process's CPU time and on wall time, and the wall time per
+    category (model construction is not timed).
+    """
     model = build(algo, params, env_id, seed, demos)
     timer = SectionTimer()
     instrument(model, timer)
     learn = timer.wrap(CATEGORIES[9], model.learn)
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     learn(steps)
-    wall = time.perf_counter() - start
-    return model.num_timesteps / wall, {"wall": wall, **{key: timer.totals[key] for key in CATEGORIES}}
+    wall, cpu = time.perf_counter() - start, time.process_time() - cpu_start
+    speeds = {"cpu": model.num_timesteps / cpu, "wall": model.num_timesteps / wall}
+    return speeds, {"wall": wall, **{key: timer.totals[key] for key in CATEGORIES}}
+
+
+def ratio_line(algo: str, peer: str, mine: list[float], theirs: list[float], clock: str) -> str:
+    """The per-round ratios of two algorithms' speeds (rounds interleaved), their median and range."""
+    ratios = [a / b for a, b in zip(mine, theirs, strict=True)]
+    median = statistics.median(ratios)
+    return (
+        f"{algo} / {peer} ({clock} time): median {median:.3f}, range {min(ratios):.3f}-{max(ratios):.3f} over "
+        f"{len(ratios)} rounds ({', '.join(f'{r:.3f}' for r in ratios)}); target >= 0.95: "
+        f"{'PASS' if median >= 0.95 else 'FAIL'}"
+    )
 
 
 def main() -> None:
@@ -193,27 +211,29 @@ def main() -> None:
     )
 
     measure("ppo", params["ppo"], env_id, shared["n_envs"] * shared["n_steps"], 0, demos)  # warm-up
-    fps: dict[str, list[float]] = {algo: [] for algo in args.algos}
+    fps: dict[str, dict[str, list[float]]] = {clock: {algo: [] for algo in args.algos} for clock in ("cpu", "wall")}
     parts: dict[str, list[dict]] = {algo: [] for algo in args.algos}
     for repeat in range(args.repeats):
         for algo in args.algos:
-            run_fps, run_parts = measure(algo, params[algo], env_id, args.steps, repeat, demos)
-            fps[algo].append(run_fps)
+            speeds, run_parts = measure(algo, params[algo], env_id, args.steps, repeat, demos)
+            for clock, speed in speeds.items():
+                fps[clock][algo].append(speed)
             parts[algo].append(run_parts)
-            print(f"round {repeat} {algo:7s} {run_fps:8.1f} steps/s", flush=True)
+            print(f"round {repeat} {algo:7s} {speeds['cpu']:8.1f} steps/CPU-s {speeds['wall']:8.1f} steps/s", flush=True)
 
-    print(f"\nmachine: {platform.processor() or platform.machine()}, {time.strftime('%Y-%m-%d')}")
+    load = os.getloadavg()
+    print(f"\nmachine: {platform.processor() or platform.machine()}, {time.strftime('%Y-%m-%d %H:%M')}, load {load[0]:.2f}")
     for algo in args.algos:
-        print(f"{algo:7s} mean {statistics.mean(fps[algo]):8.1f} steps/s  ({1e6 / statistics.mean(fps[algo]):.0f} us/step)")
+        cpu, wall = fps["cpu"][algo], fps["wall"][algo]
+        print(
+            f"{algo:7s} median {statistics.median(cpu):8.1f} steps/CPU-s (range {min(cpu):.0f}-{max(cpu):.0f}), "
+            f"{statistics.median(wall):8.1f} steps/s wall (range {min(wall):.0f}-{max(wall):.0f})"
+        )
     reference = {"ppolag": "ppo", "mecl": "ppolag", "vicrl": "ppolag"}
     for algo, peer in reference.items():
-        if algo in fps and peer in fps:
-            ratios = [mine / theirs for mine, theirs in zip(fps[algo], fps[peer], strict=True)]
-            ratio = statistics.mean(fps[algo]) / statistics.mean(fps[peer])
-            print(
-                f"{algo} fps / {peer} fps = {ratio:.3f} (rounds: {', '.join(f'{r:.3f}' for r in ratios)}; "
-                f"target >= 0.95: {'PASS' if ratio >= 0.95 else 'FAIL'})"
-            )
+        if algo in args.algos and peer in args.algos:
+            for clock in ("cpu", "wall"):
+                print(ratio_line(algo, peer, fps[clock][algo], fps[clock][peer], "CPU" if clock == "cpu" else "wall"))
 
     print("\nshare of wall time (mean over rounds)")
     print(f"{'part':56s}" + "".join(f"{algo:>9s}" for algo in args.algos))
