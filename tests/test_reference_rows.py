@@ -183,3 +183,18 @@ def test_runs_record_the_suites_recipe_version_and_a_report_refuses_to_mix_them(
 def test_a_recipe_version_is_a_name(tmp_path) -> None:
     with pytest.raises(SuiteError, match="line 7: `recipe_version` is a name or a number"):
         load_suite(write(tmp_path, SUITE + "recipe_version: [a, b]\n"))
+
+
+def test_an_oracle_that_breaks_its_constraint_normalises_nothing(tmp_path) -> None:
+    suite = load_suite(write(tmp_path, SUITE))
+    values = {"ppo": (10.0, 1.0), "ppolag": (12.0, 1.0), "mecl": (11.0, 0.0)}  # the oracle violates in every episode
+    results = [(run, _result(run.algo, run.seed, *values[run.algo])) for run in suite.runs()]
+    summary = summarise_suite(suite, suite.runs(), results)
+    mecl = next(cell for cell in summary["cells"] if cell["algo"] == "mecl")
+    assert mecl["normalisation_problem"] == "the oracle breaks the constraint in 100% of episodes"
+    assert "normalised_score" not in mecl["per_seed"][0] and "success_probability" not in mecl
+    assert "| none: the oracle breaks the constraint in 100% of episodes |" in markdown_table(summary)
+    values["ppolag"] = (9.0, 0.0)  # feasible, but below PPO
+    results = [(run, _result(run.algo, run.seed, *values[run.algo])) for run in suite.runs()]
+    cell = next(c for c in summarise_suite(suite, suite.runs(), results)["cells"] if c["algo"] == "mecl")
+    assert cell["normalisation_problem"] == "the oracle earns no more feasible reward than PPO"

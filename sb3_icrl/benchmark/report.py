@@ -315,9 +315,7 @@ def check_recipe_versions(cell: dict[str, Any]) -> None:
     """
     versions = {seed.get("recipe_version") for seed in cell["per_seed"]}
     if len(versions) > 1:
-        shown = ", ".join(
-            f"seed {seed['seed']}: {seed.get('recipe_version') or 'none recorded'}" for seed in cell["per_seed"]
-        )
+        shown = ", ".join(f"seed {seed['seed']}: {seed.get('recipe_version') or 'none recorded'}" for seed in cell["per_seed"])
         raise ValueError(
             f"The {cell['algo']} runs on {cell['env']} ({cell['variant']}) used different recipe versions ({shown}): a "
             "cell reports one recipe. Run the others again with the suite's version, or report them apart (--only)."
@@ -480,12 +478,34 @@ def format_spread(entry: dict[str, Any] | None, percent: bool = False) -> str:
     return f"{'IQM' if entry['kind'] == 'iqm' else 'mean'} {shown(entry['centre'])} [{shown(low)}, {shown(high)}]"
 
 
+#: The most violations the oracle row may have for its feasible reward to be a score's 1: an oracle that breaks the
+#: constraint it was trained on marks no reachable goal, and scores against it would say nothing
+ORACLE_MAX_VIOLATION_RATE = 0.05
+
+
+def oracle_problem(ppo: dict[str, Any], oracle: dict[str, Any]) -> str | None:
+    """
+    Why the reference rows of an env cannot normalise its scores, or ``None`` when they can: the oracle must keep the
+    constraint (mean violation rate at most :data:`ORACLE_MAX_VIOLATION_RATE`) and earn more feasible reward than PPO.
+
+    :param ppo: The env's ``ppo`` cell
+    :param oracle: Its ``ppolag`` cell
+    """
+    if oracle["violation_rate_mean"] > ORACLE_MAX_VIOLATION_RATE + 1e-9:
+        return f"the oracle breaks the constraint in {100 * oracle['violation_rate_mean']:.0f}% of episodes"
+    if not oracle["feasible_reward_mean"] > ppo["feasible_reward_mean"]:
+        return "the oracle earns no more feasible reward than PPO"
+    return None
+
+
 def add_reference_scores(cells: list[dict[str, Any]], success: dict[str, float] | None) -> None:
     """
-    Where an env and variant have both reference rows, each of their cells' runs gets ``normalised_score``
-    (:func:`~sb3_icrl.common.statistics.normalised_score` between the two rows' mean feasible rewards), each cell
-    ``normalised_score_mean`` and ``normalised_score_spread``; with a ``success`` rule, each run ``success`` and each cell
-    ``success_count``, ``success_probability`` and its Wilson 95% interval (``success_ci95``). In place.
+    Where an env and variant have both reference rows, and the oracle keeps the constraint and earns more feasible
+    reward than PPO (:func:`oracle_problem`; otherwise each cell gets ``normalisation_problem`` instead), each of their
+    cells' runs gets ``normalised_score`` (:func:`~sb3_icrl.common.statistics.normalised_score` between the two rows'
+    mean feasible rewards), each cell ``normalised_score_mean`` and ``normalised_score_spread``; with a ``success`` rule,
+    each run ``success`` and each cell ``success_count``, ``success_probability`` and its Wilson 95% interval
+    (``success_ci95``). In place.
 
     :param cells: The cells of :func:`summarise_suite`
     :param success: The suite's rule (``max_violation_rate``, ``min_normalised_score``), or ``None``
@@ -497,6 +517,10 @@ def add_reference_scores(cells: list[dict[str, Any]], success: dict[str, float] 
         if low is None or high is None:
             continue
         cell["reference_feasible_reward"] = {PPO_ROW: low["feasible_reward_mean"], ORACLE_ROW: high["feasible_reward_mean"]}
+        problem = oracle_problem(low, high)
+        if problem is not None:
+            cell["normalisation_problem"] = problem
+            continue
         scores = []
         for seed in cell["per_seed"]:
             seed["normalised_score"] = normalised_score(
@@ -758,7 +782,7 @@ def markdown_table(summary: dict[str, Any]) -> str:
     """
     sources = other_sources(summary)
     cells = summary["cells"]
-    normalised = any("normalised_score_spread" in cell for cell in cells)
+    normalised = any("normalised_score_spread" in cell or "normalisation_problem" in cell for cell in cells)
     success = any("success_probability" in cell for cell in cells)
     wilcoxon = any((cell.get("wilcoxon_pairs") or 0) >= MIN_PAIRS_FOR_WILCOXON for cell in cells)
     headings = ["env", "variant", "algo", "seeds", "feasible reward (mean ± std)", "IQM [95% CI] or mean [min, max]"]
@@ -791,7 +815,8 @@ def markdown_table(summary: dict[str, Any]) -> str:
         row += [f"{_fmt(cell['feasible_reward_mean'])} ± {_fmt(cell['feasible_reward_std'])}"]
         row += [format_spread(cell.get("feasible_reward_spread") or spread([s["feasible_reward"] for s in cell["per_seed"]]))]
         if normalised:
-            row.append(_normalised_text(cell.get("normalised_score_spread")))
+            problem = cell.get("normalisation_problem")
+            row.append(f"none: {problem}" if problem else _normalised_text(cell.get("normalised_score_spread")))
         if success:
             row.append(_success_text(cell))
         row += [
