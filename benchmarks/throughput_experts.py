@@ -3,8 +3,9 @@ The throughput recipe family's bar for experts: PPO-Lagrangian trained with it o
 expert of the same env, both evaluated here on the same held-out episodes (deterministic, env seeds from
 ``--eval-seed``), with the training CPU time of each.
 
-A run passes where its return is at least ``--bar`` (0.9) of the shipped expert's and its training took no more CPU
-time than the shipped expert's recipe did. The shipped experts' times are the wall times recorded when they were
+A run passes where its return is at least ``--bar`` (0.9) of the shipped expert's, its violation rate at most 5% or
+the shipped expert's (whichever is higher: some shipped experts break their line in a few held-out episodes), and its
+training took no more CPU time than the shipped expert's recipe did. The shipped experts' times are the wall times recorded when they were
 trained (benchmarks/RESULTS.md, "Experts shipped with the package", 2026-11-21: two or three jobs on the two cores of
 the dev machine, so their CPU time was at most that); a run's CPU time is ``cpu_time_s`` of its ``finished.json``.
 
@@ -42,6 +43,10 @@ SHIPPED_EXPERT_SECONDS = {
     "HighwayDistance-v0": 2.9 * 60,
     "HighwayVelocityDistance-v0": 7.5 * 60,
 }
+
+
+#: The violation rate an expert may have (or the shipped expert's, where higher)
+MAX_VIOLATION_RATE = 0.05
 
 
 def evaluate(env_id: str, model_path: str, statistics: str | None, episodes: int, seed: int) -> dict[str, float]:
@@ -82,7 +87,13 @@ def check_run(run: str, episodes: int, seed: int, bar: float) -> dict[str, Any]:
         "return_ratio": ratio,
         "cpu_time_s": cpu,
         "shipped_seconds": budget,
-        "passes": bool(ratio >= bar and cpu is not None and budget is not None and cpu <= budget),
+        "passes": bool(
+            ratio >= bar
+            and trained["violation_rate"] <= max(MAX_VIOLATION_RATE, shipped["violation_rate"]) + 1e-9
+            and cpu is not None
+            and budget is not None
+            and cpu <= budget
+        ),
     }
 
 
