@@ -6,8 +6,9 @@ expert of the same env, both evaluated here on the same held-out episodes (deter
 A run passes where its return is at least ``--bar`` (0.9) of the shipped expert's, its violation rate at most 5% or
 the shipped expert's (whichever is higher: some shipped experts break their line in a few held-out episodes), and its
 training took no more CPU time than the shipped expert's recipe did. The shipped experts' times are the wall times
-recorded when they were trained (benchmarks/RESULTS.md, "Experts shipped with the package", 2026-11-21: two or three jobs on the two cores of
-the dev machine, so their CPU time was at most that); a run's CPU time is ``cpu_time_s`` of its ``finished.json``.
+recorded when they were trained (benchmarks/RESULTS.md, "Experts shipped with the package", 2026-11-21: two or three
+jobs on the two cores of the dev machine, so their CPU time was at most that); a run's CPU time is ``cpu_time_s`` of
+its ``finished.json``.
 
     python train.py --algo ppolag --env BlockedWalker-v0 --seed 0 -f logs/family --exp-id 0 -n 2000000
     python benchmarks/throughput_experts.py logs/family/ppolag/BlockedWalker-v0_0 [more run folders]
