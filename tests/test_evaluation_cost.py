@@ -49,3 +49,32 @@ def test_counted_episodes_are_each_sub_envs_first_share() -> None:
         "episode 3 of env 1",
         "episode 5 of env 1",
     ]
+
+
+def test_a_resumed_run_keeps_its_checkpoint_and_counts_each_episode_once(tmp_path) -> None:
+    import hashlib
+    import os
+
+    import pandas as pd
+
+    argv = ["--algo", "ppolag", "--env", "ConstrainedCorridor-v0", "--seed", "0", "-f", str(tmp_path), "--exp-id", "1"]
+    argv += ["--resume", "--save-freq", "64", "--eval-freq", "32", "--eval-episodes", "2", "-n", "160"]
+    argv += ["-params", "n_steps:32", "batch_size:32", "n_epochs:1"]
+    run = train(get_parser().parse_args(argv), argv)
+    # A crash after the last checkpoint (128 steps): the steps after it are lost
+    os.remove(f"{run}/finished.json")
+    os.remove(f"{run}/ConstrainedCorridor-v0.zip")
+    checkpoint = f"{run}/rl_model_128_steps.zip"
+    with open(checkpoint, "rb") as file:
+        before = hashlib.sha256(file.read()).hexdigest()
+    monitor = pd.read_csv(f"{run}/0.monitor.csv", skiprows=1)
+    assert monitor["l"].sum() > 128  # episodes finished after the checkpoint, which the resumed run replays
+    train(get_parser().parse_args(argv), argv)
+    with open(checkpoint, "rb") as file:
+        assert hashlib.sha256(file.read()).hexdigest() == before  # the checkpoint it went on from is not written again
+    monitor = pd.read_csv(f"{run}/0.monitor.csv", skiprows=1)
+    assert monitor["l"].sum() <= 160  # no episode of the replayed steps twice
+    evaluations = pd.read_csv(f"{run}/eval/0.monitor.csv", skiprows=1)
+    with np.load(f"{run}/evaluations.npz") as history:
+        assert list(history["timesteps"]) == [32, 64, 96, 128, 160]
+    assert len(evaluations) == 5 * 2  # two episodes per evaluation, none of the lost segment's twice

@@ -17,7 +17,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 
 from sb3_icrl.common.evaluation import evaluate_constraint
 from sb3_icrl.common.utils import atomic_save_model, atomic_save_npz, atomic_save_pickle
-from sb3_icrl.zoo.runs import BEST_VECNORMALIZE_FILE, CHECKPOINT_PATTERN
+from sb3_icrl.zoo.runs import BEST_VECNORMALIZE_FILE, CHECKPOINT_PATTERN, monitor_row_counts
 from sb3_icrl.zoo.summary import evaluation_line, model_multiplier
 
 
@@ -493,7 +493,11 @@ class WallClock:
 
 
 def save_training_state(
-    model: Any, path: str, evaluation: ConstraintEvalCallback | None = None, wall_time_s: float | None = None
+    model: Any,
+    path: str,
+    evaluation: ConstraintEvalCallback | None = None,
+    wall_time_s: float | None = None,
+    monitor_rows: dict[str, int] | None = None,
 ) -> None:
     """
     Save, atomically, what a resumed run needs beyond the model zip: the ICRL trainer's state
@@ -504,6 +508,8 @@ def save_training_state(
     :param path: Destination (:func:`training_state_path`)
     :param evaluation: The run's evaluation callback, if any
     :param wall_time_s: The run's wall time so far (:class:`WallClock`), for the resumed run to count on from
+    :param monitor_rows: Episodes in each Monitor file of the run so far
+        (:func:`~sb3_icrl.zoo.runs.monitor_row_counts`), for the resumed run to drop those recorded after this point
     """
     trainer = getattr(model, "icrl_trainer", None)
     state = {
@@ -512,8 +518,18 @@ def save_training_state(
         "icrl_trainer": trainer.state_dict() if trainer is not None else None,
         "evaluation": evaluation.state_dict() if evaluation is not None else None,
         "wall_time_s": wall_time_s,
+        "monitor_rows": monitor_rows,
     }
     atomic_save_pickle(state, path)
+
+
+def _saved_state(path: str) -> dict[str, Any]:
+    """A :func:`save_training_state` file's content (empty when the file is missing or holds no mapping)."""
+    if not os.path.isfile(path):
+        return {}
+    with open(path, "rb") as file:
+        state = pickle.load(file)  # as trusted as the VecNormalize pickles beside it
+    return state if isinstance(state, dict) else {}
 
 
 def training_state_wall_time(path: str) -> float:
@@ -523,12 +539,19 @@ def training_state_wall_time(path: str) -> float:
     :param path: The state file
     :return: Seconds
     """
-    if not os.path.isfile(path):
-        return 0.0
-    with open(path, "rb") as file:
-        state = pickle.load(file)  # as trusted as the VecNormalize pickles beside it
-    value = state.get("wall_time_s") if isinstance(state, dict) else None
+    value = _saved_state(path).get("wall_time_s")
     return float(value) if value is not None else 0.0
+
+
+def training_state_monitor_rows(path: str) -> dict[str, int] | None:
+    """
+    The episodes per Monitor file saved in a :func:`save_training_state` file (``None``: a file of an earlier
+    version, or none).
+
+    :param path: The state file
+    """
+    rows = _saved_state(path).get("monitor_rows")
+    return dict(rows) if isinstance(rows, dict) else None
 
 
 def load_training_state(model: Any, path: str, evaluation: ConstraintEvalCallback | None = None) -> bool:
@@ -600,7 +623,9 @@ class AtomicCheckpointCallback(CheckpointCallback):
 
     def _init_callback(self) -> None:
         super()._init_callback()
-        self._last_saved = self.num_timesteps  # a resumed run counts from its checkpoint
+        # A resumed run counts from its checkpoint. The model's count, not the callback's: the callback's is set at its
+        # first step, so before it a resumed run would save at once over the checkpoint it started from
+        self._last_saved = self.model.num_timesteps
 
     def _on_rollout_start(self) -> None:
         if self.num_timesteps - self._last_saved < self.save_freq:
@@ -612,7 +637,8 @@ class AtomicCheckpointCallback(CheckpointCallback):
         if self.save_training_state:
             wall_time = self.wall_clock.elapsed() if self.wall_clock is not None else None
             path = self._checkpoint_path("training_state_", extension="pkl")
-            save_training_state(self.model, path, self.evaluation, wall_time_s=wall_time)
+            rows = monitor_row_counts(self.save_path)
+            save_training_state(self.model, path, self.evaluation, wall_time_s=wall_time, monitor_rows=rows)
         model_path = atomic_save_model(self.model, self._checkpoint_path(extension="zip"))
         if self.verbose >= 2:
             print(f"Saving model checkpoint to {model_path}")

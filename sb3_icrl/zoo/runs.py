@@ -17,6 +17,7 @@ from typing import Any
 
 from stable_baselines3.common.save_util import load_from_zip_file
 
+from sb3_icrl.common.utils import atomic_write_text
 from sb3_icrl.zoo.hyperparams import ALGOS, ICRL_ALGOS
 
 #: ``rl_model_<steps>_steps.zip``, as SB3's ``CheckpointCallback`` names its models
@@ -267,3 +268,57 @@ def latest_checkpoint(run: str) -> str | None:
         except (zipfile.BadZipFile, OSError):
             continue
     return None
+
+
+#: Suffix of SB3's Monitor files: ``<i>.monitor.csv`` in the run folder (training envs) and in ``eval/`` (evaluation)
+MONITOR_SUFFIX = ".monitor.csv"
+#: Lines at the top of a Monitor file that are not episodes: its JSON header and the column names
+MONITOR_HEADER_LINES = 2
+
+
+def monitor_files(run: str | os.PathLike) -> list[str]:
+    """The Monitor files of a run folder, relative to it (training envs' first, then the evaluation envs')."""
+    found = []
+    for folder in ("", "eval"):
+        directory = os.path.join(run, folder)
+        if os.path.isdir(directory):
+            found += sorted(os.path.join(folder, entry) for entry in os.listdir(directory) if entry.endswith(MONITOR_SUFFIX))
+    return found
+
+
+def monitor_row_counts(run: str | os.PathLike) -> dict[str, int]:
+    """
+    The episodes each Monitor file of a run holds now (its lines less the header), by path relative to the run: what
+    a checkpoint records, so that a run resumed from it can drop the episodes recorded after it.
+
+    :param run: The run folder
+    """
+    counts = {}
+    for name in monitor_files(run):
+        with open(os.path.join(run, name), "rb") as file:
+            lines = sum(1 for line in file if line.strip())
+        counts[name] = max(lines - MONITOR_HEADER_LINES, 0)
+    return counts
+
+
+def trim_monitors(run: str | os.PathLike, counts: dict[str, int]) -> dict[str, int]:
+    """
+    Cut every Monitor file of a run back to the episodes it held at a checkpoint (``counts``, from
+    :func:`monitor_row_counts`); a file the checkpoint did not know keeps its header only. Each file is rewritten
+    atomically. A resumed run replays the steps after its checkpoint: without this, the episodes of those steps would
+    be counted twice.
+
+    :param run: The run folder
+    :param counts: Episodes per Monitor file at the checkpoint
+    :return: Episodes dropped per file (files that lost none are left out)
+    """
+    dropped = {}
+    for name in monitor_files(run):
+        path = os.path.join(run, name)
+        with open(path) as file:
+            lines = [line for line in file.read().splitlines() if line.strip()]
+        keep = MONITOR_HEADER_LINES + counts.get(name, 0)
+        if len(lines) > keep:
+            dropped[name] = len(lines) - keep
+            atomic_write_text(path, "\n".join(lines[:keep]) + "\n")
+    return dropped

@@ -71,6 +71,7 @@ from sb3_icrl.zoo.callbacks import (
     WallClock,
     load_training_state,
     save_training_state,
+    training_state_monitor_rows,
     training_state_path,
     training_state_wall_time,
 )
@@ -98,6 +99,7 @@ from sb3_icrl.zoo.runs import (
     find_vecnormalize,
     is_finished,
     latest_checkpoint,
+    trim_monitors,
 )
 from sb3_icrl.zoo.summary import print_recovered_constraint, show_progress_bar
 
@@ -460,6 +462,22 @@ def _resume_checkpoint(args: argparse.Namespace, save_path: str) -> str | None:
     if args.verbose:
         print(f"Resuming {save_path} from {os.path.basename(resume_from)}")
     return resume_from
+
+
+def _trim_monitors_to_checkpoint(args: argparse.Namespace, name: str, save_path: str) -> None:
+    """
+    A run going on from a checkpoint replays the steps after it: its Monitor files (training and evaluation) drop
+    the episodes they recorded after the checkpoint, as ``evaluations.npz`` drops its later evaluations. Checkpoints
+    of earlier versions recorded no Monitor counts: their runs keep their files as they are.
+    """
+    if not args.trained_agent:
+        return
+    counts = training_state_monitor_rows(training_state_path(args.trained_agent, name))
+    if counts is None:
+        return
+    dropped = trim_monitors(save_path, counts)
+    if dropped and args.verbose:
+        print(f"Monitor files cut back to the checkpoint: {', '.join(f'{k} -{v}' for k, v in dropped.items())} episodes")
 
 
 def _in_place_folder(args: argparse.Namespace, name: str) -> str | None:
@@ -882,6 +900,7 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
     resuming = resume_from is not None or _continue_in_place(args, name, save_path)
     if resuming:
         remove_temporaries(save_path)  # of writes cut short when the run was killed
+        _trim_monitors_to_checkpoint(args, name, save_path)
     params_path = os.path.join(save_path, name)
     os.makedirs(params_path, exist_ok=True)
     if not resuming:
