@@ -1,6 +1,6 @@
 """
 The benchmark engine: suites of runs (``sb3_icrl/benchmark/suites/*.yml``), run locally or on Ray with resume, and
-their report (tables, statistics, figures). Command line: ``sb3-icrl benchmark run|report|list``.
+their report (tables, statistics, figures). Command line: ``sb3-icrl benchmark run|status|report|list``.
 """
 
 from sb3_icrl.benchmark.report import iqm, stratified_bootstrap_ci, summarise_suite

@@ -35,6 +35,7 @@ from sb3_icrl.benchmark.report import (
 from sb3_icrl.benchmark.runner import BACKENDS, RunOutcome, make_backend, run_all
 from sb3_icrl.benchmark.status import status_lines, suite_status
 from sb3_icrl.benchmark.suite import SUITES_DIR, RunSpec, Suite, SuiteError, load_suite
+from sb3_icrl.common.utils import plain_docstring
 from sb3_icrl.zoo.compare import RunResult
 from sb3_icrl.zoo.hyperparams import import_gym_packages
 
@@ -50,7 +51,9 @@ def _only(values: list[str] | None) -> dict[str, list[str]]:
 
 
 def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog=prog, description=plain_docstring(__doc__), formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     commands = parser.add_subparsers(dest="command", required=True)
     run = commands.add_parser("run", help="train every run of a suite (resumes)")
     status = commands.add_parser(

@@ -5,6 +5,7 @@ import json
 import os
 import pathlib
 import pickle
+import re
 import tempfile
 from collections.abc import Callable, Mapping
 from typing import IO, Any
@@ -163,3 +164,23 @@ def atomic_save_pickle(obj: Any, path: str | pathlib.Path) -> None:
     :param path: Destination file
     """
     atomic_write(path, lambda file: pickle.dump(obj, file))
+
+
+#: A Sphinx cross-reference: ``:role:`~module.Name``` or ``:role:`text <target>```
+_SPHINX_ROLE = re.compile(r":(?:py:)?(?:class|func|meth|mod|data|attr|obj|exc|ref|doc):`(~?)([^`<]*?)(?:\s*<[^>]*>)?`")
+
+
+def plain_docstring(text: str | None) -> str:
+    """
+    A module docstring as a command's ``--help`` shows it: Sphinx roles reduced to their names (``~a.b.Name`` to
+    ``Name``, ``a.b.name`` kept whole), double backquotes to single ones.
+
+    :param text: The docstring
+    :return: Plain text
+    """
+
+    def name(match: re.Match) -> str:
+        target = match.group(2).strip()
+        return target.rsplit(".", 1)[-1] if match.group(1) else target
+
+    return _SPHINX_ROLE.sub(name, text or "").replace("``", "`")

@@ -38,7 +38,7 @@ import numpy as np
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_icrl.common.utils import atomic_write_json
+from sb3_icrl.common.utils import atomic_write_json, plain_docstring
 from sb3_icrl.zoo.hyperparams import import_gym_packages
 
 #: The transfer tasks
@@ -441,7 +441,9 @@ def read_transfers(run_folder: str | os.PathLike) -> dict[str, dict[str, Any]]:
 
 def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
     """The parser of ``sb3-icrl transfer``."""
-    parser = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog=prog, description=plain_docstring(__doc__), formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("run", help="A finished ICRL run folder <folder>/<algo>/<EnvName>_<N>")
     parser.add_argument("--task", required=True, choices=TASKS, help="same env, reward toward the constraint, noisy dynamics")
     parser.add_argument(

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from sb3_icrl.common.utils import plain_docstring
 from sb3_icrl.plots.figures import (
     CURVE_METRICS,
     TrueConstraint,
@@ -36,7 +37,9 @@ from sb3_icrl.plots.figures import (
 def get_parser() -> argparse.ArgumentParser:
     """The parser of ``python -m sb3_icrl.plots``."""
     parser = argparse.ArgumentParser(
-        prog="python -m sb3_icrl.plots", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog="python -m sb3_icrl.plots",
+        description=plain_docstring(__doc__),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     commands = parser.add_subparsers(dest="command", required=True)
 

@@ -30,7 +30,7 @@ from stable_baselines3.common.save_util import load_from_zip_file
 
 from sb3_icrl.common.evaluation import OUTCOME_KEYS, OUTCOME_RATE_KEYS
 from sb3_icrl.common.statistics import MIN_PAIRS_FOR_WILCOXON, sample_std, wilcoxon_p
-from sb3_icrl.common.utils import atomic_write_json
+from sb3_icrl.common.utils import atomic_write_json, plain_docstring
 from sb3_icrl.zoo import enjoy
 from sb3_icrl.zoo.hyperparams import ALGOS, env_name, import_gym_packages
 from sb3_icrl.zoo.runs import FINISHED_FILE, failure, is_finished, run_wall_time
@@ -418,7 +418,9 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
 
     :param prog: Program name in the usage line
     """
-    parser = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog=prog, description=plain_docstring(__doc__), formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("runs", nargs="+", help="Run folders <folder>/<algo>/<EnvName>_<N>")
     parser.add_argument("-n", "--n-timesteps", type=positive_int, default=20000, help="Evaluation steps per run")
     parser.add_argument("--seed", type=non_negative_int, default=100, help="Seed of the held-out evaluation episodes")

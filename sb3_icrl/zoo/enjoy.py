@@ -26,6 +26,7 @@ from gymnasium.envs.registration import load_env_creator
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from sb3_icrl.common.evaluation import ConstraintEvaluation, EpisodeAccumulator
+from sb3_icrl.common.utils import plain_docstring
 from sb3_icrl.zoo.hyperparams import (
     ALGOS,
     ICRL_ALGOS,
@@ -50,7 +51,9 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
 
     :param prog: Program name in the usage line (default: the script's)
     """
-    parser = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog=prog, description=plain_docstring(__doc__), formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--algo", type=str, required=True, choices=list(ALGOS), help="Algorithm")
     parser.add_argument(
         "--env", type=str, required=True, help="Env id, with or without the sb3_icrl/ prefix (or MODULE:EnvId)"

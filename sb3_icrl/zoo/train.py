@@ -58,6 +58,7 @@ from sb3_icrl.common.utils import (
     atomic_write_json,
     atomic_write_text,
     atomic_write_yaml,
+    plain_docstring,
     remove_temporaries,
 )
 from sb3_icrl.data import load_demonstrations
@@ -178,7 +179,9 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
 
     :param prog: Program name in the usage line (default: the script's)
     """
-    parser = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog=prog, description=plain_docstring(__doc__), formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--algo", type=str, required=True, choices=list(ALGOS), help="Algorithm")
     parser.add_argument(
         "--env", type=str, required=True, help="Env id, with or without the sb3_icrl/ prefix (or MODULE:EnvId)"
@@ -1026,7 +1029,7 @@ def cli(argv: list[str] | None = None) -> int:
         "usage: sb3-icrl train --algo ALGO --env ENV [options] (see sb3-icrl train --help)\n"
         "       sb3-icrl enjoy --algo ALGO --env ENV [options] (see sb3-icrl enjoy --help)\n"
         "       sb3-icrl compare RUN [RUN ...] [options] (see sb3-icrl compare --help)\n"
-        "       sb3-icrl benchmark run|report|list SUITE [options] (see sb3-icrl benchmark --help)\n"
+        "       sb3-icrl benchmark run|status|report|list SUITE [options] (see sb3-icrl benchmark --help)\n"
         "       sb3-icrl transfer RUN --task same|reward|dynamics [options] (see sb3-icrl transfer --help)",
         file=sys.stderr,
     )

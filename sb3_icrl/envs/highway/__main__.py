@@ -11,6 +11,7 @@ Files are named ``<density>_<split>_<seed>.npz``; point the environments at them
 import argparse
 import os
 
+from sb3_icrl.common.utils import plain_docstring
 from sb3_icrl.envs.highway.scenarios import DENSITIES, SCENARIO_DIR, SPLITS, record_scenario
 
 #: The shipped recordings: (density, split) -> seeds. Train and test seeds never overlap.
@@ -46,7 +47,9 @@ def generate(density: str, split: str, seeds: list[int], out: str, duration: flo
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=plain_docstring(__doc__), formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--density", choices=tuple(DENSITIES), default="dense")
     parser.add_argument("--split", choices=SPLITS, default="train")
     parser.add_argument("--count", type=int, default=1, help="number of recordings")
