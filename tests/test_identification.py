@@ -300,3 +300,26 @@ def test_methods_figure_marks_the_threshold_and_one_line_per_seed():
     assert len([line for line in axis.get_lines() if line.get_linewidth() < 1.0]) == 2  # the seeds
     with pytest.raises(ValueError, match="No curve"):
         methods_partial_dependence_figure({"MECL": []}, -3.0, "<=")
+
+
+def test_a_learned_net_is_read_against_an_untrained_one_of_its_shape(expert):
+    from sb3_icrl.metrics.identification import untrained_copy
+
+    th.manual_seed(1)
+    net = FeasibilityNet(obs_dim=18, action_dim=6, hidden_sizes=[20], normalize_input=False)
+    with th.no_grad():
+        for parameter in net.parameters():
+            parameter.add_(1.0)  # stands for training: weights the initialisation would not draw
+    copy = untrained_copy(net, seed=3)
+    assert [tuple(p.shape) for p in copy.parameters()] == [tuple(p.shape) for p in net.parameters()]
+    assert not any(th.equal(a, b) for a, b in zip(copy.parameters(), net.parameters(), strict=True))
+    assert all(th.equal(a, b) for a, b in zip(copy.parameters(), untrained_copy(net, seed=3).parameters(), strict=True))
+    scores = identify_model(net, CHEETAH, expert, seed=0)
+    assert 0.0 <= scores["untrained_auroc"] <= 1.0
+    assert headline(scores)["untrained_auroc"] == scores["untrained_auroc"]
+    assert "untrained_auroc" not in identify_model(step_cost(-3.0), CHEETAH, expert, seed=0)  # a function has no shape
+    from sb3_icrl.benchmark.report import _identification_text
+
+    assert _identification_text({"identification_auroc": 0.9, "untrained_auroc": 0.87, "threshold_error": 0.5}) == (
+        "0.90 (untrained 0.87) / 0.50"
+    )

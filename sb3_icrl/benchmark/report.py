@@ -53,7 +53,14 @@ HELDOUT_FILE = "heldout.json"
 #: The same for ``best_model.zip`` (``model="best"``)
 HELDOUT_BEST_FILE = "heldout_best.json"
 #: The per-seed identification columns of ``runs.csv`` (:func:`~sb3_icrl.metrics.identification.headline`)
-IDENTIFICATION_COLUMNS = ("identification_auroc", "threshold_error", "threshold_crossing", "learner_cost", "cost_budget")
+IDENTIFICATION_COLUMNS = (
+    "identification_auroc",
+    "threshold_error",
+    "threshold_crossing",
+    "learner_cost",
+    "cost_budget",
+    "untrained_auroc",
+)
 #: What a report can evaluate: each run's final model, or the best model its training chose on learned quantities
 REPORT_MODELS = ("final", "best")
 #: Steps per held-out episode when the env declares no time limit
@@ -274,7 +281,9 @@ def _identification_text(seed: dict[str, Any]) -> str:
     # (a summary read back from JSON has null for both non-finite errors: its crossing tells them apart)
     everywhere = seed.get("threshold_crossing") == "everywhere" or (error is not None and math.isinf(error))
     error_text = "everywhere" if everywhere else _fmt(error, 2) if error is not None and math.isfinite(error) else "-"
-    return f"{_fmt(seed['identification_auroc'], 2)} / {error_text}"
+    untrained = seed.get("untrained_auroc")
+    baseline = f" (untrained {_fmt(untrained, 2)})" if untrained is not None else ""
+    return f"{_fmt(seed['identification_auroc'], 2)}{baseline} / {error_text}"
 
 
 def _transfer_text(seed: dict[str, Any]) -> str:

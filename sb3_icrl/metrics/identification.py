@@ -23,11 +23,13 @@ import math
 import os
 import pathlib
 from collections.abc import Callable, Mapping, Sequence
+from copy import deepcopy
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import scipy.stats
+import torch as th
 
 from sb3_icrl.common.utils import atomic_write_json
 
@@ -633,7 +635,32 @@ def identify_model(
     probes = build_probe_set(
         constraints, {"expert": expert, **dict(other_sources or {})}, n_sweep_values, n_sweep_states, seed=seed
     )
-    return identification_scores(cost_fn, probes, constraints, budget=budget, seed=seed)
+    scores = identification_scores(cost_fn, probes, constraints, budget=budget, seed=seed)
+    if isinstance(net, th.nn.Module) and hasattr(net, "cost"):
+        # What the net's shape and input scaling alone give on these probes: a learned cost should beat it
+        untrained = untrained_copy(net, seed)
+        costs = np.asarray(untrained.cost(np.array(probes.observations), np.array(probes.actions)), dtype=np.float64)
+        scores["untrained_auroc"] = auroc(costs.reshape(-1), true_cost_labels(probes.observations, constraints))
+    return scores
+
+
+def untrained_copy(net: "th.nn.Module", seed: int = 0) -> "th.nn.Module":
+    """
+    A constraint net of the same shape and input normalisation as ``net``, its layers initialised afresh (seeded):
+    the baseline a learned constraint's identification scores are read against (on a HalfCheetah probe set an
+    untrained net can rank the pairs far above 0.5, from the input scaling alone).
+
+    :param net: The learned constraint net
+    :param seed: Seed of the initial weights
+    :return: The untrained copy (``net`` is left as it is)
+    """
+    copy = deepcopy(net)
+    with th.random.fork_rng():
+        th.manual_seed(seed)
+        for module in copy.modules():
+            if isinstance(module, th.nn.Linear):
+                module.reset_parameters()
+    return copy
 
 
 def find_unconstrained_run(run_folder: str | os.PathLike) -> pathlib.Path | None:
@@ -835,7 +862,8 @@ def headline(scores: Mapping[str, Any]) -> dict[str, float | str]:
     feature with how the learned cost meets that level (left out on grid worlds, whose constraint has no threshold).
 
     :param scores: Scores of :func:`identification_scores` or :func:`grid_identification`
-    :return: ``{"identification_auroc": ..., "threshold_error": ..., "threshold_crossing": ...}``, the crossing
+    :return: ``{"identification_auroc": ..., "threshold_error": ..., "threshold_crossing": ...}`` (and
+        ``untrained_auroc``, an untrained net's of the same shape on the same probes, where scored), the crossing
         ``"crosses"`` (a finite error), ``"everywhere"`` (the cost stays at or above 0.5 up to the safe end of the
         range: an infinite error) or ``"nowhere"`` (it never reaches 0.5: NaN). Strict JSON writes both non-finite
         errors as ``null``; the crossing keeps them apart. Where the probe set has them, also ``learner_cost`` (the
@@ -843,6 +871,8 @@ def headline(scores: Mapping[str, Any]) -> dict[str, float | str]:
         ended): a learner far over its budget wherever it goes tends to end its episodes early.
     """
     row: dict[str, float | str] = {"identification_auroc": float(scores["auroc"])}
+    if "untrained_auroc" in scores:
+        row["untrained_auroc"] = float(scores["untrained_auroc"])
     learner = scores.get("sources", {}).get("learner")
     if learner is not None:
         row["learner_cost"] = float(learner["mean_cost"])
