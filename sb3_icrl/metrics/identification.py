@@ -638,8 +638,8 @@ def identify_model(
     scores = identification_scores(cost_fn, probes, constraints, budget=budget, seed=seed)
     if isinstance(net, th.nn.Module) and hasattr(net, "cost"):
         # What the net's shape and input scaling alone give on these probes: a learned cost should beat it
-        untrained = untrained_copy(net, seed)
-        costs = np.asarray(untrained.cost(np.array(probes.observations), np.array(probes.actions)), dtype=np.float64)
+        untrained_cost = learned_cost_fn(untrained_copy(net, seed))
+        costs = np.asarray(untrained_cost(np.array(probes.observations), np.array(probes.actions)), dtype=np.float64)
         scores["untrained_auroc"] = auroc(costs.reshape(-1), true_cost_labels(probes.observations, constraints))
     return scores
 
