@@ -1,6 +1,7 @@
 """The reference rows of a benchmark: PPO and the oracle on the ICRL cells' forward learner, normalised scores, success."""
 
 import math
+import pathlib
 
 import pytest
 
@@ -198,3 +199,34 @@ def test_an_oracle_that_breaks_its_constraint_normalises_nothing(tmp_path) -> No
     results = [(run, _result(run.algo, run.seed, *values[run.algo])) for run in suite.runs()]
     cell = next(c for c in summarise_suite(suite, suite.runs(), results)["cells"] if c["algo"] == "mecl")
     assert cell["normalisation_problem"] == "the oracle earns no more feasible reward than PPO"
+
+
+def test_driving_envs_are_evaluated_on_their_test_recordings(tmp_path, monkeypatch) -> None:
+    import json as json_module
+
+    from sb3_icrl.benchmark import report
+    from sb3_icrl.envs import heldout_env_kwargs
+
+    assert heldout_env_kwargs("sb3_icrl/HighwayVelocity-v0") == {"split": "test"}
+    assert heldout_env_kwargs("sb3_icrl/BlockedHalfCheetah-v0") == {}
+    suite = load_suite(write(tmp_path, SUITE.replace("GridWorldWall-v0", "HighwayVelocity-v0").replace("mecl, ", "")))
+    run = suite.runs()[0]
+    folder = pathlib.Path(run.run_folder(tmp_path))
+    folder.mkdir(parents=True)
+    (folder / "finished.json").write_text("{}")
+    asked = []
+
+    def evaluate(path, steps, seed, load_best=False, env_kwargs=None):
+        asked.append(env_kwargs)
+        return _result(run.algo, run.seed, 1.0, 0.0)
+
+    monkeypatch.setattr(report, "evaluate_run", evaluate)
+    report.evaluate_finished([run], str(tmp_path), suite, log=lambda line: None)
+    assert asked == [{"split": "test"}]
+    cache = json_module.loads((folder / report.HELDOUT_FILE).read_text())
+    assert cache["settings"]["env_kwargs"] == {"split": "test"}
+    # A cache made before, on the training recordings, is evaluated again
+    del cache["settings"]["env_kwargs"]
+    (folder / report.HELDOUT_FILE).write_text(json_module.dumps(cache))
+    report.evaluate_finished([run], str(tmp_path), suite, log=lambda line: None)
+    assert len(asked) == 2

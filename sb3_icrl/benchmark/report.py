@@ -1,6 +1,7 @@
 """
 The report of a suite: every finished run's final model on held-out episodes (as ``sb3-icrl compare`` evaluates
-it), then per cell the per-seed values, mean and std, the interquartile mean (IQM) with a 95% bootstrap confidence
+it; on the driving envs, on their test recordings, which no run trains on), then per cell the per-seed values, mean
+and std, the interquartile mean (IQM) with a 95% bootstrap confidence
 interval, the Wilcoxon signed-rank test against a reference algorithm, the paper's number and other published
 re-runs, the feasible reward as a fraction of our expert's return, and the compute the runs took, written as Markdown,
 CSV, LaTeX and JSON, with figures.
@@ -44,6 +45,7 @@ from sb3_icrl.common.statistics import (
     wilson_interval,
 )
 from sb3_icrl.common.utils import atomic_write_bytes, atomic_write_json
+from sb3_icrl.envs import heldout_env_kwargs
 from sb3_icrl.zoo.compare import OUTCOME_TITLES, RunResult, evaluate_run, format_outcome_rate, summarise
 from sb3_icrl.zoo.hyperparams import env_name
 from sb3_icrl.zoo.runs import find_vecnormalize, is_finished, lacks_own_statistics, run_wall_time
@@ -111,7 +113,10 @@ def evaluate_finished(
             continue
         steps = heldout_steps(run.env_id, suite.eval_episodes)
         cache = os.path.join(folder, HELDOUT_BEST_FILE if best else HELDOUT_FILE)
+        env_kwargs = heldout_env_kwargs(run.env_id)  # the driving envs: their test recordings
         settings: dict[str, Any] = {"eval_seed": suite.eval_seed, "n_timesteps": steps, **({"model": model} if best else {})}
+        if env_kwargs:
+            settings["env_kwargs"] = env_kwargs  # a cache made on other recordings is evaluated again
         cached = None
         if os.path.isfile(cache):
             with open(cache) as file:
@@ -124,7 +129,7 @@ def evaluate_finished(
                 cached = RunResult(**saved["result"])
         if cached is None:
             log(f"evaluating {run.name}{' (best model)' if best else ''} on {suite.eval_episodes} held-out episodes")
-            cached = evaluate_run(folder, steps, suite.eval_seed, load_best=best)
+            cached = evaluate_run(folder, steps, suite.eval_seed, load_best=best, env_kwargs=env_kwargs)
             atomic_write_json(cache, {"settings": settings, "result": asdict(cached)}, indent=2)
         cached.run = os.path.relpath(folder, root)
         results.append((run, cached))

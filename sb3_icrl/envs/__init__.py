@@ -10,7 +10,10 @@ Every step's ``info["cost"]`` is the true cost (1.0 when the constraint is broke
 constraint as ``constraint_spec`` (:mod:`sb3_icrl.envs.constraint_spec`), read by :func:`get_constraint_spec`.
 """
 
+from typing import Any
+
 import gymnasium
+from gymnasium.envs.registration import load_env_creator
 
 from sb3_icrl.envs.blocked_mujoco import (
     CONSTRAINED_FEATURE,
@@ -59,6 +62,20 @@ ENV_SPECS: dict[str, tuple[str, int, dict]] = {
 }
 
 
+def heldout_env_kwargs(env_id: str) -> dict[str, Any]:
+    """
+    The env keyword arguments of a held-out evaluation: what the env's class declares in ``heldout_env_kwargs`` (the
+    driving envs: their test recordings, ``split="test"``), nothing for envs without held-out data of their own (their
+    held-out episodes differ by seed only).
+
+    :param env_id: A registered env id
+    :return: Keyword arguments (empty for most envs)
+    """
+    entry_point = gymnasium.spec(env_id).entry_point
+    creator = load_env_creator(entry_point) if isinstance(entry_point, str) else entry_point
+    return dict(getattr(creator, "heldout_env_kwargs", None) or {})
+
+
 def register_envs() -> None:
     """Register every environment of :data:`ENV_SPECS` with gymnasium; ids already registered are left alone."""
     # The transfer tasks (sb3_icrl.envs.transfer_envs) register with the benchmark envs
@@ -89,5 +106,6 @@ __all__ = [
     "TransitionNoiseWrapper",
     "declare_constraint",
     "get_constraint_spec",
+    "heldout_env_kwargs",
     "register_envs",
 ]

@@ -19,6 +19,7 @@ when the same seed comes twice: each is labelled by the part of its folder that 
 
 import argparse
 import csv
+import json
 import os
 import sys
 from dataclasses import asdict, dataclass, field
@@ -127,7 +128,9 @@ def training_wall_time(run: str) -> float:
     return float(rows[-1]["t"]) / 60.0 if rows else float("nan")
 
 
-def evaluate_run(run: str, n_timesteps: int, eval_seed: int, load_best: bool = False) -> RunResult:
+def evaluate_run(
+    run: str, n_timesteps: int, eval_seed: int, load_best: bool = False, env_kwargs: dict[str, Any] | None = None
+) -> RunResult:
     """
     Run a run's final (or best) model on held-out env seeds, as ``enjoy.py --no-render --verbose 0`` does.
 
@@ -135,11 +138,15 @@ def evaluate_run(run: str, n_timesteps: int, eval_seed: int, load_best: bool = F
     :param n_timesteps: Evaluation steps (episodes = steps / episode length)
     :param eval_seed: Seed of the evaluation env and policy (pick one the run did not train on)
     :param load_best: Evaluate ``best_model.zip`` instead of the final model
+    :param env_kwargs: Env keyword arguments over the run's own (e.g. the driving envs' test recordings,
+        :func:`sb3_icrl.envs.heldout_env_kwargs`)
     """
     algo, env_id, seed, _ = describe_run(run)
     # The folder itself: with --exp-id, a run numbered 0 (a benchmark suite's seed 0) would mean "the latest run"
     argv = ["--algo", algo, "--env", env_id, "--run", run, "-n", str(n_timesteps)]
     argv += ["--no-render", "--seed", str(eval_seed), "--verbose", "0", *(["--load-best"] if load_best else [])]
+    if env_kwargs:
+        argv += ["--env-kwargs", json.dumps(env_kwargs)]
     args = enjoy.get_parser().parse_args(argv)
     evaluation = enjoy.enjoy(args)
     if len(evaluation.violations) == 0:

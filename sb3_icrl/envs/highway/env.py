@@ -82,7 +82,7 @@ true constraint (default thresholds); each env declares its own, with its thresh
 
 from collections.abc import Sequence
 from functools import lru_cache
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import gymnasium
 import numpy as np
@@ -196,6 +196,8 @@ class HighwayConstraintEnv(gymnasium.Env):
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 5}
+    #: What a held-out evaluation changes (:func:`sb3_icrl.envs.heldout_env_kwargs`): the recordings no run trained on
+    heldout_env_kwargs: ClassVar[dict[str, Any]] = {"split": "test"}
 
     @property
     def constraint_spec(self) -> ConstraintSpec:
