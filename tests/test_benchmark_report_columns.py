@@ -336,7 +336,7 @@ def test_report_of_best_models_evaluates_best_model_zip_with_its_own_cache(finis
     suite, root, results = finished_suite
     evaluated = []
 
-    def fake_evaluate_run(folder, steps, seed, load_best=False):
+    def fake_evaluate_run(folder, steps, seed, load_best=False, env_kwargs=None):
         evaluated.append((os.path.relpath(folder, root), load_best))
         feasible = 9.0 if load_best else 1.0
         return RunResult(folder, "bc2l", "sb3_icrl/GridWorldWall-v0", 0, 100, 1.0, 0.0, feasible, feasible, 2)
@@ -514,3 +514,26 @@ def test_compute_line_names_the_variants_of_a_suite_reported_in_parts(finished_s
     (tmp_path / "results" / "suite_n4" / "summary.json").unlink()
     line = readme_table.table(tmp_path / "results").splitlines()[-1]
     assert line == "Compute: 2.1 core-hours over 7 runs (suite 2.1 over 7)."
+
+
+def test_update_with_no_finished_run_writes_the_report_again_as_it_was(finished_suite, tmp_path, monkeypatch):
+    from sb3_icrl.benchmark import cli
+
+    suite, root, results = finished_suite
+    path = write(tmp_path, SUITE)
+    output = str(tmp_path / "results" / "suite")
+    # A report of part of the suite (its GridWorldWall cells), with the statistics of an earlier version
+    part = [(run, result) for run, result in results if run.env_id.endswith("GridWorldWall-v0")]
+    earlier = summarise_suite(suite, [run for run, _ in part], part, run_facts(part, root))
+    for cell in earlier["cells"]:
+        cell["feasible_reward_std"] = 0.0  # what an older version wrote
+    write_report(earlier, output)
+    monkeypatch.setattr(cli, "evaluate_finished", lambda runs, *args, **kwargs: [])  # the run folders are gone
+    assert cli.main(["report", path, "-f", str(tmp_path / "gone"), "-o", output, "--no-figures", "--update"]) == 0
+    again = json.loads(pathlib.Path(output, "summary.json").read_text())
+    assert [(c["env"], c["algo"]) for c in again["cells"]] == [(c["env"], c["algo"]) for c in _strict(earlier)["cells"]]
+    for cell, old in zip(again["cells"], _strict(earlier)["cells"], strict=True):
+        assert cell["per_seed"] == old["per_seed"]
+        # The sample std of today, from the same per-seed values
+        assert cell["feasible_reward_std"] == pytest.approx(np.std([s["feasible_reward"] for s in old["per_seed"]], ddof=1))
+    assert again["runs_missing"] == []  # the GridWorld cells it never reported are not listed as unfinished

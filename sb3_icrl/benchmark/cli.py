@@ -88,7 +88,8 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
     report.add_argument(
         "--update",
         action="store_true",
-        help="update the report in -o with these runs: their cells' seeds replace the ones it has, its other cells stay",
+        help="update the report in -o with these runs: their cells' seeds replace the ones it has, its other cells stay "
+        "(with no finished run, the report is written again from its summary, with the current statistics)",
     )
     commands.add_parser("list", help="the shipped suites")
     return parser
@@ -215,10 +216,13 @@ def _with_earlier_report(
             f"pass --model {earlier_model}, or another -o folder."
         )
     kept, kept_metrics, missing = previous_results(earlier, suite, root)
-    # A selected run that has not finished (again) loses its old result: its cell must not mix two recipes
-    selected = set(runs)
+    # A selected run that has not finished (again) loses its old result: its cell must not mix two recipes. With no
+    # fresh result at all, nothing is mixed: the report is written again as it was, with the current statistics
+    selected = set(runs) if results else set()
     kept = [(run, result) for run, result in kept if run not in selected]
     metrics = {**metrics, **{result.run: kept_metrics[result.run] for _, result in kept}}
+    if not results:  # the earlier report's runs, no more: a report of part of a suite stays one
+        return [run for run, _ in kept] + missing, kept, metrics
     return runs + [run for run in missing if run not in selected], kept + results, metrics
 
 
@@ -227,7 +231,8 @@ def report_command(args: argparse.Namespace) -> int:
     runs = suite.select(_only(args.only))
     model = getattr(args, "model", "final")  # (``benchmark run`` reports the final models)
     results = evaluate_finished(runs, args.log_folder, suite, model=model)
-    if not results and args.command == "report":
+    # With --update and no finished run, the earlier report is written again from its summary with today's statistics
+    if not results and args.command == "report" and not getattr(args, "update", False):
         raise SuiteError(
             f"No finished run of suite {suite.name!r} in {os.path.join(args.log_folder, suite.name)}: train them first with "
             f"`sb3-icrl benchmark run {args.suite} -f {args.log_folder}` (or check -f and --only)."
