@@ -480,16 +480,22 @@ def spread(values: Sequence[float]) -> dict[str, Any]:
     }
 
 
-def format_spread(entry: dict[str, Any] | None, percent: bool = False) -> str:
-    """``IQM c [lo, hi]`` or ``mean c [min, max]`` (:func:`spread`), ``-`` without values."""
+def format_spread(entry: dict[str, Any] | None, shown: Callable[[float], str] = format_reward) -> str:
+    """
+    ``IQM c [lo, hi]`` or ``mean c [min, max]`` (:func:`spread`), ``-`` without values.
+
+    :param entry: A :func:`spread`
+    :param shown: How a value is written (default: a reward at the precision its size asks for)
+    """
     if not entry or not entry["n"]:
         return "-"
-
-    def shown(value: float) -> str:
-        return f"{100 * value:.0f}%" if percent else format_reward(value)
-
     low, high = entry["interval"]
     return f"{'IQM' if entry['kind'] == 'iqm' else 'mean'} {shown(entry['centre'])} [{shown(low)}, {shown(high)}]"
+
+
+def format_score(value: float) -> str:
+    """A normalised score: two decimals."""
+    return f"{value:.2f}"
 
 
 #: The most violations the oracle row may have for its feasible reward to be a score's 1: an oracle that breaks the
@@ -830,7 +836,7 @@ def markdown_table(summary: dict[str, Any]) -> str:
         row += [format_spread(cell.get("feasible_reward_spread") or spread([s["feasible_reward"] for s in cell["per_seed"]]))]
         if normalised:
             problem = cell.get("normalisation_problem")
-            row.append(f"none: {problem}" if problem else _normalised_text(cell.get("normalised_score_spread")))
+            row.append(f"none: {problem}" if problem else format_spread(cell.get("normalised_score_spread"), format_score))
         if success:
             row.append(_success_text(cell))
         row += [
@@ -854,13 +860,6 @@ def markdown_table(summary: dict[str, Any]) -> str:
     if compute is not None:
         lines += ["", compute]
     return "\n".join(lines) + "\n"
-
-
-def _normalised_text(entry: dict[str, Any] | None) -> str:
-    if not entry or not entry["n"]:
-        return "-"
-    low, high = entry["interval"]
-    return f"{'IQM' if entry['kind'] == 'iqm' else 'mean'} {entry['centre']:.2f} [{low:.2f}, {high:.2f}]"
 
 
 def _success_text(cell: dict[str, Any]) -> str:
