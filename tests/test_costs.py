@@ -120,6 +120,31 @@ def test_cost_fn_sees_original_observations_and_executed_actions():
     assert set(np.unique(actions)) <= {0, 1, 2}
 
 
+def test_cost_fn_judges_each_rollout_in_one_call_in_step_major_order():
+    calls: list[tuple[np.ndarray, np.ndarray]] = []
+
+    def cost_fn(obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        calls.append((obs.copy(), actions.copy()))
+        return (obs[:, 0] >= 0.3).astype(np.float32)  # cells 3 and beyond cost 1
+
+    envs = DummyVecEnv([lambda: ConstrainedCorridorEnv(max_steps=4) for _ in range(3)])
+    # (cost_gamma 0: the time-limit truncations add no bootstrapped cost to the buffer's costs)
+    model = PPOLagrangian("MlpPolicy", envs, cost_fn=cost_fn, **{**TINY, "n_steps": 8, "cost_gamma": 0.0})
+    model.learn(48)
+    assert len(calls) == 2 and all(len(obs) == 8 * 3 for obs, _ in calls)  # one call per rollout, every pair
+    obs, actions = calls[-1]
+    # Row t * n_envs + i is env i at step t: the same pairs as the buffer holds (raw: no VecNormalize here), which
+    # training flattened env by env
+    env_major = obs.reshape(8, 3, -1).swapaxes(0, 1).reshape(24, -1)
+    np.testing.assert_allclose(env_major, model.rollout_buffer.observations)
+    np.testing.assert_array_equal(actions.reshape(8, 3).T.ravel(), model.rollout_buffer.actions.ravel())
+    step_costs = (obs[:, 0] >= 0.3).astype(np.float32).reshape(8, 3)
+    np.testing.assert_array_equal(model.rollout_buffer.costs[..., 0], step_costs)
+    # Episodes of 4 steps: the episode costs are the per-step costs summed, as if they had come one step at a time
+    episode_costs = step_costs.reshape(2, 4, 3).sum(axis=1).ravel()
+    np.testing.assert_allclose(np.ravel(model.ep_cost_buffer)[-6:], episode_costs)
+
+
 def test_bad_cost_fn_output_and_type():
     with pytest.raises(CostError, match=r"cost_fn returned costs of shape \(2,\)"):
         make_model(None, cost_fn=lambda obs, actions: np.zeros(2)).learn(16)

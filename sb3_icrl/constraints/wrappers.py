@@ -84,10 +84,13 @@ class LearnedCostVecEnvWrapper(_StateActionVecEnvWrapper):
     ``info[true_cost_info_key]`` (for evaluation; a learner reading ``cost_info_key`` never sees it).
 
     The cost is computed right after the actions are sent, so with a ``SubprocVecEnv`` it overlaps the env step.
+    With ``cost_fn=None`` the wrapper only moves the env's cost away, for a learner that computes the learned cost
+    itself (``PPOLagrangian``'s ``cost_fn``, one batch per rollout, as the ICRL algorithms do: faster than one call
+    per step).
 
     :param venv: The env to wrap (without ``VecNormalize`` inside)
     :param cost_fn: ``cost_fn(observations, actions) -> costs`` (e.g. ``FeasibilityNet.cost``), observations as the
-        env returned them, costs of shape ``(n_envs,)`` or ``(n_envs, n_costs)``
+        env returned them, costs of shape ``(n_envs,)`` or ``(n_envs, n_costs)``; ``None``: write no cost
     :param n_costs: Number of learned costs per step
     :param cost_info_key: Info key of the cost the learner reads
     :param true_cost_info_key: Info key where the env's own cost is moved
@@ -96,7 +99,7 @@ class LearnedCostVecEnvWrapper(_StateActionVecEnvWrapper):
     def __init__(
         self,
         venv: VecEnv,
-        cost_fn: CostFn,
+        cost_fn: CostFn | None,
         n_costs: int = 1,
         cost_info_key: str = "cost",
         true_cost_info_key: str = "true_cost",
@@ -105,21 +108,26 @@ class LearnedCostVecEnvWrapper(_StateActionVecEnvWrapper):
         if n_costs < 1:
             raise ValueError(f"`n_costs` must be >= 1, got {n_costs}.")
         self.n_costs = n_costs
-        self.cost_fn: CostFn
+        self.cost_fn: CostFn | None
         self.set_cost_fn(cost_fn)
         self._step_costs: np.ndarray | None = None
 
-    def set_cost_fn(self, cost_fn: CostFn) -> None:
+    def set_cost_fn(self, cost_fn: CostFn | None) -> None:
         """
         Use another learned cost from the next step on.
 
-        :param cost_fn: The new cost function
+        :param cost_fn: The new cost function (``None``: write no cost, only move the env's own)
         """
-        if not callable(cost_fn):
+        if cost_fn is not None and not callable(cost_fn):
             raise TypeError(f"`cost_fn` must be callable as cost_fn(observations, actions) -> costs, got {cost_fn!r}.")
         self.cost_fn = cost_fn
 
     def step_async(self, actions: np.ndarray) -> None:
+        if self.cost_fn is None:
+            if self._obs_before_step is None:
+                raise RuntimeError(f"Call reset() on the {type(self).__name__} before step().")
+            self.venv.step_async(actions)
+            return
         self._remember_actions(actions)
         self.venv.step_async(actions)
         self._step_costs = as_cost_array(
@@ -131,8 +139,11 @@ class LearnedCostVecEnvWrapper(_StateActionVecEnvWrapper):
 
     def step_wait(self) -> VecEnvStepReturn:
         obs, rewards, dones, infos = self.venv.step_wait()
-        assert self._step_costs is not None, "step_wait() called without step_async()"
         self._hide_true_cost(infos)
+        if self.cost_fn is None:
+            self._advance(obs)
+            return obs, rewards, dones, infos
+        assert self._step_costs is not None, "step_wait() called without step_async()"
         for info, cost in zip(infos, self._step_costs, strict=True):
             info[self.cost_info_key] = float(cost[0]) if self.n_costs == 1 else cost.copy()
         self._step_costs = None

@@ -243,9 +243,11 @@ class ICRLAlgorithmMixin:
             self.constraint_net.fit_normalizer(self.expert_obs, self.expert_acts)
 
     def _make_constraint_wrapper(self, venv: VecEnv) -> LearnedCostVecEnvWrapper | GACLRewardWrapper:
-        """The wrapper that feeds the constraint model to the learner (learned cost by default)."""
-        assert self.constraint_net is not None
-        return LearnedCostVecEnvWrapper(venv, self.constraint_net.cost)
+        """
+        The wrapper between the env and the learner: by default one that moves the true cost out of the learner's
+        sight; the learner computes the learned cost itself (``PPOLagrangian``'s ``cost_fn``, once per rollout).
+        """
+        return LearnedCostVecEnvWrapper(venv, None)
 
     def _configure_constraint_wrapper(self, wrapper: VecEnvWrapper) -> None:
         """
@@ -411,7 +413,8 @@ DEFAULT_LAGRANGE_KWARGS: dict[str, Any] = {"init": 0.1, "lr": 0.05, "optimizer":
 class LagrangianICRL(ICRLAlgorithmMixin, PPOLagrangian):
     """
     An ICRL algorithm whose forward solver is :class:`~sb3_icrl.PPOLagrangian` on the learned cost ``1 - phi``
-    (BC2L, MECL, VICRL). The learner reads the learned cost from ``info["cost"]``; it never sees the true one.
+    (BC2L, MECL, VICRL). The learner computes the learned cost itself, once per rollout on all of its pairs (its
+    ``cost_fn`` is :meth:`constraint_cost`); the true cost is moved out of its sight.
 
     :param policy: The policy model (``"MlpPolicy"`` or a ``CostActorCriticPolicy`` subclass)
     :param env: The environment (a gymnasium env, a VecEnv or a registered id); flat Box or Discrete spaces
@@ -495,3 +498,8 @@ class LagrangianICRL(ICRLAlgorithmMixin, PPOLagrangian):
         )
         if _init_setup_model:
             self._setup_model()
+
+    def _setup_model(self) -> None:
+        super()._setup_model()
+        # Read at call time: always the current constraint model, after updates and loads alike
+        self.cost_fn = self.constraint_cost

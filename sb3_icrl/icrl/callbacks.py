@@ -26,42 +26,41 @@ class TrueConstraintLogger(BaseCallback):
         #: One row per finished episode: ``(timesteps, violated, feasible_reward, episode_cost)``
         self.episodes: list[tuple[int, bool, float, float]] = []
         self._rollout_start = 0
-        self._feasible = np.zeros(0)
-        self._cost = np.zeros(0)
-        self._violated = np.zeros(0, dtype=bool)
+        self._feasible: list[float] = []
+        self._cost: list[float] = []
+        self._violated: list[bool] = []
 
     def _on_training_start(self) -> None:
         n_envs = self.training_env.num_envs
-        self._feasible, self._cost = np.zeros(n_envs), np.zeros(n_envs)
-        self._violated = np.zeros(n_envs, dtype=bool)
+        self._feasible, self._cost = [0.0] * n_envs, [0.0] * n_envs
+        self._violated = [False] * n_envs
 
     def _on_rollout_start(self) -> None:
         self._rollout_start = len(self.episodes)
 
     def _on_step(self) -> bool:
-        infos, dones = self.locals["infos"], self.locals["dones"]
+        infos = self.locals["infos"]
         normalize = getattr(self.model, "_vec_normalize_env", None)
-        rewards = normalize.get_original_reward() if normalize is not None else self.locals["rewards"]
-        for env_idx, (info, done) in enumerate(zip(infos, dones, strict=True)):
-            if self.true_cost_info_key not in info:
+        rewards = np.asarray(normalize.get_original_reward() if normalize is not None else self.locals["rewards"]).tolist()
+        dones = np.asarray(self.locals["dones"]).tolist()
+        feasible, episode_cost, violated = self._feasible, self._cost, self._violated
+        # Python floats and lists, not NumPy: this runs every step, on a few envs, where NumPy's per-call cost dominates
+        for env_idx, info in enumerate(infos):
+            value = info.get(self.true_cost_info_key)
+            if value is None:
                 # The env reports no true cost: nothing to evaluate
                 continue
-            cost = float(np.sum(info[self.true_cost_info_key]))
-            reward = float(info.get(self.env_reward_info_key, rewards[env_idx]))
-            self._violated[env_idx] |= cost > 0
-            self._cost[env_idx] += cost
-            if not self._violated[env_idx]:
-                self._feasible[env_idx] += reward
-            if done:
-                row = (
-                    self.num_timesteps,
-                    bool(self._violated[env_idx]),
-                    float(self._feasible[env_idx]),
-                    float(self._cost[env_idx]),
-                )
-                self.episodes.append(row)
-                self._feasible[env_idx] = self._cost[env_idx] = 0.0
-                self._violated[env_idx] = False
+            # (a float, NumPy's float64 included, as it is; a vector, one entry per constraint, summed)
+            cost = value if isinstance(value, float) else float(np.sum(value))
+            if cost > 0:
+                violated[env_idx] = True
+            episode_cost[env_idx] += cost
+            if not violated[env_idx]:
+                feasible[env_idx] += float(info.get(self.env_reward_info_key, rewards[env_idx]))
+            if dones[env_idx]:
+                self.episodes.append((self.num_timesteps, violated[env_idx], feasible[env_idx], episode_cost[env_idx]))
+                feasible[env_idx] = episode_cost[env_idx] = 0.0
+                violated[env_idx] = False
         return True
 
     def _on_rollout_end(self) -> None:

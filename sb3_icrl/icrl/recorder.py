@@ -78,8 +78,13 @@ class TrajectoryRecorderVecEnvWrapper(VecEnvWrapper):
             raise ValueError(f"`max_trajectories` must be >= 1, got {max_trajectories}.")
         super().__init__(venv)
         self.finished: deque[NominalTrajectory] = deque(maxlen=max_trajectories)
-        self._obs: list[list[np.ndarray]] = [[] for _ in range(self.num_envs)]
-        self._acts: list[list[np.ndarray]] = [[] for _ in range(self.num_envs)]
+        # The pairs of all envs, one array per step, from the first step of the oldest unfinished episode on: one
+        # append per step whatever the number of envs; an episode's rows are gathered once, when it ends
+        self._step_obs: list[np.ndarray] = []
+        self._step_acts: list[np.ndarray] = []
+        self._first_kept_step = 0
+        self._episode_starts = np.zeros(self.num_envs, dtype=np.int64)
+        self._n_steps = 0
         self._last_obs: np.ndarray | None = None
         self._actions: np.ndarray | None = None
 
@@ -88,8 +93,9 @@ class TrajectoryRecorderVecEnvWrapper(VecEnvWrapper):
         if isinstance(obs, (dict, tuple)):
             raise TypeError("TrajectoryRecorderVecEnvWrapper takes flat observations (Box or Discrete), not Dict/Tuple.")
         self._last_obs = np.array(obs, copy=True)
-        self._obs = [[] for _ in range(self.num_envs)]
-        self._acts = [[] for _ in range(self.num_envs)]
+        self._step_obs, self._step_acts = [], []
+        self._first_kept_step = self._n_steps = 0
+        self._episode_starts[:] = 0
         return obs
 
     def step_async(self, actions: np.ndarray) -> None:
@@ -101,12 +107,21 @@ class TrajectoryRecorderVecEnvWrapper(VecEnvWrapper):
     def step_wait(self) -> VecEnvStepReturn:
         obs, rewards, dones, infos = self.venv.step_wait()
         assert self._last_obs is not None and self._actions is not None, "step_wait() called without step_async()"
-        for env_idx in range(self.num_envs):
-            self._obs[env_idx].append(self._last_obs[env_idx])
-            self._acts[env_idx].append(self._actions[env_idx])
-            if dones[env_idx]:
-                self.finished.append(NominalTrajectory(np.stack(self._obs[env_idx]), np.stack(self._acts[env_idx])))
-                self._obs[env_idx], self._acts[env_idx] = [], []
+        self._step_obs.append(self._last_obs)
+        self._step_acts.append(self._actions)
+        self._n_steps += 1
+        if dones.any():
+            ended = np.flatnonzero(dones)
+            starts = self._episode_starts[ended] - self._first_kept_step
+            first = int(starts.min())
+            # One stack for all the episodes that end here, sliced per env
+            obs_block, acts_block = np.stack(self._step_obs[first:]), np.stack(self._step_acts[first:])
+            for env_idx, start in zip(ended, starts - first, strict=True):
+                self.finished.append(NominalTrajectory(obs_block[start:, env_idx].copy(), acts_block[start:, env_idx].copy()))
+            self._episode_starts[ended] = self._n_steps
+            unneeded = int(self._episode_starts.min()) - self._first_kept_step
+            del self._step_obs[:unneeded], self._step_acts[:unneeded]
+            self._first_kept_step += unneeded
         # After an auto-reset the returned obs is the new episode's first one
         self._last_obs = np.array(obs, copy=True)
         self._actions = None

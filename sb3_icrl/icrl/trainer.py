@@ -44,7 +44,8 @@ def install_constraint(wrapper: LearnedCostVecEnvWrapper | GACLRewardWrapper, co
     if isinstance(wrapper, GACLRewardWrapper):
         wrapper.set_discriminator(constraint_net.predict_feasibility)
     elif isinstance(wrapper, LearnedCostVecEnvWrapper):
-        wrapper.set_cost_fn(constraint_net.cost)
+        if wrapper.cost_fn is not None:  # (None: the learner computes the cost itself, from the same model)
+            wrapper.set_cost_fn(constraint_net.cost)
     else:
         raise TypeError(f"Expected a LearnedCostVecEnvWrapper or GACLRewardWrapper, got {type(wrapper).__name__}.")
 

@@ -20,7 +20,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from torch.nn import functional as F
 
 from sb3_icrl.common.buffers import CostRolloutBuffer
-from sb3_icrl.common.costs import CostFn, as_cost_array, costs_from_infos
+from sb3_icrl.common.costs import CostError, CostFn, as_cost_array, costs_from_infos
 from sb3_icrl.common.lagrange import LagrangeMultiplier, make_lagrange_multiplier
 from sb3_icrl.common.policies import (
     CostActorCriticPolicy,
@@ -92,8 +92,10 @@ class PPOLagrangian(PPO):
         ``upper_bound`` for gradient; ``init``, ``kp``, ``ki``, ``kd``, ``d_delay``, ``delta_p_ema_alpha``,
         ``delta_d_ema_alpha``, ``upper_bound`` for PID (see ``sb3_icrl.common.lagrange``)
     :param cost_fn: Optional ``cost_fn(observations, actions) -> costs`` replacing ``info[cost_info_key]``;
-        it sees the observations the env returned (before ``VecNormalize``) and the actions sent to the env.
-        Not saved with the model: set it again after ``load``.
+        it sees the observations the env returned (before ``VecNormalize``) and the actions sent to the env. It is
+        called once per rollout, on all of its ``n_steps * n_envs`` pairs (the function must not change during a
+        rollout; callbacks see ``costs=None`` in the rollout's locals). Not saved with the model: set it again after
+        ``load``.
     :param cost_info_key: The info key holding the per-step cost
     :param stats_window_size: Window size for the rollout logging (episodes)
     :param tensorboard_log: The log location for tensorboard (if None, no logging)
@@ -282,7 +284,8 @@ class PPOLagrangian(PPO):
     def set_cost_fn(self, cost_fn: CostFn | None) -> None:
         """
         Use ``cost_fn(observations, actions) -> costs`` for the per-step costs from now on (``None``: read
-        ``info[cost_info_key]``). Takes effect at the next step; the model is not rebuilt.
+        ``info[cost_info_key]``), called once per rollout on all of its pairs. Takes effect at the next rollout; the
+        model is not rebuilt.
 
         :param cost_fn: The cost function
         """
@@ -350,11 +353,19 @@ class PPOLagrangian(PPO):
         self._env_names = [_env_name(self.env, idx) for idx in range(self.n_envs)]
         return result
 
-    def _step_costs(self, original_obs: np.ndarray | None, actions: np.ndarray, infos: list[dict[str, Any]]) -> np.ndarray:
-        if self.cost_fn is None:
-            return costs_from_infos(infos, self.cost_info_key, self.n_costs, self._env_names)
-        assert original_obs is not None
-        return as_cost_array(self.cost_fn(original_obs, actions), self.n_envs, self.n_costs, "cost_fn")
+    def _settle_deferred_costs(self, deferred: "_DeferredCosts", n_steps: int, rollout_buffer: CostRolloutBuffer) -> None:
+        """
+        The cost function's costs of the first ``n_steps`` steps of the rollout, in one batch: stored in the buffer and
+        counted in the episode statistics, step by step as if they had come one step at a time.
+        """
+        assert self.cost_fn is not None
+        if n_steps == 0:
+            return
+        obs, actions = deferred.pairs(n_steps)
+        costs = _batch_costs(self.cost_fn(obs, actions), n_steps, self.n_envs, self.n_costs)
+        rollout_buffer.costs[:n_steps] = costs
+        for step in range(n_steps):
+            self._update_cost_stats(costs[step], deferred.dones[step])  # type: ignore[index]
 
     def _update_cost_stats(self, costs: np.ndarray, dones: np.ndarray) -> None:
         assert self._current_episode_costs is not None and self.ep_cost_buffer is not None
@@ -377,10 +388,11 @@ class PPOLagrangian(PPO):
         """
         Collect experiences and costs with the current policy and fill a ``CostRolloutBuffer``.
 
-        SB3's on-policy loop plus per-step costs, with one change that makes it faster: the loop only runs the
+        SB3's on-policy loop plus per-step costs, with two changes that make it faster: the loop only runs the
         actor; the reward and cost values of every observation (and of the final observations of time-limit
-        truncations, for bootstrapping) are computed in one batch when the rollout is complete. The critics do not
-        change during a rollout, so the values are the same (up to float rounding of batched products). torch's
+        truncations, for bootstrapping) are computed in one batch when the rollout is complete, and so are the costs
+        of a ``cost_fn``. Neither the critics nor the cost function change during a rollout, so the values are the same
+        (up to float rounding of batched products). torch's
         argument checks of the policy's action distribution are off (they change no value and cost several tensor
         operations per step; callbacks keep torch's setting); the actions are checked for NaN instead.
 
@@ -406,6 +418,8 @@ class PPOLagrangian(PPO):
         truncations: list[tuple[int, int, np.ndarray]] = []
         terminations: list[tuple[int, int, np.ndarray]] = []
         no_values = th.zeros(env.num_envs)
+        # A cost function judges the whole rollout in one batch at its end: the pairs are kept until then
+        deferred = _DeferredCosts(n_rollout_steps) if self.cost_fn is not None else None
 
         while n_steps < n_rollout_steps:
             if self.use_sde and self.sde_sample_freq > 0 and n_steps % self.sde_sample_freq == 0:
@@ -425,22 +439,30 @@ class PPOLagrangian(PPO):
                 else:
                     clipped_actions = np.clip(actions, self.action_space.low, self.action_space.high)
 
-            # The cost function judges (s, a) on the env's own observation, not the normalised one
-            original_obs = None
-            if self.cost_fn is not None:
-                original_obs = self._vec_normalize_env.get_original_obs() if self._vec_normalize_env else self._last_obs
+            if deferred is not None:
+                # The cost function judges (s, a) on the env's own observation, not the normalised one
+                # (VecNormalize's raw observation read in place: ``add_pair`` copies it, no deepcopy needed)
+                original_obs = self._vec_normalize_env.old_obs if self._vec_normalize_env else self._last_obs
+                deferred.add_pair(n_steps, original_obs, clipped_actions)  # type: ignore[arg-type]
 
             new_obs, rewards, dones, infos = env.step(clipped_actions)
-            costs = self._step_costs(original_obs, clipped_actions, infos)  # type: ignore[arg-type]
+            costs = None  # while the cost function's costs wait for the end of the rollout
+            if deferred is None:
+                costs = costs_from_infos(infos, self.cost_info_key, self.n_costs, self._env_names)
 
             self.num_timesteps += env.num_envs
 
             callback.update_locals(locals())
             if not callback.on_step():
+                if deferred is not None:  # the costs of the steps taken still count in the episode statistics
+                    self._settle_deferred_costs(deferred, n_steps + 1, rollout_buffer)
                 return False
 
             self._update_info_buffer(infos, dones)
-            self._update_cost_stats(costs, dones)
+            if deferred is not None:
+                deferred.add_dones(n_steps, dones)
+            else:
+                self._update_cost_stats(costs, dones)  # type: ignore[arg-type]
             n_steps += 1
 
             if isinstance(self.action_space, spaces.Discrete):
@@ -463,10 +485,13 @@ class PPOLagrangian(PPO):
                 no_values,
                 log_probs,
             )
-            rollout_buffer.add_costs(costs)
+            if costs is not None:
+                rollout_buffer.add_costs(costs)
             self._last_obs = new_obs  # type: ignore[assignment]
             self._last_episode_starts = dones
 
+        if deferred is not None:
+            self._settle_deferred_costs(deferred, n_steps, rollout_buffer)
         self._rollout_mean_step_cost = rollout_buffer.costs.mean(axis=(0, 1)).astype(np.float64)
         last_values, last_cost_values = self._finish_values(
             rollout_buffer, new_obs, truncations, terminations  # type: ignore[arg-type]
@@ -735,6 +760,47 @@ def merge_cost_optimizer(params: dict[str, Any]) -> dict[str, Any]:
     group = {**actor_critic["param_groups"][0], "params": list(range(n_actor_critic + n_cost_critic))}
     params["policy.optimizer"] = {"state": state, "param_groups": [group]}
     return params
+
+
+class _DeferredCosts:
+    """The raw observations, actions and dones of one rollout, kept for its cost function's one batched call."""
+
+    def __init__(self, n_steps: int):
+        self.n_steps = n_steps
+        self.obs: np.ndarray | None = None
+        self.actions: np.ndarray | None = None
+        self.dones: np.ndarray | None = None
+
+    def add_pair(self, step: int, obs: np.ndarray, actions: np.ndarray) -> None:
+        obs, actions = np.asarray(obs), np.asarray(actions)
+        if self.obs is None or self.actions is None:  # shapes and dtypes as the env and the policy give them
+            self.obs = np.empty((self.n_steps, *obs.shape), dtype=obs.dtype)
+            self.actions = np.empty((self.n_steps, *actions.shape), dtype=actions.dtype)
+            self.dones = np.zeros((self.n_steps, len(obs)), dtype=bool)
+        self.obs[step] = obs
+        self.actions[step] = actions
+
+    def add_dones(self, step: int, dones: np.ndarray) -> None:
+        assert self.dones is not None, "add_pair() first"
+        self.dones[step] = dones
+
+    def pairs(self, n_steps: int) -> tuple[np.ndarray, np.ndarray]:
+        """The pairs of the first ``n_steps`` steps, flattened step-major: ``(n_steps * n_envs, ...)``."""
+        assert self.obs is not None and self.actions is not None
+        obs, actions = self.obs[:n_steps], self.actions[:n_steps]
+        return obs.reshape(-1, *obs.shape[2:]), actions.reshape(-1, *actions.shape[2:])
+
+
+def _batch_costs(costs: Any, n_steps: int, n_envs: int, n_costs: int) -> np.ndarray:
+    """A cost function's costs of a rollout's pairs, checked, as ``(n_steps, n_envs, n_costs)`` float32."""
+    try:
+        array = as_cost_array(costs, n_steps * n_envs, n_costs, "cost_fn")
+    except CostError as error:
+        raise CostError(
+            f"{error} (cost_fn judged the {n_steps} steps x {n_envs} env(s) of a rollout in one call: it must return "
+            "one cost, or one per constraint, for each pair it is given)"
+        ) from error
+    return array.reshape(n_steps, n_envs, n_costs)
 
 
 def _mean(values: list[th.Tensor]) -> float:
