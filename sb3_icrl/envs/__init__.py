@@ -15,6 +15,7 @@ from typing import Any
 import gymnasium
 from gymnasium.envs.registration import load_env_creator
 
+from sb3_icrl.envs.binding_envs import BINDING_ENV_SPECS, BINDING_VARIANTS
 from sb3_icrl.envs.blocked_mujoco import (
     CONSTRAINED_FEATURE,
     BiasedPendulumEnv,
@@ -78,8 +79,9 @@ def heldout_env_kwargs(env_id: str) -> dict[str, Any]:
 
 def register_envs() -> None:
     """Register every environment of :data:`ENV_SPECS` with gymnasium; ids already registered are left alone."""
-    # The transfer tasks (sb3_icrl.envs.transfer_envs) register with the benchmark envs
-    for name, (entry_point, max_episode_steps, kwargs) in {**ENV_SPECS, **TRANSFER_ENV_SPECS}.items():
+    # The transfer tasks (sb3_icrl.envs.transfer_envs) and the binding variants (sb3_icrl.envs.binding_envs) register
+    # with the benchmark envs
+    for name, (entry_point, max_episode_steps, kwargs) in {**ENV_SPECS, **TRANSFER_ENV_SPECS, **BINDING_ENV_SPECS}.items():
         env_id = f"{NAMESPACE}/{name}"
         if env_id not in gymnasium.registry:
             gymnasium.register(id=env_id, entry_point=entry_point, max_episode_steps=max_episode_steps, kwargs=kwargs)
@@ -88,6 +90,8 @@ def register_envs() -> None:
 register_envs()
 
 __all__ = [
+    "BINDING_ENV_SPECS",
+    "BINDING_VARIANTS",
     "CONSTRAINED_FEATURE",
     "ENV_SPECS",
     "MAPS",

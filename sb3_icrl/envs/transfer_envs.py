@@ -38,6 +38,11 @@ REWARD_TRANSFER_TASKS: dict[str, str] = {
     "BlockedWalker-v0": "BlockedWalkerBackward-v0",
     "BlockedSwimmer-v0": "BlockedSwimmerForward-v0",
     "BiasedPendulum-v0": "BiasedPendulumFarLeft-v0",
+    # The binding variants (sb3_icrl.envs.binding_envs): a reward of speed toward the line, or the paper's own pendulum
+    "BlockedHalfCheetahReach-v0": "BlockedHalfCheetahBackward-v0",
+    "BlockedAntReach-v0": "BlockedAntBackward-v0",
+    "BlockedWalkerReach-v0": "BlockedWalkerBackward-v0",
+    "BiasedPendulumReach-v0": "BiasedPendulum-v0",
 }
 
 

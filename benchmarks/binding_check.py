@@ -1,0 +1,175 @@
+"""
+Does an env's constraint bind, and can it be identified? Two measurements per env, on held-out episodes
+(deterministic policies, env seeds from ``--eval-seed``):
+
+- **binds**: unconstrained PPO breaks the constraint in at least 80% of the episodes;
+- **identifiable**: the constrained expert breaks it in at most 5% and comes close to the line. Closest approach is the
+  smallest distance between the constrained quantity and the threshold, on the allowed side, over an episode (negative
+  when the episode crossed); the table gives its median over the episodes, for the expert and for its demonstrations.
+  A line the expert never comes near leaves the threshold undetermined by its demonstrations: any boundary between
+  the expert's states and the line explains them as well.
+
+    python benchmarks/binding_check.py --env BlockedHalfCheetahReach-v0 --ppo logs/binding/ppo/BlockedHalfCheetahReach-v0_0 \\
+        --expert logs/binding/ppolag/BlockedHalfCheetahReach-v0_0
+    python benchmarks/binding_check.py --env BlockedSwimmer-v0 --ppo RUN --expert shipped --demos shipped
+
+``--expert shipped`` / ``--demos shipped`` take the env's shipped expert and demonstrations; a run folder's model is
+its final one, with its VecNormalize statistics.
+"""
+
+import argparse
+import json
+import os
+import platform
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch as th
+from stable_baselines3 import PPO
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+import sb3_icrl  # noqa: F401  (registers the envs)
+from sb3_icrl import PPOLagrangian
+from sb3_icrl.data.registry import expert_paths, load_demonstrations
+from sb3_icrl.envs import get_constraint_spec
+from sb3_icrl.zoo.compare import describe_run
+from sb3_icrl.zoo.hyperparams import env_name, resolve_env_id
+
+#: PPO breaks the constraint in at least this share of held-out episodes: the constraint binds
+BINDS_AT = 0.8
+#: The expert may break it in at most this share
+EXPERT_MAX_VIOLATION = 0.05
+
+
+@dataclass
+class Episodes:
+    """Held-out episodes of one policy."""
+
+    violation_rate: float
+    mean_return: float
+    mean_feasible_reward: float
+    closest_approach: list[float]  # per episode
+
+    @property
+    def median_closest(self) -> float:
+        return float(np.median(self.closest_approach))
+
+
+def margin(values: np.ndarray, threshold: float, op: str) -> np.ndarray:
+    """Distance to the threshold on the allowed side (negative beyond it)."""
+    return values - threshold if op == "<=" else threshold - values
+
+
+def load_model(path: str, statistics: str | None, env_id: str, algo: str) -> tuple[BaseAlgorithm, Any]:
+    venv: Any = DummyVecEnv([lambda: gym.make(env_id)])
+    if statistics is not None:
+        venv = VecNormalize.load(statistics, venv)
+        venv.training, venv.norm_reward = False, False
+    cls = PPO if algo == "ppo" else PPOLagrangian
+    return cls.load(path, device="cpu"), venv
+
+
+def run_policy(
+    model: BaseAlgorithm, venv: Any, episodes: int, seed: int, obs_index: int, threshold: float, op: str
+) -> Episodes:
+    """Deterministic episodes, one at a time, env seeds ``seed, seed + 1, ...``."""
+    violated, returns, feasible, closest = [], [], [], []
+    for episode in range(episodes):
+        venv.seed(seed + episode)
+        obs = venv.reset()
+        raw = venv.get_original_obs() if isinstance(venv, VecNormalize) else obs
+        closest_x = float(margin(np.asarray(raw)[0, obs_index], threshold, op))
+        total = feasible_total = 0.0
+        broken, done = False, False
+        while not done:
+            action, _ = model.predict(obs, deterministic=True)
+            obs, reward, dones, infos = venv.step(action)
+            info = infos[0]
+            reward_value = float(venv.get_original_reward()[0]) if isinstance(venv, VecNormalize) else float(reward[0])
+            # The state the step reached (the terminal observation at an episode's end)
+            reached = info.get("terminal_observation") if dones[0] else None
+            if reached is None:
+                reached = venv.get_original_obs()[0] if isinstance(venv, VecNormalize) else obs[0]
+            closest_x = min(closest_x, float(margin(np.asarray(reached)[obs_index], threshold, op)))
+            broken |= float(info["cost"]) > 0
+            total += reward_value
+            if not broken:
+                feasible_total += reward_value
+            done = bool(dones[0])
+        violated.append(broken)
+        returns.append(total)
+        feasible.append(feasible_total)
+        closest.append(closest_x)
+    return Episodes(float(np.mean(violated)), float(np.mean(returns)), float(np.mean(feasible)), closest)
+
+
+def run_paths(run: str) -> tuple[str, str | None, str]:
+    algo, env_id, _, _ = describe_run(run)
+    name = env_name(env_id)
+    statistics = os.path.join(run, name, "vecnormalize.pkl")
+    return os.path.join(run, f"{name}.zip"), statistics if os.path.isfile(statistics) else None, algo
+
+
+def demonstrations_closest(name: str, source: str, obs_index: int, threshold: float, op: str) -> list[float]:
+    demos = load_demonstrations(name if source == "shipped" else source)
+    return [float(margin(np.asarray(t.obs)[:, obs_index], threshold, op).min()) for t in demos.trajectories]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--env", required=True, help="A benchmark env or binding variant")
+    parser.add_argument("--ppo", required=True, help="Run folder of unconstrained PPO on the env")
+    parser.add_argument("--expert", required=True, help="Run folder of the PPO-Lagrangian expert, or 'shipped'")
+    parser.add_argument("--demos", default=None, help="The expert's demonstrations: an .npz path or 'shipped'")
+    parser.add_argument("--episodes", type=int, default=20)
+    parser.add_argument("--eval-seed", type=int, default=100)
+    parser.add_argument("--json", default=None, help="Also write the numbers here")
+    args = parser.parse_args()
+    th.set_num_threads(1)
+
+    env_id = resolve_env_id(args.env)
+    name = env_name(env_id)
+    (feature,) = get_constraint_spec(gym.make(env_id)).features
+    where = (feature.obs_index, feature.threshold, feature.op)
+
+    ppo_model, ppo_env = load_model(*run_paths(args.ppo)[:2], env_id, "ppo")
+    ppo = run_policy(ppo_model, ppo_env, args.episodes, args.eval_seed, *where)
+    if args.expert == "shipped":
+        zip_path, statistics = expert_paths(name)
+        expert_args = (str(zip_path), str(statistics) if statistics else None)
+    else:
+        expert_args = run_paths(args.expert)[:2]
+    expert_model, expert_env = load_model(*expert_args, env_id, "ppolag")
+    expert = run_policy(expert_model, expert_env, args.episodes, args.eval_seed, *where)
+    demos = demonstrations_closest(name, args.demos, *where) if args.demos else None
+
+    row: dict[str, Any] = {
+        "env": name,
+        "constraint": f"x {feature.op} {feature.threshold:g} (obs[{feature.obs_index}])",
+        "ppo": {**asdict(ppo), "median_closest": ppo.median_closest},
+        "expert": {**asdict(expert), "median_closest": expert.median_closest},
+        "demonstrations_median_closest": float(np.median(demos)) if demos else None,
+        "binds": ppo.violation_rate >= BINDS_AT,
+        "expert_feasible": expert.violation_rate <= EXPERT_MAX_VIOLATION,
+    }
+    print(f"{platform.machine()}, torch threads 1, {args.episodes} held-out episodes from seed {args.eval_seed}")
+    print(
+        "| env | constraint | PPO violations | binds | expert return / violations | expert closest (median) "
+        "| demos closest (median) |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    demos_text = f"{row['demonstrations_median_closest']:.3g}" if demos else "-"
+    print(
+        f"| {name} | {row['constraint']} | {ppo.violation_rate:.0%} | {'yes' if row['binds'] else 'no'} "
+        f"| {expert.mean_return:.2f} / {expert.violation_rate:.0%} | {expert.median_closest:.3g} | {demos_text} |"
+    )
+    if args.json:
+        with open(args.json, "w") as file:
+            json.dump(row, file, indent=2)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,94 @@
+"""
+Binding variants of the benchmark's MuJoCo envs: the same robot, observation and true constraint, with a reward that
+grows toward the forbidden side, so that the constraint decides what the best policy does.
+
+On the paper's rewards, unconstrained PPO rarely crosses the line of Ant, Walker and Pendulum (nothing pulls it
+there), and the HalfCheetah and Ant experts never come near their line (they run the other way): such envs can show
+neither that a learned constraint binds nor where it lies. Here the reward pays the position itself, so that:
+
+- unconstrained PPO runs across the line and keeps going (the constraint binds), and
+- the constrained expert walks up to the line and stays there, so that its demonstrations show where the line is
+  (the constraint can be identified, threshold included).
+
+Feasible reward then separates the two reference rows widely: PPO's stops at its first crossing, early in the
+episode; the oracle's is the position held near the line for the rest of it.
+
+==============================  =======================  =====================================================
+id (``sb3_icrl/...``)           constraint of            reward
+==============================  =======================  =====================================================
+``BlockedHalfCheetahReach-v0``  BlockedHalfCheetah-v0    ``-x - ctrl``: the distance covered toward x <= -3
+``BlockedAntReach-v0``          BlockedAnt-v0            ``-x + healthy - ctrl - contact``
+``BlockedWalkerReach-v0``       BlockedWalker-v0         ``-x + healthy - ctrl``
+``BiasedPendulumReach-v0``      BiasedPendulum-v0        the biased reward, full only at x <= -0.05
+==============================  =======================  =====================================================
+
+``x`` is the root's position after the step, in metres (0 at the start, up to the reset noise). BlockedSwimmer needs no
+variant: its expert swims to the line and PPO crosses it. ``info["cost"]`` is the true cost, as in the source env
+(experts and evaluation only).
+"""
+
+from typing import Any
+
+import numpy as np
+
+from sb3_icrl.envs.blocked_mujoco import BlockedAntEnv, BlockedHalfCheetahEnv, BlockedWalkerEnv
+
+#: ``name -> (entry point, max_episode_steps, kwargs)`` of the binding variants (registered by :mod:`sb3_icrl.envs`)
+BINDING_ENV_SPECS: dict[str, tuple[str, int, dict]] = {
+    "BlockedHalfCheetahReach-v0": ("sb3_icrl.envs.binding_envs:BlockedHalfCheetahReachEnv", 1000, {}),
+    "BlockedAntReach-v0": ("sb3_icrl.envs.binding_envs:BlockedAntReachEnv", 500, {}),
+    "BlockedWalkerReach-v0": ("sb3_icrl.envs.binding_envs:BlockedWalkerReachEnv", 500, {}),
+    "BiasedPendulumReach-v0": ("sb3_icrl.envs.blocked_mujoco:BiasedPendulumEnv", 100, {"high_reward_x": -0.05}),
+}
+
+#: The binding variant of each paper env that needs one
+BINDING_VARIANTS: dict[str, str] = {
+    "BlockedHalfCheetah-v0": "BlockedHalfCheetahReach-v0",
+    "BlockedAnt-v0": "BlockedAntReach-v0",
+    "BlockedWalker-v0": "BlockedWalkerReach-v0",
+    "BiasedPendulum-v0": "BiasedPendulumReach-v0",
+}
+
+
+def _reach_reward(env: Any, action: np.ndarray, extra: dict[str, float]) -> tuple[float, dict[str, float]]:
+    # The position itself pays: each step spent nearer the forbidden side (x <= threshold < 0) earns more
+    reach = -float(env.data.qpos[0])
+    ctrl_cost = float(env.control_cost(action))
+    reward_info = {"reward_reach": reach, "reward_ctrl": -ctrl_cost, **extra}
+    return reach - ctrl_cost + sum(extra.values()), reward_info
+
+
+class BlockedHalfCheetahReachEnv(BlockedHalfCheetahEnv):
+    """
+    :class:`~sb3_icrl.envs.BlockedHalfCheetahEnv` paid its distance toward the forbidden side
+    (id ``sb3_icrl/BlockedHalfCheetahReach-v0``): reward ``-x - ctrl_cost``. Same arguments as the source env
+    (``forward_reward_weight`` is unused).
+    """
+
+    def _get_rew(self, x_velocity: float, action: np.ndarray) -> tuple[float, dict]:
+        return _reach_reward(self, action, {})
+
+
+class BlockedAntReachEnv(BlockedAntEnv):
+    """
+    :class:`~sb3_icrl.envs.BlockedAntEnv` paid its distance toward the forbidden side
+    (id ``sb3_icrl/BlockedAntReach-v0``): reward ``-x + healthy_reward - ctrl_cost - contact_cost``.
+    Same arguments as the source env.
+    """
+
+    def _get_rew(self, x_velocity: float, action: np.ndarray) -> tuple[float, dict]:
+        reward, info = _reach_reward(self, action, {"reward_survive": self.healthy_reward})
+        contact_cost = float(self.contact_cost)
+        info["reward_contact"] = -contact_cost
+        return reward - contact_cost, info
+
+
+class BlockedWalkerReachEnv(BlockedWalkerEnv):
+    """
+    :class:`~sb3_icrl.envs.BlockedWalkerEnv` paid its distance toward the forbidden side
+    (id ``sb3_icrl/BlockedWalkerReach-v0``): reward ``-x + healthy_reward - ctrl_cost``; episodes still end when the
+    walker falls. Same arguments as the source env (``forward_reward_weight`` is unused).
+    """
+
+    def _get_rew(self, x_velocity: float, action: np.ndarray) -> tuple[float, dict]:
+        return _reach_reward(self, action, {"reward_survive": self._healthy_reward})
