@@ -48,7 +48,14 @@ from sb3_icrl.common.utils import atomic_write_bytes, atomic_write_json
 from sb3_icrl.envs import heldout_env_kwargs
 from sb3_icrl.zoo.compare import OUTCOME_TITLES, RunResult, evaluate_run, format_outcome_rate, summarise
 from sb3_icrl.zoo.hyperparams import env_name
-from sb3_icrl.zoo.runs import find_vecnormalize, is_finished, lacks_own_statistics, run_wall_time
+from sb3_icrl.zoo.runs import (
+    LAST_TRAINING_EPISODES,
+    find_vecnormalize,
+    is_finished,
+    lacks_own_statistics,
+    last_training_episodes,
+    run_wall_time,
+)
 
 #: Held-out evaluation cached in each run folder
 HELDOUT_FILE = "heldout.json"
@@ -197,6 +204,10 @@ def run_facts(results: Sequence[tuple[RunSpec, RunResult]], root: str) -> dict[s
         version = recorded_recipe_version(folder)
         if version is not None:
             entry["recipe_version"] = version
+        last = last_training_episodes(folder)
+        if last is not None:  # the paper's protocol: the last training episodes of the stochastic policy
+            entry["last_training_violation_rate"] = last["violation_rate"]
+            entry["last_training_feasible_reward"] = last["feasible_reward"]
         facts[result.run] = entry
     return facts
 
@@ -268,6 +279,9 @@ def _mean_of(values: Sequence[float | None]) -> float | None:
     finite = [float(value) for value in values if value is not None and math.isfinite(value)]
     return float(np.mean(finite)) if finite else None
 
+
+#: The paper's protocol per seed: the last training episodes' feasible reward and violation rate (Monitor files)
+LAST_TRAINING_COLUMNS = ("last_training_feasible_reward", "last_training_violation_rate")
 
 #: Transfer columns of the per-seed values, in table order
 TRANSFER_COLUMNS = tuple(
@@ -698,6 +712,11 @@ def summarise_suite(
                         for r in mine
                     ],
                     "identification_auroc_mean": _mean_of([metrics.get(r.run, {}).get("identification_auroc") for r in mine]),
+                    # The paper's protocol, over the seeds whose Monitor files hold it
+                    **{
+                        f"{key}_mean": _mean_of([metrics.get(r.run, {}).get(key) for r in mine])
+                        for key in LAST_TRAINING_COLUMNS
+                    },
                     **{key: value for key, value in entry.items() if key != "seeds"},
                     "feasible_reward_spread": spread(feasible),
                     "violation_rate_spread": spread(violation),
@@ -805,9 +824,12 @@ def markdown_table(summary: dict[str, Any]) -> str:
     normalised = any("normalised_score_spread" in cell or "normalisation_problem" in cell for cell in cells)
     success = any("success_probability" in cell for cell in cells)
     wilcoxon = any((cell.get("wilcoxon_pairs") or 0) >= MIN_PAIRS_FOR_WILCOXON for cell in cells)
+    last_training = any(cell.get("last_training_feasible_reward_mean") is not None for cell in cells)
     headings = ["env", "variant", "algo", "seeds", "feasible reward (mean ± std)", "IQM [95% CI] or mean [min, max]"]
     headings += ["normalised score"] * normalised + ["success [Wilson 95%]"] * success
-    headings += ["vs our expert", "violation rate"] + ["Wilcoxon p"] * wilcoxon + ["paper", *sources]
+    headings += ["vs our expert", "violation rate"] + ["Wilcoxon p"] * wilcoxon
+    headings += [f"last {LAST_TRAINING_EPISODES} training episodes (feasible / violation)"] * last_training
+    headings += ["paper", *sources]
     headings += [
         "per seed (feasible / violation" + (" / normalised" if normalised else "") + ")",
         "identification per seed (AUROC / threshold error)",
@@ -845,6 +867,8 @@ def markdown_table(summary: dict[str, Any]) -> str:
         ]
         if wilcoxon:
             row.append(_fmt(p_value, 3) if p_value is not None else "-")
+        if last_training:
+            row.append(_last_training_text(cell))
         row += [paper, *(_published((cell.get("others") or {}).get(source)) for source in sources), per_seed]
         row += [identification if any("identification_auroc" in s for s in cell["per_seed"]) else "-", transfer or "-"]
         row.append(format_hours(hours) if hours is not None else "-")
@@ -860,6 +884,14 @@ def markdown_table(summary: dict[str, Any]) -> str:
     if compute is not None:
         lines += ["", compute]
     return "\n".join(lines) + "\n"
+
+
+def _last_training_text(cell: dict[str, Any]) -> str:
+    """The paper's protocol: mean over seeds of the last training episodes' feasible reward and violation rate."""
+    feasible, violation = cell.get("last_training_feasible_reward_mean"), cell.get("last_training_violation_rate_mean")
+    if feasible is None or violation is None:
+        return "-"
+    return f"{format_reward(feasible)} / {100 * violation:.0f}%"
 
 
 def _success_text(cell: dict[str, Any]) -> str:
@@ -1002,6 +1034,7 @@ def csv_rows(summary: dict[str, Any]) -> str:
             *OUTCOME_COLUMNS,
             *IDENTIFICATION_COLUMNS,
             *TRANSFER_COLUMNS,
+            *LAST_TRAINING_COLUMNS,
             "wall_time_s",
             "expert_return",
             *published,
@@ -1025,7 +1058,7 @@ def csv_rows(summary: dict[str, Any]) -> str:
                     seed["n_episodes"],
                     _csv_number(seed.get("episode_length")),
                     *(_csv_number(seed.get(column)) for column in OUTCOME_COLUMNS),
-                    *(seed.get(column, "") for column in (*IDENTIFICATION_COLUMNS, *TRANSFER_COLUMNS)),
+                    *(seed.get(column, "") for column in (*IDENTIFICATION_COLUMNS, *TRANSFER_COLUMNS, *LAST_TRAINING_COLUMNS)),
                     seed.get("wall_time_s", ""),
                     *("" if value is None else value for value in (cell.get("expert_return"), *numbers)),
                 ]

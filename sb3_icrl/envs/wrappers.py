@@ -176,3 +176,58 @@ class DeclaredCostWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         costs = np.asarray(self.declared_spec.true_cost(np.asarray(observation)[None], np.asarray(action)[None]), np.float64)
         cost = costs if costs.ndim == 0 else costs[0]
         return float(cost) if np.ndim(cost) == 0 else cost  # one float, or one per constraint
+
+
+#: The info keys :class:`EpisodeConstraintWrapper` adds at the end of an episode (the Monitor columns of the paper's
+#: protocol: violation and feasible reward of each training episode)
+EPISODE_CONSTRAINT_KEYS = ("true_violation", "true_feasible_reward", "true_episode_cost")
+
+
+class EpisodeConstraintWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """
+    Adds each episode's true-constraint totals to the info of its last step, for SB3's ``Monitor`` to write beside the
+    return (``Monitor(env, info_keywords=EPISODE_CONSTRAINT_KEYS)``): ``true_violation`` (1.0 if some step's cost was
+    > 0), ``true_feasible_reward`` (the reward summed up to the first violating step, that step excluded, as the
+    benchmark's evaluation sums it) and ``true_episode_cost``. The paper reports its results on the last training
+    episodes this way. An env that reports no cost gives NaN.
+
+    It reads ``info[cost_info_key]`` as the env below reports it (the true cost); it changes nothing else. A learner
+    that reads training infos could see the totals in ``info["episode"]``: the ICRL algorithms do not.
+
+    :param env: The env (with its true cost in ``info[cost_info_key]``)
+    :param cost_info_key: The info key of the true per-step cost
+    """
+
+    def __init__(self, env: gym.Env, cost_info_key: str = "cost"):
+        gym.utils.RecordConstructorArgs.__init__(self, cost_info_key=cost_info_key)
+        gym.Wrapper.__init__(self, env)
+        self.cost_info_key = cost_info_key
+        self._reset_totals()
+
+    def _reset_totals(self) -> None:
+        self._violated = False
+        self._feasible_reward = 0.0
+        self._episode_cost = 0.0
+        self._cost_reported = True
+
+    def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
+        self._reset_totals()
+        return self.env.reset(**kwargs)
+
+    def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
+        observation, reward, terminated, truncated, info = self.env.step(action)
+        cost = info.get(self.cost_info_key)
+        if cost is None:
+            self._cost_reported = False
+        else:
+            cost = float(np.sum(cost))  # a vector (one cost per constraint) counts as their sum
+            self._violated |= cost > 0
+            self._episode_cost += cost
+        if not self._violated:
+            self._feasible_reward += float(reward)
+        if terminated or truncated:
+            totals = (float(self._violated), self._feasible_reward, self._episode_cost)
+            if not self._cost_reported:
+                totals = (float("nan"),) * 3
+            info = {**info, **dict(zip(EPISODE_CONSTRAINT_KEYS, totals, strict=True))}
+        return observation, reward, terminated, truncated, info

@@ -286,6 +286,51 @@ def monitor_files(run: str | os.PathLike) -> list[str]:
     return found
 
 
+#: Training episodes the paper's protocol averages over, at the end of a run
+LAST_TRAINING_EPISODES = 100
+
+
+def last_training_episodes(run: str | os.PathLike, n_episodes: int = LAST_TRAINING_EPISODES) -> dict[str, float] | None:
+    """
+    The paper's way of reporting a run: over its last ``n_episodes`` training episodes (the stochastic policy, as it
+    trained), the share that broke the true constraint and the mean feasible reward, read from the training envs'
+    Monitor files (their ``true_violation`` and ``true_feasible_reward`` columns). The envs step together, so an
+    episode's end is ordered by the steps its env had taken; a resumed run's files hold no replayed episode (they are
+    trimmed to the checkpoint on resume).
+
+    :param run: The run folder
+    :param n_episodes: How many of the last episodes
+    :return: ``{"violation_rate", "feasible_reward", "n_episodes"}``, or ``None`` when the files lack the columns
+        (runs trained before they were written) or hold no episode
+    """
+    ends = []  # (env steps at the episode's end, env index, violated, feasible reward)
+    for name in monitor_files(run):
+        if os.path.dirname(name):  # the evaluation envs' files
+            continue
+        with open(os.path.join(run, name)) as file:
+            lines = [line for line in file.read().splitlines() if line.strip()][1:]
+        if not lines:
+            continue
+        header = lines[0].split(",")
+        if "true_violation" not in header or "true_feasible_reward" not in header:
+            return None
+        length, violated, feasible = header.index("l"), header.index("true_violation"), header.index("true_feasible_reward")
+        env_index = int(os.path.basename(name).split(".")[0]) if os.path.basename(name).split(".")[0].isdigit() else 0
+        steps = 0
+        for line in lines[1:]:
+            fields = line.split(",")
+            steps += int(float(fields[length]))
+            ends.append((steps, env_index, float(fields[violated]), float(fields[feasible])))
+    if not ends:
+        return None
+    last = sorted(ends)[-n_episodes:]
+    return {
+        "violation_rate": float(sum(row[2] for row in last) / len(last)),
+        "feasible_reward": float(sum(row[3] for row in last) / len(last)),
+        "n_episodes": float(len(last)),
+    }
+
+
 def monitor_row_counts(run: str | os.PathLike) -> dict[str, int]:
     """
     The episodes each Monitor file of a run holds now (its lines less the header), by path relative to the run: what

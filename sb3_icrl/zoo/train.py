@@ -34,6 +34,7 @@ import time
 import types
 import typing
 import warnings
+from collections.abc import Callable
 from typing import Any
 
 import gymnasium as gym
@@ -62,7 +63,12 @@ from sb3_icrl.common.utils import (
     remove_temporaries,
 )
 from sb3_icrl.data import load_demonstrations
-from sb3_icrl.envs.wrappers import DeclaredCostWrapper, TransitionNoiseWrapper
+from sb3_icrl.envs.wrappers import (
+    EPISODE_CONSTRAINT_KEYS,
+    DeclaredCostWrapper,
+    EpisodeConstraintWrapper,
+    TransitionNoiseWrapper,
+)
 from sb3_icrl.icrl.tabular import forward_solver, learn_function
 from sb3_icrl.plots import ConstraintFigureCallback
 from sb3_icrl.zoo.callbacks import (
@@ -315,17 +321,45 @@ def versions() -> dict[str, str]:
     return info
 
 
-def _wrapper_class(wrappers: list[tuple[Any, dict[str, Any]]], transition_noise: float, require_cost: bool = False) -> Any:
+def _wrapper_class(wrappers: list[tuple[Any, dict[str, Any]]]) -> Any:
     def wrap(env: gym.Env) -> gym.Env:
-        if transition_noise > 0:
-            env = TransitionNoiseWrapper(env, sigma=transition_noise)
-        # Outside the noise (the cost of the state the agent sees), inside the yml's wrappers (raw observations)
-        env = DeclaredCostWrapper(env, required=require_cost)
         for wrapper, kwargs in wrappers:
             env = wrapper(env, **kwargs)
         return env
 
     return wrap
+
+
+def _env_factory(env_id: str, transition_noise: float, require_cost: bool) -> Callable[..., gym.Env]:
+    """
+    The env below ``Monitor``: gymnasium's (as ``make_vec_env`` makes it), the transition noise, the true cost of a
+    declared constraint, and each episode's constraint totals for the Monitor files (``EPISODE_CONSTRAINT_KEYS``).
+    """
+
+    def make(**env_kwargs: Any) -> gym.Env:
+        try:  # rgb_array unless asked otherwise, as make_vec_env does
+            env = gym.make(env_id, **{"render_mode": "rgb_array", **env_kwargs})
+        except TypeError:
+            env = gym.make(env_id, **env_kwargs)
+        if transition_noise > 0:
+            env = TransitionNoiseWrapper(env, sigma=transition_noise)
+        # Outside the noise (the cost of the state the agent sees), inside the yml's wrappers (raw observations)
+        env = DeclaredCostWrapper(env, required=require_cost)
+        return EpisodeConstraintWrapper(env)
+
+    return make
+
+
+def _monitor_keywords(monitor_dir: str | None, append_monitor: bool) -> tuple[str, ...]:
+    """The Monitor's extra columns: the episode's constraint totals, unless a resumed run's files were written without."""
+    if append_monitor and monitor_dir is not None:
+        existing = os.path.join(monitor_dir, "0.monitor.csv")
+        if os.path.isfile(existing):
+            with open(existing) as file:
+                file.readline()  # the JSON line
+                if EPISODE_CONSTRAINT_KEYS[0] not in file.readline().strip().split(","):
+                    return ()
+    return EPISODE_CONSTRAINT_KEYS
 
 
 def create_env(
@@ -362,14 +396,17 @@ def create_env(
     """
     if require_cost is None:
         require_cost = eval_env
+    monitor_kwargs: dict[str, Any] = {"info_keywords": _monitor_keywords(monitor_dir, append_monitor)}
+    if append_monitor:
+        monitor_kwargs["override_existing"] = False
     venv = make_vec_env(
-        env_id,
+        _env_factory(env_id, transition_noise, require_cost),
         n_envs=n_envs,
         seed=seed,
         env_kwargs=env_kwargs,
         monitor_dir=monitor_dir,
-        monitor_kwargs={"override_existing": False} if append_monitor else None,
-        wrapper_class=_wrapper_class(params["env_wrapper"], transition_noise, require_cost),
+        monitor_kwargs=monitor_kwargs,
+        wrapper_class=_wrapper_class(params["env_wrapper"]),
         vec_env_cls=DummyVecEnv,
     )
     recorder = None
