@@ -79,33 +79,49 @@ def train_command(argv: Sequence[str]) -> list[str]:
     return [sys.executable, "-m", "sb3_icrl.zoo", "train", *argv]
 
 
-def execute_run(argv: Sequence[str], log_file: str, run_folder: str) -> tuple[str, float]:
+def transfer_command(argv: Sequence[str]) -> list[str]:
+    """The command line of a transfer test: ``sb3-icrl transfer`` with this Python and the arguments."""
+    return [sys.executable, "-m", "sb3_icrl.metrics.transfer", *argv]
+
+
+def execute_run(
+    argv: Sequence[str], log_file: str, run_folder: str, transfers: Sequence[tuple[str, Sequence[str]]] = ()
+) -> tuple[str, float]:
     """
-    Train one run to its end (or find it finished), its output appended to ``log_file``.
+    Train one run to its end (or find it finished), then run the transfer tests it lacks, the output of each appended
+    to ``log_file``.
 
     :param argv: train.py arguments (with ``--exp-id`` and ``--resume``)
     :param log_file: The run's log
     :param run_folder: The run folder (for the lock and the finished check)
-    :return: ``(status, seconds)``: status ``"done"``, ``"skipped"``, ``"busy"`` or ``"failed"``
+    :param transfers: ``(result file in the run folder, sb3-icrl transfer arguments)`` per transfer test
+    :return: ``(status, seconds)``: status ``"done"``, ``"skipped"`` (nothing left to do), ``"busy"`` or ``"failed"``
     """
-    if is_finished(run_folder):
+
+    def complete() -> bool:
+        return is_finished(run_folder) and all(os.path.isfile(os.path.join(run_folder, file)) for file, _ in transfers)
+
+    if complete():
         return "skipped", 0.0
     with run_lock(run_folder) as locked:
         if not locked:
             return "busy", 0.0
-        if is_finished(run_folder):
+        if complete():
             return "skipped", 0.0
         os.makedirs(os.path.dirname(log_file), exist_ok=True)
         start = time.time()
-        with open(log_file, "a") as log:
-            log.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} {' '.join(train_command(argv))}\n")
-            log.flush()
-            env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-            process = subprocess.run(
-                train_command(argv), stdout=log, stderr=subprocess.STDOUT, env=env, preexec_fn=_die_with_parent
-            )
-        seconds = time.time() - start
-        return ("done" if process.returncode == 0 and is_finished(run_folder) else "failed"), seconds
+        commands = [] if is_finished(run_folder) else [train_command(argv)]
+        missing = [targv for file, targv in transfers if not os.path.isfile(os.path.join(run_folder, file))]
+        commands += [transfer_command(targv) for targv in missing]
+        for command in commands:
+            with open(log_file, "a") as log:
+                log.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} {' '.join(command)}\n")
+                log.flush()
+                env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+                process = subprocess.run(command, stdout=log, stderr=subprocess.STDOUT, env=env, preexec_fn=_die_with_parent)
+            if process.returncode != 0 or not is_finished(run_folder):
+                return "failed", time.time() - start
+        return ("done" if complete() else "failed"), time.time() - start
 
 
 def log_tail(log_file: str, lines: int = LOG_TAIL_LINES) -> list[str]:
@@ -142,7 +158,9 @@ class LocalBackend(Backend):
         self.executor = ThreadPoolExecutor(max_workers=jobs)
 
     def submit(self, run: RunSpec, root: str) -> Future:
-        return self.executor.submit(execute_run, run.train_argv(root), run.log_file(root), run.run_folder(root))
+        return self.executor.submit(
+            execute_run, run.train_argv(root), run.log_file(root), run.run_folder(root), run.transfer_jobs(root)
+        )
 
     def wait_any(self, pending: set[Any]) -> tuple[set[Any], set[Any]]:
         done, not_done = wait(pending, timeout=1.0, return_when=FIRST_COMPLETED)
@@ -177,9 +195,8 @@ class RayBackend(Backend):
         self.capacity = max(int(ray.cluster_resources().get("CPU", jobs)), 1)
 
     def submit(self, run: RunSpec, root: str) -> Any:
-        return self.task.remote(
-            run.train_argv(os.path.abspath(root)), run.log_file(os.path.abspath(root)), run.run_folder(os.path.abspath(root))
-        )
+        root = os.path.abspath(root)
+        return self.task.remote(run.train_argv(root), run.log_file(root), run.run_folder(root), run.transfer_jobs(root))  # type: ignore[call-arg]
 
     def wait_any(self, pending: set[Any]) -> tuple[set[Any], set[Any]]:
         done, not_done = self.ray.wait(list(pending), num_returns=1, timeout=1.0)
@@ -233,7 +250,7 @@ def run_all(
         while queue or pending:
             while queue and len(pending) < backend.capacity:
                 run = queue.pop(0)
-                if is_finished(run.run_folder(root)):
+                if run.complete(root):
                     outcomes[run].status = "skipped"
                     if on_event:
                         on_event("end", outcomes[run], counts())

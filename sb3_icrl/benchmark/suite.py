@@ -13,7 +13,11 @@ from typing import Any
 
 import yaml
 
-from sb3_icrl.zoo.hyperparams import ALGOS, REFERENCE_ALGOS, env_name, import_gym_packages, resolve_env_id
+from sb3_icrl.envs import REWARD_TRANSFER_TASKS
+from sb3_icrl.metrics.transfer import TASKS as TRANSFER_TASKS
+from sb3_icrl.metrics.transfer import transfer_file
+from sb3_icrl.zoo.hyperparams import ALGOS, ICRL_ALGOS, REFERENCE_ALGOS, env_name, import_gym_packages, resolve_env_id
+from sb3_icrl.zoo.runs import is_finished
 
 #: Where the shipped suites live
 SUITES_DIR = pathlib.Path(__file__).resolve().parent / "suites"
@@ -38,6 +42,9 @@ SUITE_KEYS = {
     "report refuses a cell whose runs record different ones): change it whenever a recipe of the suite changes",
     "success": "what counts as a run that succeeded, written before any run: {max_violation_rate: 0.05, "
     "min_normalised_score: 0.5} (the normalised score needs the reference rows ppo and ppolag)",
+    "transfer": "transfer tests the engine runs after each ICRL run (sb3-icrl transfer, learners seeded with the run's "
+    f"seed): {{tasks: [reward], n_timesteps: 200000}}; tasks among {', '.join(TRANSFER_TASKS)}, n_timesteps optional "
+    "(default: ppolag.yml's)",
 }
 #: The settings of a suite's ``success`` rule
 SUCCESS_KEYS = ("max_violation_rate", "min_normalised_score")
@@ -73,6 +80,19 @@ class SuiteError(ValueError):
 
 
 @dataclass(frozen=True)
+class TransferSpec:
+    """
+    The transfer tests of a suite's ICRL runs (``sb3-icrl transfer``).
+
+    :param tasks: Tasks among ``same``, ``reward``, ``dynamics``
+    :param n_timesteps: Training steps of each transfer learner (``None``: ppolag.yml's)
+    """
+
+    tasks: tuple[str, ...]
+    n_timesteps: int | None = None
+
+
+@dataclass(frozen=True)
 class RunSpec:
     """
     One training run of a suite.
@@ -88,6 +108,7 @@ class RunSpec:
     :param gym_packages: Modules that register the env (``--gym-packages``)
     :param forward_recipe: For the reference rows: the algorithm whose forward learner they use (``--forward-recipe``)
     :param recipe_version: The suite's recipe version (``--recipe-version``)
+    :param transfer: The transfer tests to run once an ICRL run has finished (``None``: none)
     """
 
     suite: str
@@ -101,6 +122,7 @@ class RunSpec:
     gym_packages: tuple[str, ...] = field(default=(), compare=False, hash=False)
     forward_recipe: str | None = field(default=None, compare=False, hash=False)
     recipe_version: str | None = field(default=None, compare=False, hash=False)
+    transfer: TransferSpec | None = field(default=None, compare=False, hash=False)
 
     @property
     def cell(self) -> tuple[str, str, str]:
@@ -124,6 +146,28 @@ class RunSpec:
         return os.path.join(
             os.fspath(root), self.suite, "logs", f"{self.variant}_{self.algo}_{env_name(self.env_id)}_{self.seed}.log"
         )
+
+    def transfer_jobs(self, root: str | os.PathLike) -> list[tuple[str, list[str]]]:
+        """
+        The transfer tests of this run, each as ``(result file in the run folder, sb3-icrl transfer arguments)``: none
+        unless the suite asks for them and the run is an ICRL one. The learners take the run's seed.
+        """
+        if self.transfer is None or self.algo not in ICRL_ALGOS:
+            return []
+        jobs = []
+        for task in self.transfer.tasks:
+            argv = [self.run_folder(root), "--task", task, "--seed", str(self.seed)]
+            if self.transfer.n_timesteps is not None:
+                argv += ["-n", str(self.transfer.n_timesteps)]
+            if self.gym_packages:
+                argv += ["--gym-packages", *self.gym_packages]
+            jobs.append((transfer_file(task), argv))
+        return jobs
+
+    def complete(self, root: str | os.PathLike) -> bool:
+        """Whether the run has finished training and has every transfer result the suite asks for."""
+        folder = self.run_folder(root)
+        return is_finished(folder) and all(os.path.isfile(os.path.join(folder, file)) for file, _ in self.transfer_jobs(root))
 
     def train_argv(self, root: str | os.PathLike) -> list[str]:
         """The train.py arguments of this run (it resumes itself when run again)."""
@@ -180,6 +224,8 @@ class Suite:
     success: dict[str, float] | None = None
     #: source name -> env name -> algo -> (feasible reward, violation rate), in the file's order
     others: dict[str, dict[str, dict[str, tuple[float, float]]]] = field(default_factory=dict)
+    #: The transfer tests run after each ICRL run, ``None`` when the suite asks for none
+    transfer: TransferSpec | None = None
 
     def runs(self) -> list[RunSpec]:
         """Every run, env by env, then variant, algorithm and seed."""
@@ -196,6 +242,7 @@ class Suite:
                 self.gym_packages,
                 self.forward_recipe,
                 self.recipe_version,
+                self.transfer,
             )
             for env_id in self.envs
             for variant, settings in self.variants.items()
@@ -419,6 +466,34 @@ class _SuiteReader:
             )
         return rule
 
+    def transfer(self, envs: list[str], algos: list[str]) -> TransferSpec | None:
+        raw = self.content.get("transfer")
+        if raw is None:
+            return None
+        example = "{tasks: [reward], n_timesteps: 200000}"
+        if not isinstance(raw, dict) or not set(raw) <= {"tasks", "n_timesteps"} or "tasks" not in raw:
+            raise self.error(("transfer",), f"`transfer` maps `tasks` (and optionally `n_timesteps`), e.g. {example}.")
+        tasks = raw["tasks"]
+        if not isinstance(tasks, list) or not tasks or not all(task in TRANSFER_TASKS for task in tasks):
+            raise self.error(
+                ("transfer", "tasks"), f"`transfer.tasks` is a list among {', '.join(TRANSFER_TASKS)}, got {tasks!r}."
+            )
+        if len(set(tasks)) != len(tasks):
+            raise self.error(("transfer", "tasks"), f"`transfer.tasks` names a task twice: {tasks!r}.")
+        if not set(algos) & set(ICRL_ALGOS):
+            raise self.error(("transfer",), "`transfer` tests learned constraints, and the suite has no ICRL algorithm.")
+        if "reward" in tasks:
+            without = [env for env in envs if env_name(env) not in REWARD_TRANSFER_TASKS]
+            if without:
+                raise self.error(
+                    ("transfer", "tasks"),
+                    f"no reward-transfer task for {', '.join(env_name(env) for env in without)}; envs with one: "
+                    f"{', '.join(sorted(REWARD_TRANSFER_TASKS))}.",
+                )
+        steps = raw.get("n_timesteps")
+        n_timesteps = None if steps is None else self.positive_int(steps, ("transfer", "n_timesteps"))
+        return TransferSpec(tuple(tasks), n_timesteps)
+
     def paper(self) -> dict[str, dict[str, tuple[float, float]]]:
         return self.numbers(self.content.get("paper"), ("paper",), "paper")
 
@@ -498,4 +573,5 @@ def load_suite(name_or_path: str | os.PathLike) -> Suite:
         recipe_version=str(recipe_version) if recipe_version is not None else None,
         success=reader.success(algos),
         others=reader.others(),
+        transfer=reader.transfer(envs, algos),
     )

@@ -220,7 +220,8 @@ class EpisodeConstraintWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if cost is None:
             self._cost_reported = False
         else:
-            cost = float(np.sum(cost))  # a vector (one cost per constraint) counts as their sum
+            # A float as it is (NumPy's float64 included: np.sum costs microseconds per step), a vector summed
+            cost = cost if isinstance(cost, float) else float(np.sum(cost))
             self._violated |= cost > 0
             self._episode_cost += cost
         if not self._violated:

@@ -1,0 +1,79 @@
+"""A suite's ``transfer`` key: the engine runs the transfer tests of every ICRL run once it has finished training."""
+
+import os
+import textwrap
+
+import pytest
+
+from sb3_icrl.benchmark import load_suite
+from sb3_icrl.benchmark.cli import main as benchmark_main
+from sb3_icrl.benchmark.suite import SuiteError, TransferSpec
+
+SUITE = """\
+description: transfer
+envs: [GridWorldWall-v0]
+algos: [bc2l, ppo]
+seeds: [0]
+steps: 512
+eval_episodes: 2
+train_args: {eval_freq: 256, eval_episodes: 1, save_freq: 0}
+variants: {base: {hyperparams: {forward_solver: policy_gradient}}}
+"""
+
+
+def write(tmp_path, text: str) -> str:
+    path = tmp_path / "suite.yml"
+    path.write_text(textwrap.dedent(text))
+    return str(path)
+
+
+def test_the_icrl_runs_get_one_transfer_job_per_task(tmp_path):
+    suite = load_suite(write(tmp_path, SUITE + "transfer: {tasks: [same, dynamics], n_timesteps: 256}\n"))
+    assert suite.transfer == TransferSpec(("same", "dynamics"), 256)
+    icrl, reference = suite.runs()
+    jobs = icrl.transfer_jobs("logs")
+    assert [file for file, _ in jobs] == ["transfer_same.json", "transfer_dynamics.json"]
+    assert jobs[0][1] == [icrl.run_folder("logs"), "--task", "same", "--seed", "0", "-n", "256"]
+    assert reference.transfer_jobs("logs") == []  # PPO learns no constraint to transfer
+    assert load_suite(write(tmp_path, SUITE)).runs()[0].transfer_jobs("logs") == []
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("transfer: [reward]\n", "`transfer` maps `tasks`"),
+        ("transfer: {tasks: [colour]}\n", "`transfer.tasks` is a list among same, reward, dynamics"),
+        ("transfer: {tasks: [same, same]}\n", "names a task twice"),
+        ("transfer: {tasks: [same], n_timesteps: -3}\n", "transfer"),
+        ("transfer: {tasks: [reward]}\n", "no reward-transfer task for GridWorldWall-v0"),
+    ],
+)
+def test_bad_transfer_settings_name_file_and_line(tmp_path, text, message):
+    with pytest.raises(SuiteError, match=f"line 9: .*{message}"):
+        load_suite(write(tmp_path, SUITE + text))
+
+
+def test_a_suite_without_icrl_algorithms_has_nothing_to_transfer(tmp_path):
+    text = SUITE.replace("algos: [bc2l, ppo]", "algos: [ppo]") + "transfer: {tasks: [same]}\n"
+    with pytest.raises(SuiteError, match="no ICRL algorithm"):
+        load_suite(write(tmp_path, text))
+
+
+def test_the_engine_runs_the_missing_transfers_of_finished_runs(tmp_path, capsys):
+    path = write(tmp_path, SUITE + "transfer: {tasks: [same], n_timesteps: 256}\n")
+    root = str(tmp_path / "logs")
+    arguments = ["run", path, "-f", root, "--jobs", "1", "--only", "algo=bc2l", "--no-report"]
+    assert benchmark_main(arguments) == 0
+    (run,) = load_suite(path).select({"algo": ["bc2l"]})
+    result = os.path.join(run.run_folder(root), "transfer_same.json")
+    assert os.path.isfile(result)
+    with open(run.log_file(root)) as file:
+        commands = [line for line in file if line.startswith("=== ")]
+    assert len(commands) == 2 and "sb3_icrl.zoo train" in commands[0] and "sb3_icrl.metrics.transfer" in commands[1]
+    # Complete: nothing runs again. Without its transfer result, only the transfer runs
+    assert benchmark_main(arguments) == 0
+    os.remove(result)
+    assert benchmark_main(arguments) == 0
+    with open(run.log_file(root)) as file:
+        commands = [line for line in file if line.startswith("=== ")]
+    assert len(commands) == 3 and "sb3_icrl.metrics.transfer" in commands[2] and os.path.isfile(result)
