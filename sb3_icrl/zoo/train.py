@@ -50,7 +50,7 @@ from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.utils import get_latest_run_id as sb3_latest_run_id
 from stable_baselines3.common.utils import set_random_seed
-from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper, VecNormalize
+from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecNormalize
 
 import sb3_icrl
 from sb3_icrl.common.utils import (
@@ -62,6 +62,7 @@ from sb3_icrl.common.utils import (
     plain_docstring,
     remove_temporaries,
 )
+from sb3_icrl.common.vec_env import ShallowCopyDummyVecEnv
 from sb3_icrl.data import load_demonstrations
 from sb3_icrl.envs.wrappers import (
     EPISODE_CONSTRAINT_KEYS,
@@ -376,7 +377,8 @@ def create_env(
     require_cost: bool | None = None,
 ) -> tuple[VecEnv, LearnedCostRecorder | None]:
     """
-    Vectorised env with Monitor, transition noise, the true cost of a declared constraint where the env reports none
+    Vectorised env (:class:`~sb3_icrl.common.vec_env.ShallowCopyDummyVecEnv`) with Monitor, transition noise, the true
+    cost of a declared constraint where the env reports none
     (:class:`~sb3_icrl.envs.wrappers.DeclaredCostWrapper`), the yml's wrappers and VecNormalize (eval: frozen, raw
     reward).
 
@@ -407,7 +409,7 @@ def create_env(
         monitor_dir=monitor_dir,
         monitor_kwargs=monitor_kwargs,
         wrapper_class=_wrapper_class(params["env_wrapper"]),
-        vec_env_cls=DummyVecEnv,
+        vec_env_cls=ShallowCopyDummyVecEnv,
     )
     recorder = None
     if eval_env:

@@ -1,0 +1,38 @@
+"""A ``DummyVecEnv`` for training loops where every step's copies count."""
+
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.vec_env import DummyVecEnv
+from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
+from stable_baselines3.common.vec_env.util import dict_to_obs
+
+
+class ShallowCopyDummyVecEnv(DummyVecEnv):
+    """
+    SB3's ``DummyVecEnv`` with one difference: it returns copies of the observation arrays and of each info dict
+    instead of deep copies of both. SB3 deep-copies the list of info dicts at every step, which costs about 90 us
+    for 16 HalfCheetah envs (a few percent of a training run); a shallow copy of each dict costs about 2.
+
+    The values inside an info dict are not copied: an env must not change a value it returned (an array it keeps and
+    fills in place) after the step. Gymnasium's envs and sb3-icrl's build a new info dict with new values at each
+    step; an env that reuses its arrays should be run in SB3's ``DummyVecEnv``.
+    """
+
+    def step_wait(self) -> VecEnvStepReturn:
+        # SB3's loop, then shallow copies where it deep-copies
+        for env_idx in range(self.num_envs):
+            obs, self.buf_rews[env_idx], terminated, truncated, self.buf_infos[env_idx] = self.envs[env_idx].step(  # type: ignore[assignment]
+                self.actions[env_idx]
+            )
+            self.buf_dones[env_idx] = terminated or truncated
+            self.buf_infos[env_idx]["TimeLimit.truncated"] = truncated and not terminated
+            if self.buf_dones[env_idx]:
+                self.buf_infos[env_idx]["terminal_observation"] = obs
+                obs, self.reset_infos[env_idx] = self.envs[env_idx].reset()
+            self._save_obs(env_idx, obs)
+        infos: list[dict[str, Any]] = [dict(info) for info in self.buf_infos]
+        return (self._obs_from_buf(), np.copy(self.buf_rews), np.copy(self.buf_dones), infos)
+
+    def _obs_from_buf(self) -> VecEnvObs:
+        return dict_to_obs(self.observation_space, {key: np.copy(value) for key, value in self.buf_obs.items()})
