@@ -6,7 +6,7 @@ import pathlib
 import pytest
 
 from sb3_icrl.benchmark import load_suite, summarise_suite
-from sb3_icrl.benchmark.report import markdown_table
+from sb3_icrl.benchmark.report import markdown_table, normalised_scores_by_algo, performance_profile_figure
 from sb3_icrl.benchmark.suite import SuiteError
 from sb3_icrl.common.statistics import wilson_interval
 from sb3_icrl.zoo.compare import RunResult
@@ -230,3 +230,25 @@ def test_driving_envs_are_evaluated_on_their_test_recordings(tmp_path, monkeypat
     (folder / report.HELDOUT_FILE).write_text(json_module.dumps(cache))
     report.evaluate_finished([run], str(tmp_path), suite, log=lambda line: None)
     assert len(asked) == 2
+
+
+def test_performance_profile_figure_draws_each_algorithm_with_normalised_scores():
+    def cell(env, algo, scores):
+        return {"env": env, "algo": algo, "per_seed": [{"normalised_score": score} for score in scores]}
+
+    summary = {
+        "cells": [
+            cell("A-v0", "mecl", [0.2, 0.9]),
+            cell("B-v0", "mecl", [0.5, float("nan")]),  # a seed without a score is left out
+            cell("A-v0", "vicrl", [1.0, 1.1]),
+            {"env": "A-v0", "algo": "gacl", "per_seed": [{"feasible_reward": 1.0}]},  # no reference rows: no score
+        ]
+    }
+    assert normalised_scores_by_algo(summary) == {"mecl": [[0.2, 0.9], [0.5]], "vicrl": [[1.0, 1.1]]}
+    figure = performance_profile_figure(summary)
+    (ax,) = figure.axes
+    assert [line.get_label() for line in ax.get_lines() if not line.get_label().startswith("_")] == [
+        "mecl (2 envs, 3 runs)",
+        "vicrl (1 env, 2 runs)",
+    ]
+    assert performance_profile_figure({"cells": [summary["cells"][3]]}) is None

@@ -11,6 +11,8 @@ from sb3_icrl.common.statistics import (
     iqm,
     normalised_score,
     optimality_gap,
+    performance_profile,
+    performance_profile_ci,
     probability_of_improvement,
     probability_of_improvement_ci,
     sample_std,
@@ -27,6 +29,9 @@ from sb3_icrl.common.statistics import (
 X_SCORES = [[0.9, 0.2, 0.5, 1.1, 0.7], [0.1, 0.3, 0.35, 0.0, 0.6], [1.2, 0.95, 0.8, 0.4, 1.0]]
 Y_SCORES = [[0.5, 0.4, 0.3, 0.9, 0.6], [0.2, 0.3, 0.1, 0.05, 0.25], [0.7, 1.1, 0.6, 0.65, 0.9]]
 RLIABLE = {"iqm_x": 0.6111111111111112, "mean_x": 0.6066666666666666, "gap_x": 0.41333333333333333, "poi_xy": 0.64}
+#: ``rliable.library.create_performance_profile({"x": X}, PROFILE_TAUS)[0]["x"]`` in the same environment
+PROFILE_TAUS = [0.0, 0.25, 0.5, 0.75, 1.0]
+RLIABLE_PROFILE_X = [0.9333333333333333, 0.8, 0.5333333333333333, 0.4, 0.13333333333333333]
 
 
 def test_sample_std_uses_n_minus_one() -> None:
@@ -78,6 +83,17 @@ def test_aggregates_equal_rliables_numbers() -> None:
     assert probability_of_improvement(X_SCORES, Y_SCORES) == pytest.approx(RLIABLE["poi_xy"])
     low, high = stratified_bootstrap_ci(X_SCORES, reps=500)
     assert low <= RLIABLE["iqm_x"] <= high
+
+
+def test_performance_profile_equals_rliables_and_its_band_holds_it() -> None:
+    profile = performance_profile(X_SCORES, PROFILE_TAUS)
+    np.testing.assert_allclose(profile, RLIABLE_PROFILE_X)
+    # By hand at tau = 0.5: 3 of 5 seeds above it on the first task, 1 on the second, 4 on the third
+    assert profile[2] == pytest.approx(np.mean([3 / 5, 1 / 5, 4 / 5]))
+    lower, upper = performance_profile_ci(X_SCORES, PROFILE_TAUS, reps=300)
+    assert np.all(lower <= profile) and np.all(profile <= upper)
+    # Tasks weigh the same whatever their number of seeds
+    assert performance_profile([[1.0], [0.0, 0.0, 0.0]], [0.5])[0] == pytest.approx(0.5)
 
 
 def test_wilcoxon_needs_differences_and_the_labels_have_their_thresholds() -> None:

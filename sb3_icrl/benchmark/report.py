@@ -39,6 +39,8 @@ from sb3_icrl.common.statistics import (
     iqm,
     normalised_score,
     optimality_gap,
+    performance_profile,
+    performance_profile_ci,
     probability_of_improvement,
     probability_of_improvement_ci,
     stratified_bootstrap_ci,
@@ -1216,4 +1218,50 @@ def write_figures(
             ax.legend(fontsize=7)
         figure.tight_layout()
         written.append(str(save_figure(figure, os.path.join(output, "ours_vs_paper.png"))))
+    profile = performance_profile_figure(summary)
+    if profile is not None:
+        written.append(str(save_figure(profile, os.path.join(output, "performance_profile.png"))))
     return written
+
+
+#: Thresholds of the performance profile: normalised scores from PPO's (0) to beyond the oracle's (1)
+PROFILE_TAUS = np.linspace(-0.5, 1.5, 81)
+
+
+def normalised_scores_by_algo(summary: dict[str, Any]) -> dict[str, list[list[float]]]:
+    """Per algorithm, the finite per-seed normalised scores of each of its cells (one list per env and variant)."""
+    scores: dict[str, list[list[float]]] = {}
+    for cell in summary["cells"]:
+        values = [s["normalised_score"] for s in cell["per_seed"] if math.isfinite(s.get("normalised_score", math.nan))]
+        if values:
+            scores.setdefault(cell["algo"], []).append(values)
+    return scores
+
+
+def performance_profile_figure(summary: dict[str, Any]) -> Any:
+    """
+    rliable's performance profile of the normalised scores: per algorithm, the share of runs scoring above each
+    threshold (each env weighing the same), with its stratified-bootstrap 95% band; ``None`` without normalised scores.
+    """
+    from sb3_icrl.plots.figures import new_figure
+
+    scores = normalised_scores_by_algo(summary)
+    if not scores:
+        return None
+    figure = new_figure(width=6.4, height=4.4)
+    ax = figure.subplots()
+    for algo, tasks in scores.items():
+        profile = performance_profile(tasks, PROFILE_TAUS)
+        lower, upper = performance_profile_ci(tasks, PROFILE_TAUS, reps=500)
+        envs = f"{len(tasks)} env" + ("s" if len(tasks) != 1 else "")
+        (line,) = ax.plot(PROFILE_TAUS, profile, label=f"{algo} ({envs}, {sum(map(len, tasks))} runs)")
+        ax.fill_between(PROFILE_TAUS, lower, upper, color=line.get_color(), alpha=0.2)
+    for tau, text in ((0.0, "PPO"), (1.0, "oracle")):
+        ax.axvline(tau, color="gray", linewidth=0.8, linestyle="--")
+        ax.text(tau, 1.02, text, ha="center", fontsize=8, color="gray")
+    ax.set_xlabel("normalised score τ (feasible reward: 0 = PPO, 1 = PPO-Lagrangian on the true cost)")
+    ax.set_ylabel("share of runs with score > τ")
+    ax.set_ylim(0, 1.08)
+    ax.legend(fontsize=7)
+    figure.tight_layout()
+    return figure

@@ -80,6 +80,50 @@ def stratified_bootstrap_ci(
     return _percentile_interval(estimates, confidence)
 
 
+def performance_profile(scores_by_task: ScoresByTask, taus: Sequence[float] | np.ndarray) -> np.ndarray:
+    """
+    rliable's score distribution (performance profile): for each threshold ``tau``, the share of runs whose score
+    exceeds it, a share per task averaged over tasks (so that each task weighs the same; with as many seeds per task,
+    the share of all runs, as rliable computes it).
+
+    :param scores_by_task: One array of per-seed scores per task
+    :param taus: The thresholds
+    :return: One share per threshold (NaN without scores)
+    """
+    tasks = [np.asarray(scores, dtype=float).ravel() for scores in scores_by_task]
+    tasks = [task for task in tasks if task.size]
+    thresholds = np.asarray(taus, dtype=float)
+    if not tasks:
+        return np.full(thresholds.shape, np.nan)
+    return np.mean([(task[:, None] > thresholds[None, :]).mean(axis=0) for task in tasks], axis=0)
+
+
+def performance_profile_ci(
+    scores_by_task: ScoresByTask,
+    taus: Sequence[float] | np.ndarray,
+    reps: int = BOOTSTRAP_REPS,
+    confidence: float = 0.95,
+    seed: int = BOOTSTRAP_SEED,
+) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Percentile confidence band of :func:`performance_profile`, from a stratified bootstrap over each task's seeds.
+
+    :return: ``(lower, upper)``, one value per threshold
+    """
+    tasks = [np.asarray(scores, dtype=float).ravel() for scores in scores_by_task]
+    tasks = [task for task in tasks if task.size]
+    thresholds = np.asarray(taus, dtype=float)
+    if not tasks:
+        return np.full(thresholds.shape, np.nan), np.full(thresholds.shape, np.nan)
+    rng = np.random.default_rng(seed)
+    profiles = np.empty((reps, thresholds.size))
+    for rep in range(reps):
+        profiles[rep] = performance_profile([task[rng.integers(0, task.size, task.size)] for task in tasks], thresholds)
+    tail = 100 * (1 - confidence) / 2
+    lower, upper = np.percentile(profiles, [tail, 100 - tail], axis=0)
+    return lower, upper
+
+
 def _percentile_interval(estimates: np.ndarray, confidence: float) -> tuple[float, float]:
     tail = 100 * (1 - confidence) / 2
     lower, upper = np.percentile(estimates, [tail, 100 - tail])
