@@ -91,6 +91,8 @@ def run_policy(
             reward_value = float(venv.get_original_reward()[0]) if isinstance(venv, VecNormalize) else float(reward[0])
             # The state the step reached (the terminal observation at an episode's end)
             reached = info.get("terminal_observation") if dones[0] else None
+            if reached is not None and isinstance(venv, VecNormalize):
+                reached = venv.unnormalize_obs(reached)  # VecNormalize normalises the terminal observation too
             if reached is None:
                 reached = venv.get_original_obs()[0] if isinstance(venv, VecNormalize) else obs[0]
             closest_x = min(closest_x, float(margin(np.asarray(reached)[obs_index], threshold, op)))

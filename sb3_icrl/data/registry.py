@@ -67,6 +67,8 @@ SHIPPED_DATASETS: dict[str, ShippedDataset] = {
     "BiasedPendulum-v0": ShippedDataset(20),
     "BlockedWalker-v0": ShippedDataset(20),
     "BlockedSwimmer-v0": ShippedDataset(20),
+    # The binding variants (sb3_icrl.envs.binding_envs)
+    "BiasedPendulumReach-v0": ShippedDataset(20),
     "HighwayVelocity-v0": ShippedDataset(100),
     "HighwayDistance-v0": ShippedDataset(100),
     "HighwayVelocityDistance-v0": ShippedDataset(100),
