@@ -118,4 +118,4 @@ def test_cli_reports_errors(tmp_path, capsys):
     assert main(["generate", "--env", "GridWorldWall-v0", "--expert", "missing.zip", "--out", str(tmp_path / "x.npz")]) == 1
     assert "No expert file" in capsys.readouterr().err
     assert main(["info", "NoSuchEnv-v9"]) == 1
-    assert "Available: BiasedPendulum-v0 (violating_fraction 0); BlockedAnt-v0" in capsys.readouterr().err
+    assert "Available: BiasedPendulum-v0 (violating_fraction 0); BiasedPendulumReach-v0" in capsys.readouterr().err
