@@ -252,3 +252,40 @@ def test_performance_profile_figure_draws_each_algorithm_with_normalised_scores(
         "vicrl (1 env, 2 runs)",
     ]
     assert performance_profile_figure({"cells": [summary["cells"][3]]}) is None
+
+
+def test_headline_envs_alone_make_the_aggregates_and_the_others_are_marked(tmp_path) -> None:
+    text = SUITE.replace("envs: [GridWorldWall-v0]", "envs: [GridWorldWall-v0, GridWorldSquare-v0]")
+    suite = load_suite(write(tmp_path, text + "headline_envs: [GridWorldSquare-v0]\n"))
+    assert suite.headline_envs == ("GridWorldSquare-v0",)
+    values = {"ppo": 0.0, "ppolag": 10.0, "mecl": 5.0}
+    results = []
+    for run in suite.runs():
+        # On the wall map MECL matches the oracle; on the headline square map it scores 0.5
+        feasible = 10.0 if (run.algo, run.env_id) == ("mecl", "sb3_icrl/GridWorldWall-v0") else values[run.algo]
+        results.append(
+            (
+                run,
+                RunResult(
+                    f"r/{run.env_id}/{run.algo}/{run.seed}",
+                    run.algo,
+                    run.env_id,
+                    run.seed,
+                    100,
+                    1.0,
+                    0.0,
+                    feasible,
+                    feasible,
+                    20,
+                ),
+            )
+        )
+    summary = summarise_suite(suite, suite.runs(), results)
+    (aggregate,) = [entry for entry in summary["normalised_aggregates"] if entry["algo"] == "mecl"]
+    assert aggregate["n_cells"] == 1 and aggregate["normalised_score_mean"] == pytest.approx(0.5)
+    assert normalised_scores_by_algo(summary)["mecl"] == [[0.5, 0.5, 0.5]]
+    table = markdown_table(summary)
+    assert "| GridWorldWall-v0 † | base | mecl |" in table and "| GridWorldSquare-v0 | base | mecl |" in table
+    assert "the headline envs only (GridWorldSquare-v0;" in table
+    with pytest.raises(SuiteError, match="GridWorldZigzag-v0 not among the suite's envs"):
+        load_suite(write(tmp_path, text + "headline_envs: [GridWorldZigzag-v0]\n"))

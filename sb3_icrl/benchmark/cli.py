@@ -275,6 +275,13 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     except (SuiteError, ValueError, RuntimeError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        # The runs stop with the engine (their processes die with it); each resumes from its checkpoint next time
+        print(
+            f"\ninterrupted: the runs resume from their last checkpoints with the same `sb3-icrl benchmark {args.command}`.",
+            file=sys.stderr,
+        )
+        return 130
 
 
 if __name__ == "__main__":

@@ -756,7 +756,9 @@ def summarise_suite(
             # Higher feasible reward and no higher violation rate than each published number of the same method
             cells[-1]["beats"] = {source: beats(cells[-1], pair) for source, pair in published_pairs(cells[-1]).items()}
     add_reference_scores(cells, suite.success)
-    normalised, improvements = normalised_aggregates(cells, suite.algos)
+    for cell in cells:
+        cell["headline"] = suite.headline_envs is None or cell["env"] in suite.headline_envs
+    normalised, improvements = normalised_aggregates([cell for cell in cells if cell["headline"]], suite.algos)
     aggregates = []
     for algo in suite.algos:
         tasks = [[seed["violation_rate"] for seed in cell["per_seed"]] for cell in cells if cell["algo"] == algo]
@@ -783,6 +785,7 @@ def summarise_suite(
         "aggregates": aggregates,
         "normalised_aggregates": normalised,
         "improvements": improvements,
+        "headline_envs": list(suite.headline_envs) if suite.headline_envs is not None else None,
         "success_rule": suite.success,
         "runs_missing": missing,
         "others_sources": list(suite.others),
@@ -855,7 +858,8 @@ def markdown_table(summary: dict[str, Any]) -> str:
         hours = cell.get("core_hours")
         pairs = cell.get("wilcoxon_pairs") or 0
         p_value = cell.get("wilcoxon_p") if pairs >= MIN_PAIRS_FOR_WILCOXON else None
-        row = [cell["env"], cell["variant"], cell["algo"], str(cell["n_seeds"])]
+        # † marks an env outside the headline aggregates (the suite's headline_envs)
+        row = [cell["env"] + ("" if cell.get("headline", True) else " †"), cell["variant"], cell["algo"], str(cell["n_seeds"])]
         row += [f"{_fmt(cell['feasible_reward_mean'])} ± {_fmt(cell['feasible_reward_std'])}"]
         row += [format_spread(cell.get("feasible_reward_spread") or spread([s["feasible_reward"] for s in cell["per_seed"]]))]
         if normalised:
@@ -924,7 +928,13 @@ def aggregate_lines(summary: dict[str, Any]) -> list[str]:
             else ""
         ),
         "",
-        "Across envs (stratified bootstrap 95% CIs over the seeds of each env):",
+        "Across envs (stratified bootstrap 95% CIs over the seeds of each env)"
+        + (
+            f", the headline envs only ({', '.join(summary['headline_envs'])}; the others, marked † in the table, do not "
+            "bind or cannot be identified):"
+            if summary.get("headline_envs")
+            else ":"
+        ),
         "",
         "| algo | envs | runs | IQM | mean | optimality gap |",
         "|---|---|---|---|---|---|",
@@ -1229,9 +1239,14 @@ PROFILE_TAUS = np.linspace(-0.5, 1.5, 81)
 
 
 def normalised_scores_by_algo(summary: dict[str, Any]) -> dict[str, list[list[float]]]:
-    """Per algorithm, the finite per-seed normalised scores of each of its cells (one list per env and variant)."""
+    """
+    Per algorithm, the finite per-seed normalised scores of each of its cells in the headline envs (one list per env
+    and variant).
+    """
     scores: dict[str, list[list[float]]] = {}
     for cell in summary["cells"]:
+        if not cell.get("headline", True):  # outside the headline envs
+            continue
         values = [s["normalised_score"] for s in cell["per_seed"] if math.isfinite(s.get("normalised_score", math.nan))]
         if values:
             scores.setdefault(cell["algo"], []).append(values)

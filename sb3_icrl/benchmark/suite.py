@@ -13,6 +13,7 @@ from typing import Any
 
 import yaml
 
+from sb3_icrl.data.registry import DEMONSTRATIONS_DIR, available_demonstrations, dataset_file_name
 from sb3_icrl.envs import REWARD_TRANSFER_TASKS
 from sb3_icrl.metrics.transfer import TASKS as TRANSFER_TASKS
 from sb3_icrl.metrics.transfer import transfer_file
@@ -42,6 +43,9 @@ SUITE_KEYS = {
     "report refuses a cell whose runs record different ones): change it whenever a recipe of the suite changes",
     "success": "what counts as a run that succeeded, written before any run: {max_violation_rate: 0.05, "
     "min_normalised_score: 0.5} (the normalised score needs the reference rows ppo and ppolag)",
+    "headline_envs": "the envs whose constraint binds and can be identified (benchmarks/binding_check.py): the "
+    "cross-env aggregates, probabilities of improvement and performance profile use these only, the other envs' cells "
+    "are shown and marked (default: every env)",
     "transfer": "transfer tests the engine runs after each ICRL run (sb3-icrl transfer, learners seeded with the run's "
     f"seed): {{tasks: [reward], n_timesteps: 200000}}; tasks among {', '.join(TRANSFER_TASKS)}, n_timesteps optional "
     "(default: ppolag.yml's)",
@@ -226,6 +230,8 @@ class Suite:
     others: dict[str, dict[str, dict[str, tuple[float, float]]]] = field(default_factory=dict)
     #: The transfer tests run after each ICRL run, ``None`` when the suite asks for none
     transfer: TransferSpec | None = None
+    #: Env names in the headline aggregates, ``None``: every env
+    headline_envs: tuple[str, ...] | None = None
 
     def runs(self) -> list[RunSpec]:
         """Every run, env by env, then variant, algorithm and seed."""
@@ -298,12 +304,22 @@ def suite_path(name_or_path: str | os.PathLike) -> pathlib.Path:
     return path
 
 
+class DuplicateKeyError(ValueError):
+    """A suite file gives the same key twice in one mapping."""
+
+
 def _key_lines(node: yaml.Node, prefix: tuple = ()) -> dict[tuple, int]:
     """The 1-based line of every mapping key and sequence item in a composed yml document, by its path."""
     lines: dict[tuple, int] = {prefix: node.start_mark.line + 1}
     if isinstance(node, yaml.MappingNode):
+        seen: dict[Any, int] = {}
         for key_node, value_node in node.value:
             path = (*prefix, key_node.value)
+            line = key_node.start_mark.line + 1
+            if key_node.value in seen:  # yaml keeps the last silently: the first would be lost without a word
+                where = ".".join(str(part) for part in path)
+                raise DuplicateKeyError(f"line {line}: `{where}` is given twice (first on line {seen[key_node.value]}).")
+            seen[key_node.value] = line
             lines.update(_key_lines(value_node, path))
             lines[path] = key_node.start_mark.line + 1
     elif isinstance(node, yaml.SequenceNode):
@@ -317,8 +333,12 @@ class _SuiteReader:
 
     def __init__(self, path: pathlib.Path, node: yaml.Node, content: dict[str, Any]):
         self.path = path
-        self.lines = _key_lines(node)
+        try:
+            self.lines = _key_lines(node)
+        except DuplicateKeyError as error:
+            raise SuiteError(f"{path}, {error}") from error
         self.content = content
+        self.env_modules: list[str] = []
 
     def error(self, location: tuple, message: str) -> SuiteError:
         while location not in self.lines and location:
@@ -348,6 +368,8 @@ class _SuiteReader:
             if not isinstance(self.content.get(key), list) or not self.content[key]:
                 raise self.error((key,), f"`{key}` must be a non-empty list ({SUITE_KEYS[key]}).")
         envs = [self.env_id(env, ("envs", index)) for index, env in enumerate(self.content["envs"])]
+        # An env written MODULE:EnvId registers when MODULE is imported: every run must import it too
+        self.env_modules = [str(env).partition(":")[0] for env in self.content["envs"] if ":" in str(env)]
         algos = [str(algo) for algo in self.content["algos"]]
         for index, algo in enumerate(algos):
             if algo not in ALGOS:
@@ -379,9 +401,39 @@ class _SuiteReader:
                     raise self.error((*where, key), f"unknown variant setting {key!r}: use {', '.join(VARIANT_KEYS)}.")
                 if key in ("hyperparams", "env_kwargs") and not isinstance(value, dict):
                     raise self.error((*where, key), f"`{key}` maps names to values.")
-                if key in ("transition_noise", "violating_fraction") and (not isinstance(value, (int, float)) or value < 0):
+                if key in ("transition_noise", "violating_fraction") and (
+                    isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0
+                ):
                     raise self.error((*where, key), f"`{key}` is a number >= 0, got {value!r}.")
+                if key == "violating_fraction" and value > 1:
+                    raise self.error(
+                        (*where, key), f"`violating_fraction` is a share of trajectories, within [0, 1], got {value!r}."
+                    )
         return {str(name): dict(settings) for name, settings in variants.items()}
+
+    def check_demonstrations(self, envs: list[str], algos: list[str], variants: dict[str, dict[str, Any]]) -> None:
+        """Every ICRL cell has demonstrations: the variant's own file, or a dataset shipped for its env and fraction."""
+        if not set(algos) & set(ICRL_ALGOS):
+            return
+        for variant, settings in variants.items():
+            if settings.get("demonstrations") is not None:
+                path = os.path.expanduser(str(settings["demonstrations"]))
+                if not os.path.isfile(path):
+                    raise self.error(
+                        ("variants", variant, "demonstrations"), f"no demonstrations file {path!r} (from {os.getcwd()})."
+                    )
+                continue
+            fraction = settings.get("violating_fraction")
+            for index, env in enumerate(envs):
+                if not (DEMONSTRATIONS_DIR / dataset_file_name(env, fraction)).is_file():
+                    shipped = available_demonstrations().get(env_name(env))
+                    what = f" with violating_fraction {fraction:g}" if fraction else ""
+                    raise self.error(
+                        ("envs", index),
+                        f"the ICRL algorithms learn from demonstrations, and none are shipped for {env_name(env)}{what} "
+                        f"(shipped fractions: {shipped if shipped else 'none'}): give the variant "
+                        "`demonstrations: PATH.npz` (python -m sb3_icrl.data generate), or drop the env.",
+                    )
 
     def steps(self, envs: list[str]) -> dict[str, int | None]:
         raw = self.content.get("steps")
@@ -409,6 +461,8 @@ class _SuiteReader:
                     )
             elif isinstance(value, bool) or not isinstance(value, int):
                 raise self.error(("train_args", key), f"`{key}` is an integer, got {value!r}.")
+            elif key in ("eval_episodes", "num_threads") and value < 1:
+                raise self.error(("train_args", key), f"`{key}` is at least 1, got {value!r}.")
             train_args[key] = value
         return train_args
 
@@ -465,6 +519,18 @@ class _SuiteReader:
                 "among the algos: add them, or leave `success` out.",
             )
         return rule
+
+    def headline_envs(self, envs: list[str]) -> tuple[str, ...] | None:
+        raw = self.content.get("headline_envs")
+        if raw is None:
+            return None
+        names = [env_name(env) for env in envs]
+        if not isinstance(raw, list) or not raw or not all(isinstance(env, str) for env in raw):
+            raise self.error(("headline_envs",), f"`headline_envs` is a non-empty list of the suite's envs, got {raw!r}.")
+        unknown = [env for env in raw if env_name(env) not in names]
+        if unknown:
+            raise self.error(("headline_envs",), f"{', '.join(unknown)} not among the suite's envs ({', '.join(names)}).")
+        return tuple(env_name(env) for env in raw)
 
     def transfer(self, envs: list[str], algos: list[str]) -> TransferSpec | None:
         raw = self.content.get("transfer")
@@ -554,6 +620,8 @@ def load_suite(name_or_path: str | os.PathLike) -> Suite:
     recipe_version = content.get("recipe_version")
     if recipe_version is not None and (not isinstance(recipe_version, (str, int)) or not str(recipe_version).strip()):
         raise reader.error(("recipe_version",), f"`recipe_version` is a name or a number, got {recipe_version!r}.")
+    variants = reader.variants()
+    reader.check_demonstrations(envs, algos, variants)
     return Suite(
         name=path.stem,
         path=str(path),
@@ -561,17 +629,18 @@ def load_suite(name_or_path: str | os.PathLike) -> Suite:
         envs=envs,
         algos=algos,
         seeds=seeds,
-        variants=reader.variants(),
+        variants=variants,
         steps=reader.steps(envs),
         eval_episodes=reader.positive_int(content.get("eval_episodes", 20), ("eval_episodes",)),
         eval_seed=reader.positive_int(content.get("eval_seed", 100), ("eval_seed",), allow_zero=True),
         train_args=reader.train_args(),
         reference=reference,
         paper=reader.paper(),
-        gym_packages=tuple(gym_packages),
+        gym_packages=tuple(dict.fromkeys([*gym_packages, *reader.env_modules])),
         forward_recipe=forward_recipe,
         recipe_version=str(recipe_version) if recipe_version is not None else None,
         success=reader.success(algos),
         others=reader.others(),
         transfer=reader.transfer(envs, algos),
+        headline_envs=reader.headline_envs(envs),
     )

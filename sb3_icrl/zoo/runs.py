@@ -196,9 +196,10 @@ def failure(run: str) -> str | None:
 def is_finished(run: str) -> bool:
     """
     :param run: A run folder ``<folder>/<algo>/<EnvName>_<N>``
-    :return: Whether its training ran to the end (``finished.json`` is there)
+    :return: Whether its training ran to the end (``finished.json`` is there, a JSON mapping: a file cut short or
+        overwritten with something else does not count, so that the run is trained again from its last checkpoint)
     """
-    return os.path.isfile(os.path.join(run, FINISHED_FILE))
+    return read_finished(run) is not None
 
 
 def read_finished(run: str | os.PathLike) -> dict[str, Any] | None:

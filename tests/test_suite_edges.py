@@ -1,0 +1,88 @@
+"""Suite mistakes caught before any run, with file and line; run folders that only look finished."""
+
+import json
+import os
+import pathlib
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import pytest
+
+from sb3_icrl.benchmark import load_suite
+from sb3_icrl.benchmark.suite import SuiteError
+from sb3_icrl.zoo.runs import FINISHED_FILE, is_finished
+
+HEAD = "envs: [GridWorldWall-v0]\nalgos: [bc2l]\nseeds: [0]\n"
+
+
+def write(tmp_path, text: str) -> str:
+    path = tmp_path / "suite.yml"
+    path.write_text(textwrap.dedent(text))
+    return str(path)
+
+
+@pytest.mark.parametrize(
+    "text, line, message",
+    [
+        (HEAD + "seeds: [1]\n", 4, r"`seeds` is given twice \(first on line 3\)"),
+        (
+            HEAD + "variants:\n  a: {transition_noise: 0.1, transition_noise: 0.2}\n",
+            5,
+            "`variants.a.transition_noise` is given twice",
+        ),
+        (HEAD + "variants:\n  imperfect: {violating_fraction: 1.5}\n", 5, r"within \[0, 1\], got 1.5"),
+        (HEAD + "train_args: {eval_episodes: -1}\n", 4, "`eval_episodes` is at least 1"),
+        (
+            "envs: [GridWorld-v0]\nalgos: [bc2l]\nseeds: [0]\n",
+            1,
+            "none are shipped for GridWorld-v0 .*give the variant `demonstrations: PATH.npz`",
+        ),
+        (
+            "envs: [BlockedAnt-v0]\nalgos: [mecl]\nseeds: [0]\nvariants:\n  imperfect: {violating_fraction: 0.2}\n",
+            1,
+            r"none are shipped for BlockedAnt-v0 with violating_fraction 0.2 \(shipped fractions: \[0.0\]\)",
+        ),
+        (HEAD + "variants:\n  mine: {demonstrations: no/such/file.npz}\n", 5, "no demonstrations file 'no/such/file.npz'"),
+    ],
+)
+def test_mistakes_are_caught_before_any_run(tmp_path, text, line, message):
+    with pytest.raises(SuiteError, match=f"line {line}: .*{message}"):
+        load_suite(write(tmp_path, text))
+
+
+def test_reference_rows_need_no_demonstrations(tmp_path):
+    assert load_suite(write(tmp_path, "envs: [GridWorld-v0]\nalgos: [ppo, ppolag]\nseeds: [0]\n")).runs()
+
+
+def test_an_env_written_module_colon_id_makes_every_run_import_its_module(tmp_path):
+    suite = load_suite(write(tmp_path, "envs: ['sb3_icrl.envs:sb3_icrl/GridWorldWall-v0']\nalgos: [bc2l]\nseeds: [0]\n"))
+    assert suite.gym_packages == ("sb3_icrl.envs",)
+    argv = suite.runs()[0].train_argv("logs")
+    assert argv[argv.index("--gym-packages") + 1] == "sb3_icrl.envs"
+
+
+def test_a_finished_json_that_is_not_a_json_mapping_is_no_finished_run(tmp_path):
+    for text, finished in (("", False), ('{"num_timesteps": 5', False), ("[1, 2]", False), ('{"num_timesteps": 5}', True)):
+        (tmp_path / FINISHED_FILE).write_text(text)
+        assert is_finished(str(tmp_path)) is finished, text
+    os.remove(tmp_path / FINISHED_FILE)
+    assert not is_finished(str(tmp_path)) and json.dumps({}) == "{}"
+
+
+def test_ctrl_c_ends_a_suite_with_one_line(tmp_path):
+    path = write(tmp_path, HEAD + "steps: 100000\ntrain_args: {eval_freq: 50000, save_freq: 0}\n")
+    root = str(tmp_path / "logs")
+    command = [sys.executable, "-m", "sb3_icrl.benchmark", "run", path, "-f", root, "--jobs", "1", "--no-report"]
+    # As a terminal's Ctrl-C does: SIGINT to the whole process group, the engine and its run
+    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    log = load_suite(path).runs()[0].log_file(root)
+    deadline = time.time() + 60
+    while not (os.path.isfile(log) and "step" in pathlib.Path(log).read_text()) and time.time() < deadline:
+        time.sleep(0.2)
+    os.killpg(process.pid, signal.SIGINT)
+    _, errors = process.communicate(timeout=60)
+    assert process.returncode == 130
+    assert "Traceback" not in errors and errors.strip().splitlines()[-1].startswith("interrupted: the runs resume")
