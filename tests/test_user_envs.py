@@ -133,6 +133,8 @@ def test_unknown_env_icrl_defaults_and_json_or_yml_overrides(tmp_path, monkeypat
     with pytest.warns(UserWarning, match="cost_budget=expert, budget_statistic=step, lagrange_update=pid"):
         entry, key = load_hyperparams("vicrl", "myns/Unknown-v0")
     assert key == "default" and {k: entry[k] for k in UNKNOWN_ENV_ICRL_DEFAULTS} == UNKNOWN_ENV_ICRL_DEFAULTS
+    # Episodes that end early cost the budget for ever; VICRL's cost is its Beta's mean, not one draw
+    assert entry["termination_cost"] == "budget" and entry["cost_mode"] == "mean"
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # said once per process
         assert load_hyperparams("vicrl", "myns/Other-v0")[0]["cost_budget"] == "expert"

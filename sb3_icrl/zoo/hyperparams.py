@@ -66,12 +66,15 @@ NAMESPACE = "sb3_icrl"
 
 #: What BC2L, MECL and VICRL use on an env the shipped yml does not know, instead of the ``default`` entry's budget 0
 #: (a cost ``1 - phi`` never reaches 0, so that multiplier only grows): the budget is the expert's own mean learned cost
-#: per step, with the PID multiplier of the BlockedHalfCheetah recipes, which can fall again
+#: per step, with the PID multiplier of the BlockedHalfCheetah recipes, which can fall again; and, as the recipes of the
+#: benchmark envs whose episodes end early (Walker, Pendulum, driving), a terminated episode costs that budget per step
+#: for ever, so that a learner gains nothing by ending its episodes (it changes nothing where episodes only time out)
 UNKNOWN_ENV_ICRL_DEFAULTS: dict[str, Any] = {
     "cost_budget": "expert",
     "budget_statistic": "step",
     "lagrange_update": "pid",
     "lagrange_kwargs": "dict(init=1.0, kp=5.0, ki=0.005, kd=0.0)",
+    "termination_cost": "budget",
 }
 #: Algorithms that can learn on another algorithm's forward learner (``forward_recipe``): the reference rows of a
 #: benchmark, unconstrained PPO and PPO-Lagrangian on the true cost (the oracle)
