@@ -9,8 +9,9 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 import sb3_icrl  # noqa: F401  (registers the envs)
 from sb3_icrl import PPOLagrangian
-from sb3_icrl.data import NormalizedExpert, generate_demonstrations, load
+from sb3_icrl.data import NormalizedExpert, generate_demonstrations, load, save
 from sb3_icrl.data.__main__ import main
+from sb3_icrl.data.importers import from_arrays
 
 CORRIDOR = "sb3_icrl/ConstrainedCorridor-v0"  # Box obs [x, t], actions 0 left / 1 stay / 2 right, cost when x > 6 of 10
 
@@ -119,3 +120,16 @@ def test_cli_reports_errors(tmp_path, capsys):
     assert "No expert file" in capsys.readouterr().err
     assert main(["info", "NoSuchEnv-v9"]) == 1
     assert "Available: BiasedPendulum-v0 (violating_fraction 0); BiasedPendulumReach-v0" in capsys.readouterr().err
+
+
+def test_info_says_unknown_for_data_without_true_costs(tmp_path, capsys):
+    demos = from_arrays(np.zeros((6, 2)), np.zeros((6, 1)), episode_lengths=[3, 3], env_id="sb3_icrl/GridWorldWall-v0")
+    assert demos.metadata["true_costs_known"] is False
+    path = str(tmp_path / "imported.npz")
+    save(path, demos.trajectories, demos.metadata)
+    assert main(["info", path]) == 0
+    shown = json.loads(capsys.readouterr().out)
+    assert shown["violating_share"].startswith("unknown") and shown["n_trajectories"] == 2
+    clean = str(tmp_path / "clean.npz")
+    save(clean, demos.trajectories, {**demos.metadata, "true_costs_known": True})
+    assert main(["info", clean]) == 0 and json.loads(capsys.readouterr().out)["violating_share"] == 0.0

@@ -222,7 +222,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         else:
             demos = load_demonstrations(args.name_or_path, violating_fraction=args.violating_fraction)
             keys = ("env_id", "n_trajectories", "n_transitions", "mean_return", "std_return", "violating_share", "sha256")
-            print(json.dumps({key: demos.metadata.get(key) for key in keys}, indent=2))
+            shown = {key: demos.metadata.get(key) for key in keys}
+            if demos.metadata.get("true_costs_known") is False:
+                # The costs are zeros standing for unknown ones: a share of 0 would say the data is clean
+                shown["violating_share"] = "unknown (the source recorded no true costs)"
+            print(json.dumps(shown, indent=2))
     except (DemonstrationError, ValueError, OSError, RuntimeError) as error:
         # OSError: e.g. an --out whose folder is a file or not writable
         print(f"error: {error}", file=sys.stderr)
