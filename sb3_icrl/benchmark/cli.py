@@ -70,9 +70,17 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
             default=[],
             help="modules to import first: they register your own envs (added to the suite's gym_packages)",
         )
-    run.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="runs at a time (default: one per core)")
+    run.add_argument(
+        "--jobs",
+        type=int,
+        default=None,
+        help="runs at a time (default: one per core); with --backend ray, the CPUs of the Ray instance started here "
+        "(a cluster's own CPUs decide there)",
+    )
     run.add_argument("--backend", choices=BACKENDS, default="local", help="local process pool, or Ray tasks")
-    run.add_argument("--address", default=None, help="Ray cluster address (--backend ray; default: start one here)")
+    run.add_argument(
+        "--address", default=None, help="Ray cluster address (--backend ray; default: $RAY_ADDRESS, else start one here)"
+    )
     run.add_argument("--no-report", action="store_true", help="do not write the report once the runs are done")
     status.add_argument("-v", "--verbose", action="store_true", help="list the finished runs too")
     report.add_argument(
@@ -155,13 +163,14 @@ def _load_suite(args: argparse.Namespace) -> Suite:
 def run_command(args: argparse.Namespace) -> int:
     suite = _load_suite(args)
     runs = suite.select(_only(args.only))
-    print(
-        f"suite {suite.name}: {len(runs)} runs in {os.path.join(args.log_folder, suite.name)} "
-        f"({args.backend}, {args.jobs} at a time)",
-        flush=True,
-    )
-    print(f"before this run: {status_lines(suite_status(runs, args.log_folder))[-1]}", flush=True)
     backend = make_backend(args.backend, args.jobs, args.address)
+    where = (
+        f"ray cluster at {backend.address}, {backend.capacity} CPUs"
+        if backend.address
+        else f"{args.backend}, {backend.capacity} at a time"
+    )
+    print(f"suite {suite.name}: {len(runs)} runs in {os.path.join(args.log_folder, suite.name)} ({where})", flush=True)
+    print(f"before this run: {status_lines(suite_status(runs, args.log_folder))[-1]}", flush=True)
     display = Display(len(runs))
     try:
         outcomes = run_all(runs, args.log_folder, backend, on_event=display)

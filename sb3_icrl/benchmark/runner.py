@@ -136,6 +136,8 @@ class Backend:
     """Starts runs and reports them as they end (``submit`` then ``wait_any``); at most ``capacity`` at a time."""
 
     capacity: int = 1
+    #: The cluster the runs go to (``None``: this machine)
+    address: str | None = None
 
     def submit(self, run: RunSpec, root: str) -> Any:
         raise NotImplementedError
@@ -185,6 +187,8 @@ class RayBackend(Backend):
         except ImportError as error:
             raise RuntimeError('The ray backend needs Ray: pip install "sb3-icrl[cluster]".') from error
         self.ray = ray
+        #: The cluster's address (``None``: a Ray instance started here)
+        self.address = address
         if not ray.is_initialized():
             if address:
                 ray.init(address=address, log_to_driver=False)
@@ -206,20 +210,26 @@ class RayBackend(Backend):
         return self.ray.get(handle)
 
 
-def make_backend(backend: str, jobs: int, address: str | None = None) -> Backend:
+def make_backend(backend: str, jobs: int | None, address: str | None = None) -> Backend:
     """
     :param backend: ``"local"`` or ``"ray"``
-    :param jobs: Concurrent runs (local pool size; CPUs of a Ray instance started here)
-    :param address: A running Ray cluster (``ray`` only)
+    :param jobs: Concurrent runs (local pool size; CPUs of a Ray instance started here); ``None``: one per core
+    :param address: A running Ray cluster (``ray`` only; default ``$RAY_ADDRESS``, as ``ray job submit`` sets it)
     """
-    if jobs < 1:
+    if jobs is not None and jobs < 1:
         raise ValueError(f"--jobs must be >= 1, got {jobs}.")
     if backend == "local":
         if address:
             raise ValueError("--address is for --backend ray.")
-        return LocalBackend(jobs)
+        return LocalBackend(jobs or os.cpu_count() or 1)
     if backend == "ray":
-        return RayBackend(jobs, address)
+        address = address or os.environ.get("RAY_ADDRESS") or None
+        if address and jobs is not None:
+            raise ValueError(
+                f"--jobs sets the CPUs of a Ray instance started here; on the cluster at {address} (--address or "
+                "$RAY_ADDRESS) each run asks for one CPU and the cluster's CPUs decide how many run at once: drop --jobs."
+            )
+        return RayBackend(jobs or os.cpu_count() or 1, address)
     raise ValueError(f"Unknown backend {backend!r}: use one of {', '.join(BACKENDS)}.")
 
 
