@@ -12,6 +12,7 @@ import time
 import pytest
 
 from sb3_icrl.benchmark import load_suite
+from sb3_icrl.benchmark.cli import main as benchmark_main
 from sb3_icrl.benchmark.suite import SuiteError
 from sb3_icrl.zoo.runs import FINISHED_FILE, is_finished
 
@@ -86,3 +87,23 @@ def test_ctrl_c_ends_a_suite_with_one_line(tmp_path):
     _, errors = process.communicate(timeout=60)
     assert process.returncode == 130
     assert "Traceback" not in errors and errors.strip().splitlines()[-1].startswith("interrupted: the runs resume")
+
+
+def test_a_broken_model_leaves_its_seed_out_of_the_report_and_names_its_folder(tmp_path, capsys):
+    path = write(
+        tmp_path,
+        HEAD.replace("seeds: [0]", "seeds: [0, 1]") + "steps: 256\neval_episodes: 2\n"
+        "train_args: {eval_freq: 128, eval_episodes: 1, save_freq: 0}\n"
+        "variants: {base: {hyperparams: {forward_solver: policy_gradient, n_steps: 128}}}\n",
+    )
+    root = str(tmp_path / "logs")
+    assert benchmark_main(["run", path, "-f", root, "--jobs", "1", "--no-report"]) == 0
+    broken = load_suite(path).runs()[1].run_folder(root)
+    model = pathlib.Path(broken) / "GridWorldWall-v0.zip"
+    model.write_bytes(model.read_bytes()[:100])  # a copy cut short
+    capsys.readouterr()
+    assert benchmark_main(["report", path, "-f", root, "--no-figures"]) == 0
+    out = capsys.readouterr().out
+    assert f"left out of the report, its model in {broken} could not be evaluated" in out
+    summary = json.loads((pathlib.Path(root) / "suite" / "report" / "summary.json").read_text())
+    assert [cell["n_seeds"] for cell in summary["cells"]] == [1]

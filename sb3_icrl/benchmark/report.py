@@ -127,18 +127,30 @@ def evaluate_finished(
         if env_kwargs:
             settings["env_kwargs"] = env_kwargs  # a cache made on other recordings is evaluated again
         cached = None
+        saved: dict[str, Any] = {}
         if os.path.isfile(cache):
-            with open(cache) as file:
-                saved = json.load(file)
+            try:
+                with open(cache) as file:
+                    saved = json.load(file)
+            except (OSError, ValueError):  # a cache cut short: evaluated again
+                saved = {}
             if (
-                saved.get("settings") == settings
+                isinstance(saved, dict)
+                and saved.get("settings") == settings
                 and {entry.name for entry in fields(RunResult)} == set(saved.get("result", {}))
                 and os.path.getmtime(cache) >= os.path.getmtime(os.path.join(folder, "finished.json"))
             ):
                 cached = RunResult(**saved["result"])
         if cached is None:
             log(f"evaluating {run.name}{' (best model)' if best else ''} on {suite.eval_episodes} held-out episodes")
-            cached = evaluate_run(folder, steps, suite.eval_seed, load_best=best, env_kwargs=env_kwargs)
+            try:
+                cached = evaluate_run(folder, steps, suite.eval_seed, load_best=best, env_kwargs=env_kwargs)
+            except Exception as error:  # one broken run leaves its cell short by a seed, not the report unwritten
+                log(
+                    f"{run.name}: left out of the report, its model in {folder} could not be evaluated "
+                    f"({type(error).__name__}: {error}); train it again (delete its finished.json) or restore the file"
+                )
+                continue
             atomic_write_json(cache, {"settings": settings, "result": asdict(cached)}, indent=2)
         cached.run = os.path.relpath(folder, root)
         results.append((run, cached))
