@@ -3,18 +3,20 @@
 import json
 import os
 import pathlib
+import pickle
 import signal
 import subprocess
 import sys
 import textwrap
 import time
+import zipfile
 
 import pytest
 
 from sb3_icrl.benchmark import load_suite
 from sb3_icrl.benchmark.cli import main as benchmark_main
 from sb3_icrl.benchmark.suite import SuiteError
-from sb3_icrl.zoo.runs import FINISHED_FILE, is_finished
+from sb3_icrl.zoo.runs import FINISHED_FILE, is_finished, latest_checkpoint
 
 HEAD = "envs: [GridWorldWall-v0]\nalgos: [bc2l]\nseeds: [0]\n"
 
@@ -107,3 +109,16 @@ def test_a_broken_model_leaves_its_seed_out_of_the_report_and_names_its_folder(t
     assert f"left out of the report, its model in {broken} could not be evaluated" in out
     summary = json.loads((pathlib.Path(root) / "suite" / "report" / "summary.json").read_text())
     assert [cell["n_seeds"] for cell in summary["cells"]] == [1]
+
+
+def test_resume_falls_back_past_a_checkpoint_whose_pickles_are_broken(tmp_path):
+    for steps in (100, 200):
+        with zipfile.ZipFile(tmp_path / f"rl_model_{steps}_steps.zip", "w") as archive:
+            archive.writestr("data", "{}")
+        for kind in ("vecnormalize", "training_state"):
+            (tmp_path / f"rl_model_{kind}_{steps}_steps.pkl").write_bytes(pickle.dumps({"steps": steps}))
+    assert latest_checkpoint(str(tmp_path)).endswith("rl_model_200_steps.zip")
+    broken = tmp_path / "rl_model_training_state_200_steps.pkl"
+    broken.write_bytes(broken.read_bytes()[:5])  # cut short
+    with pytest.warns(UserWarning, match=f"{broken} cannot be read: resuming from an earlier checkpoint"):
+        assert latest_checkpoint(str(tmp_path)).endswith("rl_model_100_steps.zip")

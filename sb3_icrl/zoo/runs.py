@@ -10,6 +10,7 @@ A run folder ``<folder>/<algo>/<EnvName>_<N>/`` holds ``<EnvName>.zip`` (final),
 import json
 import math
 import os
+import pickle
 import re
 import warnings
 import zipfile
@@ -261,13 +262,32 @@ def latest_checkpoint(run: str) -> str | None:
     :param run: A run folder
     :return: The path, or ``None`` when the folder holds no usable checkpoint
     """
-    for _, path in checkpoints(run):
+    for steps, path in checkpoints(run):
         try:
             with zipfile.ZipFile(path) as archive:
-                if archive.testzip() is None and "data" in archive.namelist():
-                    return path
+                if archive.testzip() is not None or "data" not in archive.namelist():
+                    continue
         except (zipfile.BadZipFile, OSError):
             continue
+        broken = _broken_companion(run, steps)
+        if broken is not None:
+            warnings.warn(f"{broken} cannot be read: resuming from an earlier checkpoint than {os.path.basename(path)}.")
+            continue
+        return path
+    return None
+
+
+def _broken_companion(run: str, steps: int) -> str | None:
+    """The normalisation statistics or training state saved with a checkpoint, if one of them cannot be unpickled."""
+    for kind in ("vecnormalize", "training_state"):
+        path = os.path.join(run, f"rl_model_{kind}_{steps}_steps.pkl")
+        if not os.path.isfile(path):
+            continue
+        try:
+            with open(path, "rb") as file:
+                pickle.load(file)  # the run's own files, written by this library
+        except Exception:  # truncated, or not a pickle at all
+            return path
     return None
 
 
