@@ -438,15 +438,15 @@ STUDIES = sorted((REPOSITORY / "benchmarks" / "suites").glob("*.yml"))
 def test_study_suites_build_their_runs_on_tuning_seeds_and_have_a_written_rule(path):
     """
     The studies in benchmarks/suites decide recipes: each parses and builds every run's train.py arguments (a typo
-    would otherwise show only when its runs start), runs on the tuning seeds only, and is named in RESULTS.md, where
-    its rule is written before its runs.
+    would otherwise show only when its runs start), runs on the tuning seeds only, and is named in the results' log
+    (benchmarks/log/, indexed by RESULTS.md), where its rule is written before its runs.
     """
     suite = load_suite(str(path))
     runs = suite.runs()
     assert runs and all(run.train_argv("logs")[:2] == ["--algo", run.algo] for run in runs)
     assert set(suite.seeds) <= {0, 1, 2}, f"{path.name}: a study decides on the tuning seeds 0, 1, 2 only"
-    results = (REPOSITORY / "benchmarks" / "RESULTS.md").read_text()
-    assert f"benchmarks/suites/{path.name}" in results, f"{path.name} has no section (and rule) in benchmarks/RESULTS.md"
+    log = "".join(entry.read_text() for entry in sorted((REPOSITORY / "benchmarks" / "log").glob("*.md")))
+    assert f"benchmarks/suites/{path.name}" in log, f"{path.name} has no entry (and rule) in the log of benchmarks/log/"
 
 
 def test_there_are_study_suites():
