@@ -2,6 +2,7 @@
 
 import os
 import pathlib
+import shutil
 import subprocess
 import sys
 
@@ -11,6 +12,7 @@ import pytest
 import yaml
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
+from sb3_icrl.data.registry import DEMONSTRATIONS_DIR
 from sb3_icrl.zoo import ALGOS, ICRL_ALGOS, main, resolve_env_id
 from sb3_icrl.zoo.callbacks import (
     ConstraintEvalCallback,
@@ -585,3 +587,14 @@ def test_icrl_run_too_short_for_a_constraint_update_says_so(tmp_path: pathlib.Pa
     args += ["--eval-freq", "-1", "-params", "n_steps:64", "batch_size:32", "update_every:1000"]
     with pytest.warns(UserWarning, match="it will make no constraint update"):
         assert main(args) == 0
+
+
+def test_a_relative_demonstrations_path_is_recorded_absolute(tmp_path, monkeypatch):
+    shutil.copy(DEMONSTRATIONS_DIR / "GridWorldWall-v0.npz", tmp_path / "mine.npz")
+    shutil.copy(DEMONSTRATIONS_DIR / "GridWorldWall-v0.json", tmp_path / "mine.json")
+    monkeypatch.chdir(tmp_path)
+    args = ["--algo", "bc2l", "--env", "GridWorldWall-v0", "-n", "256", "--seed", "0", "-f", "logs", "--eval-freq", "-1"]
+    assert main([*args, "--demonstrations", "mine.npz"]) == 0
+    run = tmp_path / "logs" / "bc2l" / "GridWorldWall-v0_1"
+    recorded = yaml.safe_load((run / "GridWorldWall-v0" / "args.yml").read_text())
+    assert recorded["demonstrations"] == str(tmp_path / "mine.npz")  # plots and reports run elsewhere still find it

@@ -888,6 +888,16 @@ def check_hyperparameter_types(algo_class: type, kwargs: dict[str, Any]) -> None
         )
 
 
+def _absolute_if_file(path: str | None) -> str | None:
+    """
+    A demonstrations file as an absolute path, so that args.yml names it for reports and plots run elsewhere; a shipped
+    dataset's name as it is.
+    """
+    if path is not None and os.path.isfile(os.path.expanduser(path)):
+        return os.path.abspath(os.path.expanduser(path))
+    return path
+
+
 def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
     """
     Run one training as described by parsed ``args``; return the run folder.
@@ -911,6 +921,7 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
     if args.seed is None:
         args.seed = int(np.random.randint(2**31 - 1))
     set_random_seed(args.seed)
+    args.demonstrations = _absolute_if_file(args.demonstrations)
 
     if args.resume and args.trained_agent:
         raise ValueError("--resume continues a run from its own checkpoints: leave out -i/--trained-agent.")
