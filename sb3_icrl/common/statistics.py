@@ -10,7 +10,7 @@ independently. They are computed with NumPy and SciPy, so that a report needs no
 """
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 
 import numpy as np
 import scipy.stats
@@ -69,15 +69,24 @@ def stratified_bootstrap_ci(
     :param seed: Seed of the resampling
     :return: ``(lower, upper)``; ``(nan, nan)`` without scores
     """
-    tasks = [np.asarray(scores, dtype=float).ravel() for scores in scores_by_task]
-    tasks = [task for task in tasks if task.size]
+    tasks = _nonempty_tasks(scores_by_task)
     if not tasks:
         return float("nan"), float("nan")
-    rng = np.random.default_rng(seed)
-    estimates = np.empty(reps)
-    for rep in range(reps):
-        estimates[rep] = statistic(np.concatenate([task[rng.integers(0, task.size, task.size)] for task in tasks]))
+    estimates = np.array([statistic(np.concatenate(resample)) for resample in _stratified_resamples(tasks, reps, seed)])
     return _percentile_interval(estimates, confidence)
+
+
+def _nonempty_tasks(scores_by_task: ScoresByTask) -> list[np.ndarray]:
+    """Each task's scores as a flat float array, tasks without scores left out."""
+    tasks = [np.asarray(scores, dtype=float).ravel() for scores in scores_by_task]
+    return [task for task in tasks if task.size]
+
+
+def _stratified_resamples(tasks: list[np.ndarray], reps: int, seed: int) -> Iterator[list[np.ndarray]]:
+    """``reps`` resamples of the tasks, each task's seeds drawn with replacement on their own (rliable's stratification)."""
+    rng = np.random.default_rng(seed)
+    for _ in range(reps):
+        yield [task[rng.integers(0, task.size, task.size)] for task in tasks]
 
 
 def performance_profile(scores_by_task: ScoresByTask, taus: Sequence[float] | np.ndarray) -> np.ndarray:
@@ -90,8 +99,7 @@ def performance_profile(scores_by_task: ScoresByTask, taus: Sequence[float] | np
     :param taus: The thresholds
     :return: One share per threshold (NaN without scores)
     """
-    tasks = [np.asarray(scores, dtype=float).ravel() for scores in scores_by_task]
-    tasks = [task for task in tasks if task.size]
+    tasks = _nonempty_tasks(scores_by_task)
     thresholds = np.asarray(taus, dtype=float)
     if not tasks:
         return np.full(thresholds.shape, np.nan)
@@ -110,15 +118,11 @@ def performance_profile_ci(
 
     :return: ``(lower, upper)``, one value per threshold
     """
-    tasks = [np.asarray(scores, dtype=float).ravel() for scores in scores_by_task]
-    tasks = [task for task in tasks if task.size]
+    tasks = _nonempty_tasks(scores_by_task)
     thresholds = np.asarray(taus, dtype=float)
     if not tasks:
         return np.full(thresholds.shape, np.nan), np.full(thresholds.shape, np.nan)
-    rng = np.random.default_rng(seed)
-    profiles = np.empty((reps, thresholds.size))
-    for rep in range(reps):
-        profiles[rep] = performance_profile([task[rng.integers(0, task.size, task.size)] for task in tasks], thresholds)
+    profiles = np.array([performance_profile(resample, thresholds) for resample in _stratified_resamples(tasks, reps, seed)])
     tail = 100 * (1 - confidence) / 2
     lower, upper = np.percentile(profiles, [tail, 100 - tail], axis=0)
     return lower, upper
