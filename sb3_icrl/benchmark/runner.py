@@ -17,7 +17,7 @@ from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 from typing import Any
 
-from sb3_icrl.benchmark.suite import RunSpec
+from sb3_icrl.benchmark.suite import RunSpec, run_complete
 from sb3_icrl.zoo.runs import is_finished
 
 #: Attempts per run before it is listed as failed
@@ -99,7 +99,7 @@ def execute_run(
     """
 
     def complete() -> bool:
-        return is_finished(run_folder) and all(os.path.isfile(os.path.join(run_folder, file)) for file, _ in transfers)
+        return run_complete(run_folder, [file for file, _ in transfers])
 
     if complete():
         return "skipped", 0.0

@@ -8,6 +8,7 @@ import dataclasses
 import math
 import os
 import pathlib
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -81,6 +82,15 @@ DEFAULT_TRAIN_ARGS: dict[str, Any] = {
 
 class SuiteError(ValueError):
     """A suite file that cannot be run as written; the message names the file and line."""
+
+
+def run_complete(run_folder: str, result_files: Sequence[str]) -> bool:
+    """
+    :param run_folder: A run folder
+    :param result_files: Files its transfer tests write in it
+    :return: Whether the run has finished training and has each of those results
+    """
+    return is_finished(run_folder) and all(os.path.isfile(os.path.join(run_folder, file)) for file in result_files)
 
 
 @dataclass(frozen=True)
@@ -170,8 +180,7 @@ class RunSpec:
 
     def complete(self, root: str | os.PathLike) -> bool:
         """Whether the run has finished training and has every transfer result the suite asks for."""
-        folder = self.run_folder(root)
-        return is_finished(folder) and all(os.path.isfile(os.path.join(folder, file)) for file, _ in self.transfer_jobs(root))
+        return run_complete(self.run_folder(root), [file for file, _ in self.transfer_jobs(root)])
 
     def train_argv(self, root: str | os.PathLike) -> list[str]:
         """The train.py arguments of this run (it resumes itself when run again)."""
