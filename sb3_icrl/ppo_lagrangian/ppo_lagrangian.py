@@ -454,8 +454,8 @@ class PPOLagrangian(PPO):
 
             callback.update_locals(locals())
             if not callback.on_step():
-                if deferred is not None:  # the costs of the steps taken still count in the episode statistics
-                    self._settle_deferred_costs(deferred, n_steps + 1, rollout_buffer)
+                if deferred is not None:  # the steps completed before this one count, as with per-step costs
+                    self._settle_deferred_costs(deferred, n_steps, rollout_buffer)
                 return False
 
             self._update_info_buffer(infos, dones)
