@@ -19,6 +19,11 @@ coverage line says how closely; the timers cost about 1 us a call).
     python benchmarks/icrl_speed.py --env BlockedAnt-v0 --steps 20480            # another env's recipes
     python benchmarks/icrl_speed.py --steps 20480 --algos mecl --against n_envs:16 n_steps:256 batch_size:512 n_epochs:10
                                                                                  # a second recipe, interleaved
+    python benchmarks/icrl_speed.py --steps 40960 --algos minimal ppolag mecl -params n_envs:16 n_steps:256 ...
+                                                                                 # against the minimal-PPO ceiling
+
+``minimal`` is the plain-torch PPO of ``benchmarks/minimal_ppo.py`` at the same PPO settings on the same VecEnv stack:
+the ceiling, what a loop with none of SB3's machinery reaches; its parts are timed as its rollouts and its update.
 """
 
 import argparse
@@ -32,6 +37,7 @@ from collections.abc import Callable
 from typing import Any
 
 import torch as th
+from minimal_ppo import MinimalPPO
 from stable_baselines3 import PPO
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
@@ -44,7 +50,7 @@ from sb3_icrl.zoo.hyperparams import algo_kwargs, load_hyperparams, preprocess_h
 from sb3_icrl.zoo.train import StoreDict, create_env
 
 DEFAULT_ENV = "BlockedHalfCheetah-v0"
-ALGOS = ("ppo", "ppolag", "mecl", "vicrl")
+ALGOS = ("ppo", "ppolag", "mecl", "vicrl", "minimal")
 #: The PPO settings every algorithm shares; the rest of an ICRL entry (constraint model, trainer) is the algorithm's
 PPO_KEYS = (
     "n_steps",
@@ -119,15 +125,22 @@ def recipe(env_id: str, overrides: dict[str, Any]) -> dict[str, dict[str, Any]]:
     shared = preprocess_hyperparams(load_hyperparams("vicrl", env_id, overrides)[0])
     params: dict[str, dict[str, Any]] = {}
     for algo in ALGOS:
-        source = "vicrl" if algo in ("ppo", "ppolag") else algo
+        source = "vicrl" if algo in ("ppo", "ppolag", "minimal") else algo
         entry = preprocess_hyperparams(load_hyperparams(source, env_id, overrides)[0])
         entry.update({key: shared[key] for key in (*PPO_KEYS, "n_envs", "normalize") if key in shared})
         params[algo] = entry
     return params
 
 
-def build(algo: str, params: dict[str, Any], env_id: str, seed: int, demonstrations: Any) -> BaseAlgorithm:
+def build(algo: str, params: dict[str, Any], env_id: str, seed: int, demonstrations: Any) -> BaseAlgorithm | MinimalPPO:
     env, _ = create_env(env_id, params, params["n_envs"], seed, {}, 0.0, None)
+    if algo == "minimal":
+        if params.get("policy_kwargs"):
+            raise ValueError(
+                "The minimal PPO has SB3's default [64, 64] nets only: pass policy_kwargs:dict(), not "
+                f"{params['policy_kwargs']}."
+            )
+        return MinimalPPO(env, seed=seed, **{key: params[key] for key in PPO_KEYS if key in params})
     if algo == "ppo":
         return PPO(params["policy"], env, seed=seed, **{key: params[key] for key in PPO_KEYS if key in params})
     if algo == "ppolag":
@@ -137,9 +150,19 @@ def build(algo: str, params: dict[str, Any], env_id: str, seed: int, demonstrati
     return algo_class(params["policy"], env, seed=seed, demonstrations=demonstrations, **algo_kwargs(params))
 
 
-def instrument(model: BaseAlgorithm, timer: SectionTimer) -> None:
+def instrument(model: BaseAlgorithm | MinimalPPO, timer: SectionTimer) -> None:
     """Time the parts of ``model``'s training loop (instance attributes only: nothing global changes)."""
     timer.patch(model, "train", CATEGORIES[0])
+    if isinstance(model, MinimalPPO):
+        timer.patch(model, "collect_rollouts", CATEGORIES[2])
+        node: VecEnv = model.env
+    else:
+        _instrument_learner(model, timer)
+        node = model.get_env()  # type: ignore[assignment]
+    _instrument_env(node, timer)
+
+
+def _instrument_learner(model: BaseAlgorithm, timer: SectionTimer) -> None:
     timer.patch(model, "collect_rollouts", CATEGORIES[2])
     for name in ("forward", "act", "predict_values", "predict_all_values"):
         timer.patch(model.policy, name, CATEGORIES[1])
@@ -148,7 +171,9 @@ def instrument(model: BaseAlgorithm, timer: SectionTimer) -> None:
         timer.patch(constraint_net, "cost", CATEGORIES[5])
         model.icrl_trainer = model._make_trainer()  # type: ignore[attr-defined]  # learn() keeps it
         timer.patch(model.icrl_trainer, "_on_rollout_end", CATEGORIES[6])
-    node: VecEnv = model.get_env()  # type: ignore[assignment]
+
+
+def _instrument_env(node: VecEnv, timer: SectionTimer) -> None:
     while True:
         category = CATEGORIES[4] if isinstance(node, TrajectoryRecorderVecEnvWrapper) else CATEGORIES[3]
         for name in ("step_async", "step_wait", "reset"):
@@ -259,6 +284,11 @@ def main() -> None:
                 for clock in ("cpu", "wall"):
                     mine, theirs = fps[clock][algo + suffix], fps[clock][peer + suffix]
                     print(ratio_line(algo + suffix, peer + suffix, mine, theirs, "CPU" if clock == "cpu" else "wall"))
+    if "minimal" in args.algos:  # the ceiling: each learner's share of what the minimal loop reaches
+        for algo in (algo for algo in args.algos if algo != "minimal"):
+            for suffix in recipes:
+                mine, theirs = fps["cpu"][algo + suffix], fps["cpu"][f"minimal{suffix}"]
+                print(ratio_line(algo + suffix, f"minimal{suffix}", mine, theirs, "CPU", target=None))
     if len(recipes) > 1:
         for algo in args.algos:
             for clock in ("cpu", "wall"):
