@@ -25,7 +25,7 @@ def fake_ray(monkeypatch):
 def test_ray_address_from_the_environment_connects_without_cpus(fake_ray, monkeypatch):
     monkeypatch.setenv("RAY_ADDRESS", "http://head:8265")
     backend = make_backend("ray", None)
-    assert fake_ray["init"] == {"address": "http://head:8265", "log_to_driver": False}
+    assert fake_ray["init"] == {"address": "http://head:8265", "log_to_driver": False, "runtime_env": None}
     assert backend.address == "http://head:8265" and backend.capacity == 48  # the cluster's CPUs
 
 
