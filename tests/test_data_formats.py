@@ -118,6 +118,27 @@ def test_imitation_dataset_checks_env_and_refuses_other_folders(tmp_path):
         load_demonstrations(tmp_path / "empty")
 
 
+def test_imitation_dataset_with_numpy_infos_as_imitation_writes_them(tmp_path):
+    # imitation encodes its infos with jsonpickle: numpy values come as py/ tags (the datasets extra installs it)
+    datasets = pytest.importorskip("datasets")
+    jsonpickle = pytest.importorskip("jsonpickle")
+    warnings.filterwarnings("ignore", message="keys will default", category=DeprecationWarning)
+    trajectories = _trajectories(n=2)
+    columns = {
+        "obs": [t.obs for t in trajectories],
+        "acts": [t.acts for t in trajectories],
+        "infos": [[jsonpickle.encode({"cost": np.float32(cost)}, keys=False) for cost in t.costs] for t in trajectories],
+        "terminal": [t.terminal for t in trajectories],
+        "rews": [t.rews for t in trajectories],
+    }
+    assert "py/" in columns["infos"][0][0]
+    folder = tmp_path / "imitation"
+    datasets.Dataset.from_dict(columns).save_to_disk(str(folder))
+    loaded = load_demonstrations(folder)
+    assert loaded.metadata["true_costs_known"]
+    _assert_same(loaded, trajectories)
+
+
 # Minari
 
 
@@ -140,6 +161,33 @@ def test_minari_round_trip(tmp_path, monkeypatch):
         from_minari("sb3icrl/gridwall/absent-v0")
     with pytest.raises(DemonstrationError, match="env="):
         to_minari(_trajectories(), "sb3icrl/anonymous/expert-v0")
+
+
+def test_a_failed_to_minari_leaves_the_id_free(tmp_path, monkeypatch):
+    minari = pytest.importorskip("minari")
+    from sb3_icrl.data.formats import from_minari, to_minari
+
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path))
+    source = load_demonstrations("GridWorldWall-v0")
+    dataset_id = "sb3icrl/gridwall/expert-v0"
+    # Float observations in an env of integer cells: Minari fails once it has started writing the dataset
+    with pytest.raises(Exception, match="truncated"):
+        to_minari(_trajectories(), dataset_id, env="sb3_icrl/GridWorldWall-v0")
+    assert not (tmp_path / "sb3icrl" / "gridwall" / "expert-v0").exists()
+    assert dataset_id not in minari.list_local_datasets()
+    to_minari(Demonstrations(source.trajectories[:2], source.metadata), dataset_id)  # no overwrite needed
+    assert len(from_minari(dataset_id)) == 2
+    # What an earlier failure left behind (a folder Minari does not list) is replaced with overwrite=True
+    leftover = tmp_path / "sb3icrl" / "gridwall" / "expert-v1" / "data"
+    leftover.mkdir(parents=True)
+    with pytest.raises(FileExistsError, match="overwrite=True"):
+        to_minari(source, "sb3icrl/gridwall/expert-v1")
+    to_minari(Demonstrations(source.trajectories[:1], source.metadata), "sb3icrl/gridwall/expert-v1", overwrite=True)
+    assert len(from_minari("sb3icrl/gridwall/expert-v1")) == 1
+    for bad_id in ("sb3icrl", "../outside-v0"):
+        with pytest.raises(DemonstrationError, match="not a Minari dataset id"):
+            to_minari(source, bad_id, overwrite=True)
+    assert (tmp_path / "sb3icrl" / "gridwall" / "expert-v0").exists()  # a namespace given as an id deleted nothing
 
 
 def test_minari_dataset_without_costs(tmp_path, monkeypatch):
