@@ -377,3 +377,37 @@ def test_dynamics_replay_needs_mujoco_and_full_states():
         warnings.simplefilter("ignore")
         with pytest.raises(DemonstrationError, match="fewer than qpos"):
             dynamics_replay_check(partial, HALF_CHEETAH)
+
+
+def _flat_half_cheetah(n_trajectories: int = 3) -> dict:
+    """Shipped BlockedHalfCheetah data as flat arrays, the way other code's files hold it."""
+    source = load_demonstrations("BlockedHalfCheetah-v0")
+    transitions = Demonstrations(source.trajectories[:n_trajectories], source.metadata).transitions
+    starts = np.concatenate([[True], transitions.episode_ends[:-1]])
+    return {"obs": transitions.obs, "acts": transitions.acts, "next_obs": transitions.next_obs, "starts": starts}
+
+
+def test_importers_replay_the_data_on_its_env_by_default():
+    flat = _flat_half_cheetah()
+    common = {"next_observations": flat["next_obs"], "episode_starts": flat["starts"]}
+    imported = from_arrays(flat["obs"], flat["acts"], env_id=HALF_CHEETAH, **common)  # aligned: passes in silence
+    assert len(imported) == 3
+    # Each action stored one row late: caught without asking
+    shifted = np.roll(flat["acts"], 1, axis=0)
+    with pytest.raises(DemonstrationError, match=r"from_arrays: .*misaligned by one step.*check_replay=False"):
+        from_arrays(flat["obs"], shifted, env_id="BlockedHalfCheetah-v0", **common)
+    assert len(from_arrays(flat["obs"], shifted, env_id=HALF_CHEETAH, check_replay=False, **common)) == 3
+    # HalfCheetah data labelled as the Walker, whose observations and actions have the same shapes
+    with pytest.raises(DemonstrationError, match="does not follow the env's dynamics.*another robot"):
+        from_arrays(flat["obs"], flat["acts"], env_id="sb3_icrl/BlockedWalker-v0", **common)
+    # Nothing to replay on: no env id, an env not registered here, an env that is not MuJoCo
+    assert len(from_arrays(flat["obs"], shifted, **common)) == 3
+    assert len(from_arrays(flat["obs"], shifted, env_id="HCWithPos-v0", **common)) == 3
+    assert len(from_arrays(np.zeros((6, 2)), np.zeros((6, 1)), episode_lengths=[3, 3], env_id="GridWorldWall-v0")) == 2
+
+
+def test_the_replay_check_warns_when_it_cannot_replay():
+    flat = _flat_half_cheetah(n_trajectories=1)
+    # Two steps: no step with a step before and after it
+    with pytest.warns(UserWarning, match="from_arrays: the data was not replayed on .*at least 3 steps"):
+        from_arrays(flat["obs"][:2], flat["acts"][:2], next_observations=flat["next_obs"][:2], env_id=HALF_CHEETAH)
