@@ -188,6 +188,10 @@ def test_a_failed_to_minari_leaves_the_id_free(tmp_path, monkeypatch):
         with pytest.raises(DemonstrationError, match="not a Minari dataset id"):
             to_minari(source, bad_id, overwrite=True)
     assert (tmp_path / "sb3icrl" / "gridwall" / "expert-v0").exists()  # a namespace given as an id deleted nothing
+    (tmp_path / "shared-v0" / "expert-v0" / "data").mkdir(parents=True)  # a namespace whose name reads as an id
+    with pytest.raises(DemonstrationError, match="a namespace of other datasets"):
+        to_minari(source, "shared-v0", overwrite=True)
+    assert (tmp_path / "shared-v0" / "expert-v0" / "data").is_dir()
 
 
 def test_minari_dataset_without_costs(tmp_path, monkeypatch):
@@ -398,7 +402,7 @@ def test_importers_replay_the_data_on_its_env_by_default():
         from_arrays(flat["obs"], shifted, env_id="BlockedHalfCheetah-v0", **common)
     assert len(from_arrays(flat["obs"], shifted, env_id=HALF_CHEETAH, check_replay=False, **common)) == 3
     # HalfCheetah data labelled as the Walker, whose observations and actions have the same shapes
-    with pytest.raises(DemonstrationError, match="does not follow the env's dynamics.*another robot"):
+    with pytest.raises(DemonstrationError, match=r"does not follow the env's dynamics.*another robot"):
         from_arrays(flat["obs"], flat["acts"], env_id="sb3_icrl/BlockedWalker-v0", **common)
     # Nothing to replay on: no env id, an env not registered here, an env that is not MuJoCo
     assert len(from_arrays(flat["obs"], shifted, **common)) == 3
@@ -409,5 +413,5 @@ def test_importers_replay_the_data_on_its_env_by_default():
 def test_the_replay_check_warns_when_it_cannot_replay():
     flat = _flat_half_cheetah(n_trajectories=1)
     # Two steps: no step with a step before and after it
-    with pytest.warns(UserWarning, match="from_arrays: the data was not replayed on .*at least 3 steps"):
+    with pytest.warns(UserWarning, match=r"from_arrays: the data was not replayed on .*at least 3 steps"):
         from_arrays(flat["obs"][:2], flat["acts"][:2], next_observations=flat["next_obs"][:2], env_id=HALF_CHEETAH)

@@ -346,6 +346,12 @@ def to_minari(
     if folder.exists():
         if not overwrite:
             raise FileExistsError(f"A local Minari dataset {dataset_id!r} exists: pass `overwrite=True` to replace it.")
+        nested = sorted(path.name for path in folder.iterdir() if path.is_dir() and path.name != "data")
+        if nested:
+            raise DemonstrationError(
+                f"{folder} holds other folders ({', '.join(nested)}): a namespace of other datasets, not one dataset. "
+                "Nothing was deleted: choose another id."
+            )
         # (a folder Minari does not list, left half-written by a failed write, goes too)
         shutil.rmtree(folder)
     try:
