@@ -251,6 +251,11 @@ class RayBackend(Backend):
         self.ray = ray
         #: The cluster's address (``None``: a Ray instance started here)
         self.address = address
+        if ray.is_initialized() and runtime_env is not None:
+            raise ValueError(
+                "Ray is already started in this process, so --runtime-env cannot reach its workers: pass the runtime_env "
+                "to your own ray.init(runtime_env=...) instead."
+            )
         if not ray.is_initialized():
             # runtime_env=None is Ray's own default: no environment set up on the workers
             if address:

@@ -4,7 +4,8 @@ Compare finished zoo runs over seeds, as the benchmark reports them::
     sb3-icrl compare logs/s6/mecl*/mecl/BlockedHalfCheetah-v0_1 logs/s6/vicrl*/vicrl/BlockedHalfCheetah-v0_1 -n 20000
     python -m sb3_icrl.zoo compare RUN [RUN ...] --reference vicrl --json results.json
 
-Each ``RUN`` is a run folder ``<folder>/<algo>/<EnvName>_<N>`` of ``train.py``. Its final model (or ``--model best``)
+Each ``RUN`` is a run folder ``<folder>/<algo>/<EnvName>_<N>`` of ``train.py``, or one that rl_zoo3 made (its
+``<EnvName>`` is the env id with ``/`` turned into ``-``). Its final model (or ``--model best``)
 is run on held-out env seeds, deterministically, as ``enjoy.py`` does; the table gives per run the training seed, the
 steps trained, the training wall time (the monitor's clock), the true violation rate and the feasible reward (and, for
 the driving envs, a second table of how the held-out episodes ended: collision, off road, time out, goal reached). Per
