@@ -137,6 +137,12 @@ def test_imitation_dataset_with_numpy_infos_as_imitation_writes_them(tmp_path):
     loaded = load_demonstrations(folder)
     assert loaded.metadata["true_costs_known"]
     _assert_same(loaded, trajectories)
+    # jsonpickle calls what an info names: anything but numpy's builders is refused before decoding
+    call = {"cost": 0.0, "x": {"py/reduce": [{"py/function": "builtins.print"}, {"py/tuple": ["this must not run"]}]}}
+    columns["infos"] = [[json.dumps(call)] * len(t) for t in trajectories]
+    datasets.Dataset.from_dict(columns).save_to_disk(str(tmp_path / "hostile"))
+    with pytest.raises(DemonstrationError, match=r"refusing an info that names 'builtins\.print'"):
+        load_demonstrations(tmp_path / "hostile")
 
 
 # Minari

@@ -32,6 +32,7 @@ import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_icrl.data.checks import check_env_id
+from sb3_icrl.data.importers import is_safe_global
 from sb3_icrl.data.serialize import DemonstrationError, check_spaces, package_versions, trajectory_statistics
 from sb3_icrl.data.types import Demonstrations, Trajectory
 
@@ -211,13 +212,37 @@ def _warn_missing_costs(source: str, n_missing: int, missing_costs: str, cost_in
         )
 
 
+#: jsonpickle tags whose value names a Python object to import (``py/repr`` and ``py/mod`` are never accepted)
+_JSONPICKLE_NAME_TAGS = ("py/object", "py/type", "py/function")
+
+
+def _check_jsonpickle_names(content: Any, source: str) -> None:
+    """Refuse jsonpickle content that names anything but numpy's array and scalar builders or plain containers."""
+    if isinstance(content, list):
+        for item in content:
+            _check_jsonpickle_names(item, source)
+    if not isinstance(content, dict):
+        return
+    for key, value in content.items():
+        if key in ("py/repr", "py/mod") or (
+            key in _JSONPICKLE_NAME_TAGS and not (isinstance(value, str) and is_safe_global(*value.rpartition(".")[::2]))
+        ):
+            raise DemonstrationError(
+                f"{source}: refusing an info that names {value!r} ({key}): only numpy arrays, numpy scalars and plain "
+                "containers are read from jsonpickle infos."
+            )
+        _check_jsonpickle_names(value, source)
+
+
 def _decode_info(text: str, source: str) -> dict[str, Any]:
     try:
         info = json.loads(text)
     except json.JSONDecodeError as error:
         raise DemonstrationError(f"{source}: an info is not JSON ({error}).") from error
     if any(isinstance(value, dict) and any(str(key).startswith("py/") for key in value) for value in info.values()):
-        # jsonpickle tags (numpy values written by imitation): decode them with jsonpickle itself
+        # jsonpickle tags (numpy values written by imitation): decode them with jsonpickle itself, once they are known
+        # to name nothing but numpy's array and scalar builders (jsonpickle calls what a file names)
+        _check_jsonpickle_names(info, source)
         try:
             import jsonpickle  # type: ignore[import-untyped]
         except ImportError as error:

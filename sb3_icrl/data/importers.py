@@ -52,11 +52,16 @@ _SAFE_GLOBALS = {
 _LIU_FILE_PATTERN = re.compile(r"^scene-(?P<scene>.+?)_len-(?P<length>\d+)(?:_(?P<reasons>.*))?\.pkl$")
 
 
+def is_safe_global(module: str, name: str) -> bool:
+    """Whether an imported file may name ``module.name``: what rebuilds numpy arrays and scalars, plain containers."""
+    return (module, name) in _SAFE_GLOBALS or (module == "numpy" and name.startswith(("float", "int", "uint", "bool")))
+
+
 class _ArrayUnpickler(pickle.Unpickler):
     """Unpickles numpy arrays and plain containers only."""
 
     def find_class(self, module: str, name: str) -> Any:
-        if (module, name) in _SAFE_GLOBALS or (module == "numpy" and name.startswith(("float", "int", "uint", "bool"))):
+        if is_safe_global(module, name):
             return super().find_class(module, name)
         raise pickle.UnpicklingError(f"refusing to load {module}.{name}: only numpy arrays and plain containers are read")
 
