@@ -148,7 +148,7 @@ def code_identity() -> dict[str, str]:
     :return: ``{"sb3_icrl": version, "git_revision": revision}`` (revision ``unknown`` outside a git checkout, with
         ``-dirty`` when the checkout has changes)
     """
-    from sb3_icrl.zoo.train import versions  # (imported here: the training module is heavy and the driver rarely needs it)
+    from sb3_icrl.zoo.train import versions  # (imported here: the training module imports much the engine does not need)
 
     found = versions()
     return {"sb3_icrl": found["sb3_icrl"], "git_revision": found["git_revision"]}
@@ -394,15 +394,16 @@ def run_all(
             for handle in done:
                 run = pending.pop(handle)
                 outcome = outcomes[run]
-                # a second try finds the same code, or the same folder out of sight
                 try_again = outcome.attempts < MAX_ATTEMPTS
                 try:
                     status, seconds = backend.result(handle)
                 except Exception as error:  # a backend failure (a lost Ray worker): the run failed this time
                     status, seconds = "failed", 0.0
                     outcome.log_tail = [f"{type(error).__name__}: {error}"]
+                    # (a second try would meet the same code)
                     try_again = try_again and not isinstance(error, CodeMismatchError)
                 if status in ("done", "skipped") and not run.complete(root):
+                    # (and would find the run finished out of sight again)
                     status, try_again = "failed", False
                     outcome.log_tail = [unseen_run_message(run.run_folder(root))]
                 outcome.seconds = seconds
