@@ -214,3 +214,7 @@ def test_compare_evaluates_rl_zoo3_run_folders(tmp_path: pathlib.Path, capsys) -
     )
     assert result["n_episodes"] > 0 and np.isfinite(result["wall_time_min"])
     assert recipe_differences([str(run)]) == {}
+    # enjoy finds it by -f and --exp-id too, under rl_zoo3's name of the env
+    enjoy_args = ["--algo", "ppo", "--env", "ConstrainedCorridor-v0", "-f", str(tmp_path / "logs"), "-n", "300"]
+    evaluation = enjoy.enjoy(enjoy.get_parser().parse_args([*enjoy_args, "--no-render", "--seed", "7", "--verbose", "0"]))
+    assert len(evaluation.violations) == result["n_episodes"]
