@@ -172,3 +172,49 @@ def test_evaluate_run_loads_the_model_of_the_folder_it_is_given(tmp_path, monkey
         # The held-out episodes' mean length: episodes that ended within the 40 evaluation steps
         assert 1 <= result.episode_length <= 40
         assert loaded[-1].startswith(run + os.sep), (loaded[-1], run)
+
+
+def _rl_zoo3_run(folder: pathlib.Path, env_id: str, seed: int) -> pathlib.Path:
+    """A run folder as ``python -m rl_zoo3.train --algo ppo --env ENV --seed N`` leaves it (PPO with VecNormalize)."""
+    from collections import OrderedDict
+
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    name = env_id.replace("/", "-")  # rl_zoo3's EnvironmentName
+    run = folder / "ppo" / f"{name}_1"
+    (run / name).mkdir(parents=True)
+    hyperparams = {"n_steps": 64, "batch_size": 32, "n_timesteps": 128.0, "normalize": True, "policy": "MlpPolicy"}
+    env = VecNormalize(make_vec_env(env_id, n_envs=1, seed=seed, monitor_dir=str(run)))
+    model = PPO("MlpPolicy", env, n_steps=64, batch_size=32, seed=seed, device="cpu").learn(128)
+    model.save(run / f"{name}.zip")
+    env.save(str(run / name / "vecnormalize.pkl"))
+    np.savez(run / "evaluations.npz", timesteps=np.array([128]), results=np.zeros((1, 2)), ep_lengths=np.ones((1, 2)))
+    # rl_zoo3 dumps OrderedDicts, which yaml.safe_load refuses
+    args = {"algo": "ppo", "env": env_id, "seed": seed, "env_kwargs": None, "gym_packages": [], "n_timesteps": -1}
+    for file, content in (("config.yml", hyperparams), ("args.yml", args)):
+        (run / name / file).write_text(yaml.dump(OrderedDict(sorted(content.items()))))
+    return run
+
+
+def test_compare_evaluates_rl_zoo3_run_folders(tmp_path: pathlib.Path, capsys) -> None:
+    run = _rl_zoo3_run(tmp_path / "logs", "sb3_icrl/ConstrainedCorridor-v0", seed=5)
+    assert (run / "sb3_icrl-ConstrainedCorridor-v0" / "args.yml").read_text().startswith("!!python/object/apply")
+    output = tmp_path / "compare.json"
+    assert main([str(run), "-n", "300", "--seed", "7", "--json", str(output)]) == 0
+    captured = capsys.readouterr()
+    assert "rl_zoo3 run, which records no end of training" in captured.err
+    [result] = json.loads(output.read_text())["runs"]
+    assert (result["algo"], result["env"], result["seed"], result["timesteps"]) == (
+        "ppo",
+        "sb3_icrl/ConstrainedCorridor-v0",
+        5,
+        128,
+    )
+    assert result["n_episodes"] > 0 and np.isfinite(result["wall_time_min"])
+    assert recipe_differences([str(run)]) == {}
+    # enjoy finds it by -f and --exp-id too, under rl_zoo3's name of the env
+    enjoy_args = ["--algo", "ppo", "--env", "ConstrainedCorridor-v0", "-f", str(tmp_path / "logs"), "-n", "300"]
+    evaluation = enjoy.enjoy(enjoy.get_parser().parse_args([*enjoy_args, "--no-render", "--seed", "7", "--verbose", "0"]))
+    assert len(evaluation.violations) == result["n_episodes"]

@@ -118,6 +118,33 @@ def test_imitation_dataset_checks_env_and_refuses_other_folders(tmp_path):
         load_demonstrations(tmp_path / "empty")
 
 
+def test_imitation_dataset_with_numpy_infos_as_imitation_writes_them(tmp_path):
+    # imitation encodes its infos with jsonpickle: numpy values come as py/ tags (the datasets extra installs it)
+    datasets = pytest.importorskip("datasets")
+    jsonpickle = pytest.importorskip("jsonpickle")
+    warnings.filterwarnings("ignore", message="keys will default", category=DeprecationWarning)
+    trajectories = _trajectories(n=2)
+    columns = {
+        "obs": [t.obs for t in trajectories],
+        "acts": [t.acts for t in trajectories],
+        "infos": [[jsonpickle.encode({"cost": np.float32(cost)}, keys=False) for cost in t.costs] for t in trajectories],
+        "terminal": [t.terminal for t in trajectories],
+        "rews": [t.rews for t in trajectories],
+    }
+    assert "py/" in columns["infos"][0][0]
+    folder = tmp_path / "imitation"
+    datasets.Dataset.from_dict(columns).save_to_disk(str(folder))
+    loaded = load_demonstrations(folder)
+    assert loaded.metadata["true_costs_known"]
+    _assert_same(loaded, trajectories)
+    # jsonpickle calls what an info names: anything but numpy's builders is refused before decoding
+    call = {"cost": 0.0, "x": {"py/reduce": [{"py/function": "builtins.print"}, {"py/tuple": ["this must not run"]}]}}
+    columns["infos"] = [[json.dumps(call)] * len(t) for t in trajectories]
+    datasets.Dataset.from_dict(columns).save_to_disk(str(tmp_path / "hostile"))
+    with pytest.raises(DemonstrationError, match=r"refusing an info that names 'builtins\.print'"):
+        load_demonstrations(tmp_path / "hostile")
+
+
 # Minari
 
 
@@ -140,6 +167,37 @@ def test_minari_round_trip(tmp_path, monkeypatch):
         from_minari("sb3icrl/gridwall/absent-v0")
     with pytest.raises(DemonstrationError, match="env="):
         to_minari(_trajectories(), "sb3icrl/anonymous/expert-v0")
+
+
+def test_a_failed_to_minari_leaves_the_id_free(tmp_path, monkeypatch):
+    minari = pytest.importorskip("minari")
+    from sb3_icrl.data.formats import from_minari, to_minari
+
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path))
+    source = load_demonstrations("GridWorldWall-v0")
+    dataset_id = "sb3icrl/gridwall/expert-v0"
+    # Float observations in an env of integer cells: Minari fails once it has started writing the dataset
+    with pytest.raises(Exception, match="truncated"):
+        to_minari(_trajectories(), dataset_id, env="sb3_icrl/GridWorldWall-v0")
+    assert not (tmp_path / "sb3icrl" / "gridwall" / "expert-v0").exists()
+    assert dataset_id not in minari.list_local_datasets()
+    to_minari(Demonstrations(source.trajectories[:2], source.metadata), dataset_id)  # no overwrite needed
+    assert len(from_minari(dataset_id)) == 2
+    # What an earlier failure left behind (a folder Minari does not list) is replaced with overwrite=True
+    leftover = tmp_path / "sb3icrl" / "gridwall" / "expert-v1" / "data"
+    leftover.mkdir(parents=True)
+    with pytest.raises(FileExistsError, match="overwrite=True"):
+        to_minari(source, "sb3icrl/gridwall/expert-v1")
+    to_minari(Demonstrations(source.trajectories[:1], source.metadata), "sb3icrl/gridwall/expert-v1", overwrite=True)
+    assert len(from_minari("sb3icrl/gridwall/expert-v1")) == 1
+    for bad_id in ("sb3icrl", "../outside-v0"):
+        with pytest.raises(DemonstrationError, match="not a Minari dataset id"):
+            to_minari(source, bad_id, overwrite=True)
+    assert (tmp_path / "sb3icrl" / "gridwall" / "expert-v0").exists()  # a namespace given as an id deleted nothing
+    (tmp_path / "shared-v0" / "expert-v0" / "data").mkdir(parents=True)  # a namespace whose name reads as an id
+    with pytest.raises(DemonstrationError, match="a namespace of other datasets"):
+        to_minari(source, "shared-v0", overwrite=True)
+    assert (tmp_path / "shared-v0" / "expert-v0" / "data").is_dir()
 
 
 def test_minari_dataset_without_costs(tmp_path, monkeypatch):
@@ -329,3 +387,37 @@ def test_dynamics_replay_needs_mujoco_and_full_states():
         warnings.simplefilter("ignore")
         with pytest.raises(DemonstrationError, match="fewer than qpos"):
             dynamics_replay_check(partial, HALF_CHEETAH)
+
+
+def _flat_half_cheetah(n_trajectories: int = 3) -> dict:
+    """Shipped BlockedHalfCheetah data as flat arrays, the way other code's files hold it."""
+    source = load_demonstrations("BlockedHalfCheetah-v0")
+    transitions = Demonstrations(source.trajectories[:n_trajectories], source.metadata).transitions
+    starts = np.concatenate([[True], transitions.episode_ends[:-1]])
+    return {"obs": transitions.obs, "acts": transitions.acts, "next_obs": transitions.next_obs, "starts": starts}
+
+
+def test_importers_replay_the_data_on_its_env_by_default():
+    flat = _flat_half_cheetah()
+    common = {"next_observations": flat["next_obs"], "episode_starts": flat["starts"]}
+    imported = from_arrays(flat["obs"], flat["acts"], env_id=HALF_CHEETAH, **common)  # aligned: passes in silence
+    assert len(imported) == 3
+    # Each action stored one row late: caught without asking
+    shifted = np.roll(flat["acts"], 1, axis=0)
+    with pytest.raises(DemonstrationError, match=r"from_arrays: .*misaligned by one step.*check_replay=False"):
+        from_arrays(flat["obs"], shifted, env_id="BlockedHalfCheetah-v0", **common)
+    assert len(from_arrays(flat["obs"], shifted, env_id=HALF_CHEETAH, check_replay=False, **common)) == 3
+    # HalfCheetah data labelled as the Walker, whose observations and actions have the same shapes
+    with pytest.raises(DemonstrationError, match=r"does not follow the env's dynamics.*another robot"):
+        from_arrays(flat["obs"], flat["acts"], env_id="sb3_icrl/BlockedWalker-v0", **common)
+    # Nothing to replay on: no env id, an env not registered here, an env that is not MuJoCo
+    assert len(from_arrays(flat["obs"], shifted, **common)) == 3
+    assert len(from_arrays(flat["obs"], shifted, env_id="HCWithPos-v0", **common)) == 3
+    assert len(from_arrays(np.zeros((6, 2)), np.zeros((6, 1)), episode_lengths=[3, 3], env_id="GridWorldWall-v0")) == 2
+
+
+def test_the_replay_check_warns_when_it_cannot_replay():
+    flat = _flat_half_cheetah(n_trajectories=1)
+    # Two steps: no step with a step before and after it
+    with pytest.warns(UserWarning, match=r"from_arrays: the data was not replayed on .*at least 3 steps"):
+        from_arrays(flat["obs"][:2], flat["acts"][:2], next_observations=flat["next_obs"][:2], env_id=HALF_CHEETAH)

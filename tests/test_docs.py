@@ -122,3 +122,19 @@ def test_every_module_is_in_the_api_reference():
     assert not missing, f"Modules missing from the API reference: {missing}; add an automodule to a docs/modules/*.rst page."
     unknown = sorted(name for name in documented_modules() if importlib.util.find_spec(name) is None)
     assert not unknown, f"The API reference documents modules that do not exist: {unknown}"
+
+
+def test_every_extra_is_in_the_install_guide_with_its_packages():
+    import configparser
+
+    config = configparser.ConfigParser()
+    config.read(DOCS.parent / "setup.cfg")
+    guide = (DOCS / "guide" / "install.md").read_text(encoding="utf-8")
+    rows = {match[0]: match[1] for match in re.findall(r"^\| `([\w-]+)` \| ([^|]*) \|", guide, re.MULTILINE)}
+    for extra, requirements in config["options.extras_require"].items():
+        assert extra in rows, f"the extra {extra!r} of setup.cfg is not in docs/guide/install.md's table"
+        for requirement in requirements.split("\n"):
+            requirement = requirement.split("#")[0].strip()
+            package = re.split(r"[<>=!~ ]", requirement)[0]
+            if package:
+                assert f"`{package}`" in rows[extra], f"{extra}: {package} is not in its install.md row ({rows[extra]})"

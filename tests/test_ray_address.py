@@ -25,7 +25,7 @@ def fake_ray(monkeypatch):
 def test_ray_address_from_the_environment_connects_without_cpus(fake_ray, monkeypatch):
     monkeypatch.setenv("RAY_ADDRESS", "http://head:8265")
     backend = make_backend("ray", None)
-    assert fake_ray["init"] == {"address": "http://head:8265", "log_to_driver": False}
+    assert fake_ray["init"] == {"address": "http://head:8265", "log_to_driver": False, "runtime_env": None}
     assert backend.address == "http://head:8265" and backend.capacity == 48  # the cluster's CPUs
 
 
@@ -47,3 +47,10 @@ def test_the_local_pool_takes_one_run_per_core_by_default():
     backend = make_backend("local", None)
     assert backend.capacity >= 1 and backend.address is None
     backend.close()
+
+
+def test_a_runtime_env_cannot_reach_a_ray_started_before(fake_ray):
+    sys.modules["ray"].is_initialized = lambda: True
+    with pytest.raises(ValueError, match="already started in this process"):
+        make_backend("ray", None, runtime_env={"working_dir": "."})
+    assert "init" not in fake_ray

@@ -52,6 +52,18 @@ def test_zoo_classes_evaluate_strings_and_default_to_shipped_data():
         ZooMECL("MlpPolicy", corridor, n_steps=64, batch_size=32)
 
 
+def test_models_the_bridge_saves_are_the_algorithms_own(tmp_path):
+    # sb3-icrl compare and enjoy load a bridge-trained model with the algorithm's class, rl_zoo3 with the adapter
+    from sb3_icrl.common.saved import SAVED_ALGORITHM_KEY, library_algorithm, saved_algorithm
+
+    assert library_algorithm(ZooGACL) == "GACL" and library_algorithm(ZooPPOLagrangian) == "PPOLagrangian"
+    assert saved_algorithm({SAVED_ALGORITHM_KEY: "ZooMECL"}) == "MECL"  # as zips saved by the bridge recorded it
+    env = make_vec_env("sb3_icrl/GridWorldWall-v0", n_envs=1)
+    ZooGACL("MlpPolicy", env, n_steps=64, batch_size=32).save(tmp_path / "model.zip")
+    assert type(GACL.load(tmp_path / "model.zip", demonstrations_source=None)) is GACL
+    assert type(ZooGACL.load(tmp_path / "model.zip", demonstrations_source=None)) is ZooGACL
+
+
 def test_plain_eval_callback_gets_the_normalization_statistics():
     # SB3's EvalCallback cannot sync VecNormalize through the ICRL algorithms' extra wrappers; the zoo classes can
     env = VecNormalize(make_vec_env("sb3_icrl/BlockedHalfCheetah-v0", n_envs=1))
@@ -108,3 +120,10 @@ def test_rl_zoo3_trains_and_saves_an_icrl_model(tmp_path, monkeypatch):
     model = ZooGACL.load(os.fspath(saved))
     assert model.demonstrations_source == "GridWorldWall-v0"
     assert model.forward_solver == entry.get("forward_solver", "policy_gradient")
+
+
+@pytest.mark.parametrize("flag", ["-optimize", "--optimize-hyperparameters"])
+def test_rl_zoo3_hyperparameter_search_is_refused_for_our_algorithms(flag):
+    # Refused before rl_zoo3 is imported: its samplers have no search space for these algorithms
+    with pytest.raises(SystemExit, match=f"{flag} is rl_zoo3's Optuna search.*no search space for mecl"):
+        main(["train", "--algo", "mecl", "--env", "sb3_icrl/BlockedHalfCheetah-v0", flag, "--n-trials", "2"])

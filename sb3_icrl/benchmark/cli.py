@@ -4,6 +4,7 @@
     sb3-icrl benchmark run table3 -f logs/ --jobs 2
     sb3-icrl benchmark run table3 -f logs/ --only env=BlockedHalfCheetah-v0 algo=mecl,vicrl
     sb3-icrl benchmark run table3 -f logs/ --backend ray --address auto
+    sb3-icrl benchmark run table3 -f /shared/logs --backend ray --runtime-env runtime_env.yml
     sb3-icrl benchmark status table3 -f logs/
     sb3-icrl benchmark report table3 -f logs/ -o results/table3
     sb3-icrl benchmark report table3 -f logs/ --only env=BlockedHalfCheetah-v0 -o results/table3 --update
@@ -32,7 +33,7 @@ from sb3_icrl.benchmark.report import (
     write_figures,
     write_report,
 )
-from sb3_icrl.benchmark.runner import BACKENDS, RunOutcome, make_backend, run_all
+from sb3_icrl.benchmark.runner import BACKENDS, RunOutcome, load_runtime_env, make_backend, run_all
 from sb3_icrl.benchmark.status import status_lines, suite_status
 from sb3_icrl.benchmark.suite import SUITES_DIR, RunSpec, Suite, SuiteError, load_suite
 from sb3_icrl.common.utils import plain_docstring
@@ -80,6 +81,12 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
     run.add_argument("--backend", choices=BACKENDS, default="local", help="local process pool, or Ray tasks")
     run.add_argument(
         "--address", default=None, help="Ray cluster address (--backend ray; default: $RAY_ADDRESS, else start one here)"
+    )
+    run.add_argument(
+        "--runtime-env",
+        default=None,
+        help="Ray runtime_env for the workers (--backend ray): a JSON object or a YAML file, e.g. "
+        '\'{"working_dir": "."}\' to ship this clone to every node',
     )
     run.add_argument("--no-report", action="store_true", help="do not write the report once the runs are done")
     status.add_argument("-v", "--verbose", action="store_true", help="list the finished runs too")
@@ -163,7 +170,7 @@ def _load_suite(args: argparse.Namespace) -> Suite:
 def run_command(args: argparse.Namespace) -> int:
     suite = _load_suite(args)
     runs = suite.select(_only(args.only))
-    backend = make_backend(args.backend, args.jobs, args.address)
+    backend = make_backend(args.backend, args.jobs, args.address, load_runtime_env(args.runtime_env))
     where = (
         f"ray cluster at {backend.address}, {backend.capacity} CPUs"
         if backend.address

@@ -7,6 +7,7 @@ as Ray tasks. A run that finished is skipped; an interrupted one resumes from it
 import contextlib
 import ctypes
 import fcntl
+import json
 import os
 import signal
 import subprocess
@@ -17,14 +18,22 @@ from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 from typing import Any
 
+import yaml
+
 from sb3_icrl.benchmark.suite import RunSpec, run_complete
-from sb3_icrl.zoo.runs import is_finished
+from sb3_icrl.zoo.runs import FINISHED_FILE, is_finished
 
 #: Attempts per run before it is listed as failed
 MAX_ATTEMPTS = 2
 #: Lines of a failed run's log shown in the summary
 LOG_TAIL_LINES = 15
 BACKENDS = ("local", "ray")
+#: The git revision :func:`~sb3_icrl.zoo.train.versions` records outside a git checkout (then only versions are compared)
+UNKNOWN_REVISION = "unknown"
+
+
+class CodeMismatchError(RuntimeError):
+    """A Ray worker runs another sb3-icrl than the driver that sent it the run."""
 
 
 @dataclass
@@ -132,6 +141,59 @@ def log_tail(log_file: str, lines: int = LOG_TAIL_LINES) -> list[str]:
         return [line.rstrip("\n") for line in file.readlines()[-lines:]]
 
 
+def code_identity() -> dict[str, str]:
+    """
+    What identifies the sb3-icrl running here, to compare a Ray worker's with the driver's.
+
+    :return: ``{"sb3_icrl": version, "git_revision": revision}`` (revision ``unknown`` outside a git checkout, with
+        ``-dirty`` when the checkout has changes)
+    """
+    from sb3_icrl.zoo.train import versions  # (imported here: the training module imports much the engine does not need)
+
+    found = versions()
+    return {"sb3_icrl": found["sb3_icrl"], "git_revision": found["git_revision"]}
+
+
+def code_mismatch(driver: dict[str, str], worker: dict[str, str]) -> str | None:
+    """
+    :param driver: :func:`code_identity` on the machine that runs the suite
+    :param worker: :func:`code_identity` on the node that would train the run
+    :return: Why the worker must not train the run (another version, or another git revision when both know theirs),
+        ``None`` when it runs the same code
+    """
+    driver_revision = driver.get("git_revision", UNKNOWN_REVISION)
+    worker_revision = worker.get("git_revision", UNKNOWN_REVISION)
+    if driver.get("sb3_icrl") != worker.get("sb3_icrl"):
+        what = f"sb3-icrl {worker.get('sb3_icrl')}, the driver {driver.get('sb3_icrl')}"
+    elif UNKNOWN_REVISION not in (driver_revision, worker_revision) and driver_revision != worker_revision:
+        what = f"sb3-icrl at git revision {worker_revision}, the driver {driver_revision}"
+    else:
+        return None
+    return (
+        f"This Ray worker runs {what}: runs trained with other code would not be comparable. Install the same sb3-icrl "
+        "on every node (or pass it with --runtime-env, e.g. working_dir of your clone) and run again."
+    )
+
+
+def execute_run_checked(
+    driver: dict[str, str],
+    argv: Sequence[str],
+    log_file: str,
+    run_folder: str,
+    transfers: Sequence[tuple[str, Sequence[str]]] = (),
+) -> tuple[str, float]:
+    """
+    :func:`execute_run` on a Ray worker, once it has checked that it runs the driver's sb3-icrl.
+
+    :param driver: :func:`code_identity` of the driver
+    :raises CodeMismatchError: When the worker runs other code (the run is not started)
+    """
+    mismatch = code_mismatch(driver, code_identity())
+    if mismatch is not None:
+        raise CodeMismatchError(mismatch)
+    return execute_run(argv, log_file, run_folder, transfers)
+
+
 class Backend:
     """Starts runs and reports them as they end (``submit`` then ``wait_any``); at most ``capacity`` at a time."""
 
@@ -181,7 +243,7 @@ class RayBackend(Backend):
     ``jobs`` CPUs. The run folders must be on storage every node sees.
     """
 
-    def __init__(self, jobs: int, address: str | None = None):
+    def __init__(self, jobs: int, address: str | None = None, runtime_env: dict[str, Any] | None = None):
         try:
             import ray
         except ImportError as error:
@@ -189,38 +251,87 @@ class RayBackend(Backend):
         self.ray = ray
         #: The cluster's address (``None``: a Ray instance started here)
         self.address = address
+        if ray.is_initialized() and runtime_env is not None:
+            raise ValueError(
+                "Ray is already started in this process, so --runtime-env cannot reach its workers: pass the runtime_env "
+                "to your own ray.init(runtime_env=...) instead."
+            )
         if not ray.is_initialized():
+            # runtime_env=None is Ray's own default: no environment set up on the workers
             if address:
-                ray.init(address=address, log_to_driver=False)
+                ray.init(address=address, log_to_driver=False, runtime_env=runtime_env)
             else:
-                ray.init(num_cpus=jobs, log_to_driver=False, include_dashboard=False)
-        self.task = ray.remote(num_cpus=1, max_retries=0)(execute_run)
+                ray.init(num_cpus=jobs, log_to_driver=False, include_dashboard=False, runtime_env=runtime_env)
+        #: What each task checks its worker's sb3-icrl against
+        self.driver_code = code_identity()
+        self.task = ray.remote(num_cpus=1, max_retries=0)(execute_run_checked)
         # Ray queues tasks until a CPU is free: submit as many as the cluster has CPUs
         self.capacity = max(int(ray.cluster_resources().get("CPU", jobs)), 1)
 
     def submit(self, run: RunSpec, root: str) -> Any:
         root = os.path.abspath(root)
-        return self.task.remote(run.train_argv(root), run.log_file(root), run.run_folder(root), run.transfer_jobs(root))  # type: ignore[call-arg]
+        return self.task.remote(  # type: ignore[call-arg]
+            self.driver_code, run.train_argv(root), run.log_file(root), run.run_folder(root), run.transfer_jobs(root)
+        )
 
     def wait_any(self, pending: set[Any]) -> tuple[set[Any], set[Any]]:
         done, not_done = self.ray.wait(list(pending), num_returns=1, timeout=1.0)
         return set(done), set(not_done)
 
     def result(self, handle: Any) -> tuple[str, float]:
-        return self.ray.get(handle)
+        try:
+            return self.ray.get(handle)
+        except CodeMismatchError as error:  # Ray's error is also one of these: keep its message, not the worker's traceback
+            raise CodeMismatchError(str(getattr(error, "cause", error))) from None
 
 
-def make_backend(backend: str, jobs: int | None, address: str | None = None) -> Backend:
+def load_runtime_env(value: str | None) -> dict[str, Any] | None:
+    """
+    The Ray ``runtime_env`` of ``--runtime-env``.
+
+    :param value: A JSON object (``'{"working_dir": "."}'``) or the path of a YAML file holding one; ``None``: none
+    :return: The mapping passed to ``ray.init(runtime_env=...)``, ``None`` for none
+    :raises ValueError: When it is neither, or not a mapping
+    """
+    if value is None:
+        return None
+    if os.path.isfile(value):
+        with open(value) as file:
+            try:
+                runtime_env = yaml.safe_load(file)
+            except yaml.YAMLError as error:
+                raise ValueError(f"--runtime-env {value}: not a YAML file ({error}).") from error
+    else:
+        try:
+            runtime_env = json.loads(value)
+        except json.JSONDecodeError as error:
+            raise ValueError(
+                f"--runtime-env takes a JSON object or the path of a YAML file; {value!r} is neither (no such file, and "
+                f'not JSON: {error}). Example: --runtime-env \'{{"working_dir": "."}}\'.'
+            ) from error
+    if not isinstance(runtime_env, dict):
+        raise ValueError(
+            f"--runtime-env must be a mapping (working_dir, pip, env_vars, ...), got {type(runtime_env).__name__}: {value!r}."
+        )
+    return runtime_env
+
+
+def make_backend(
+    backend: str, jobs: int | None, address: str | None = None, runtime_env: dict[str, Any] | None = None
+) -> Backend:
     """
     :param backend: ``"local"`` or ``"ray"``
     :param jobs: Concurrent runs (local pool size; CPUs of a Ray instance started here); ``None``: one per core
     :param address: A running Ray cluster (``ray`` only; default ``$RAY_ADDRESS``, as ``ray job submit`` sets it)
+    :param runtime_env: Ray's ``runtime_env`` for the workers (``ray`` only; see :func:`load_runtime_env`)
     """
     if jobs is not None and jobs < 1:
         raise ValueError(f"--jobs must be >= 1, got {jobs}.")
     if backend == "local":
         if address:
             raise ValueError("--address is for --backend ray.")
+        if runtime_env is not None:
+            raise ValueError("--runtime-env is for --backend ray.")
         return LocalBackend(jobs or os.cpu_count() or 1)
     if backend == "ray":
         address = address or os.environ.get("RAY_ADDRESS") or None
@@ -229,8 +340,17 @@ def make_backend(backend: str, jobs: int | None, address: str | None = None) -> 
                 f"--jobs sets the CPUs of a Ray instance started here; on the cluster at {address} (--address or "
                 "$RAY_ADDRESS) each run asks for one CPU and the cluster's CPUs decide how many run at once: drop --jobs."
             )
-        return RayBackend(jobs or os.cpu_count() or 1, address)
+        return RayBackend(jobs or os.cpu_count() or 1, address, runtime_env)
     raise ValueError(f"Unknown backend {backend!r}: use one of {', '.join(BACKENDS)}.")
+
+
+def unseen_run_message(run_folder: str) -> str:
+    """Why a run a worker reports finished is not counted: the driver cannot read its folder's finished marker."""
+    return (
+        f"A worker reports this run finished, but here its folder {run_folder} lacks a readable {FINISHED_FILE} (or a "
+        "transfer result): the workers write to storage this machine does not see. Put the log folder (-f) on storage "
+        "every node mounts at the same path, then run again (finished runs are then found and skipped)."
+    )
 
 
 def run_all(
@@ -273,14 +393,21 @@ def run_all(
             done, _ = backend.wait_any(set(pending))
             for handle in done:
                 run = pending.pop(handle)
+                outcome = outcomes[run]
+                try_again = outcome.attempts < MAX_ATTEMPTS
                 try:
                     status, seconds = backend.result(handle)
                 except Exception as error:  # a backend failure (a lost Ray worker): the run failed this time
                     status, seconds = "failed", 0.0
-                    outcomes[run].log_tail = [f"{type(error).__name__}: {error}"]
-                outcome = outcomes[run]
+                    outcome.log_tail = [f"{type(error).__name__}: {error}"]
+                    # (a second try would meet the same code)
+                    try_again = try_again and not isinstance(error, CodeMismatchError)
+                if status in ("done", "skipped") and not run.complete(root):
+                    # (and would find the run finished out of sight again)
+                    status, try_again = "failed", False
+                    outcome.log_tail = [unseen_run_message(run.run_folder(root))]
                 outcome.seconds = seconds
-                if status == "failed" and outcome.attempts < MAX_ATTEMPTS:
+                if status == "failed" and try_again:
                     outcome.status = "left"
                     queue.insert(0, run)  # once more, from its last checkpoint
                     continue

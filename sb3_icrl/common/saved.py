@@ -15,6 +15,10 @@ from stable_baselines3.common.save_util import json_to_data, open_path
 SAVED_ALGORITHM_KEY = "sb3_icrl_algorithm"
 # Bases shared by several algorithms: never the algorithm a model is
 _SHARED_BASES = ("ICRLAlgorithmMixin", "LagrangianICRL")
+# Modules of classes that fit an algorithm to another tool (rl_zoo3's ZooGACL...): the model is the algorithm's
+_ADAPTER_MODULES = ("sb3_icrl.zoo.rl_zoo3",)
+#: Prefix of the rl_zoo3 adapters' names, which zips they saved recorded before they were told apart
+_ADAPTER_PREFIX = "Zoo"
 
 
 def library_algorithm(algorithm_class: type) -> str:
@@ -25,7 +29,8 @@ def library_algorithm(algorithm_class: type) -> str:
     :return: The name of the first sb3-icrl class in its method resolution order (its own name when there is none)
     """
     for base in algorithm_class.__mro__:
-        if base.__module__.startswith("sb3_icrl.") and base.__name__ not in _SHARED_BASES:
+        own = base.__module__.startswith("sb3_icrl.") and base.__module__ not in _ADAPTER_MODULES
+        if own and base.__name__ not in _SHARED_BASES:
             return base.__name__
     return algorithm_class.__name__
 
@@ -41,7 +46,7 @@ def saved_algorithm(data: dict[str, Any]) -> str | None:
     """
     recorded = data.get(SAVED_ALGORITHM_KEY)
     if isinstance(recorded, str):
-        return recorded
+        return recorded.removeprefix(_ADAPTER_PREFIX)
     if "constraint_net_spec_" in data:
         from sb3_icrl import BC2L, GACL, MECL, VICRL  # here: the algorithms import this module
 

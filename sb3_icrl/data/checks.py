@@ -19,6 +19,7 @@ Semantic checks of demonstrations against the env they are meant for:
 """
 
 import dataclasses
+import warnings
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -167,12 +168,18 @@ class DynamicsReport:
         )
 
 
+def _is_mujoco(env: gym.Env) -> bool:
+    """Whether the env can be set to a state and replayed (a MuJoCo env: ``set_state(qpos, qvel)``)."""
+    unwrapped = env.unwrapped
+    return hasattr(unwrapped, "set_state") and hasattr(unwrapped, "model") and hasattr(unwrapped.model, "nq")
+
+
 def _mujoco_env(env: gym.Env | str) -> tuple[gym.Env, Any, bool]:
     """The env, its unwrapped MuJoCo env, and whether it was made here (to be closed)."""
     made = isinstance(env, str)
     environment = gym.make(env) if isinstance(env, str) else env
     unwrapped = environment.unwrapped
-    if not (hasattr(unwrapped, "set_state") and hasattr(unwrapped, "model") and hasattr(unwrapped.model, "nq")):
+    if not _is_mujoco(environment):
         if made:
             environment.close()
         raise DemonstrationError(
@@ -256,4 +263,54 @@ def dynamics_replay_check(
         tolerance=tolerance,
         flagged=flagged,
         best_shift=best_shift,
+    )
+
+
+def _buildable_env(env_id: str) -> gym.Env | None:
+    """The env of ``env_id`` (or of ``sb3_icrl/<env_id>``), ``None`` when it cannot be built here (not registered...)."""
+    for candidate in (env_id, f"{NAMESPACE}/{env_id}"):
+        if candidate in gym.registry:
+            try:
+                return gym.make(candidate)
+            except Exception:  # (a registered env whose dependencies are missing: nothing to replay on)
+                return None
+    return None
+
+
+def import_replay_check(demonstrations: Demonstrations, env_id: str | None, importer: str) -> DynamicsReport | None:
+    """
+    The check the importers run by default: :func:`dynamics_replay_check` on the env the data is said to come from,
+    wherever that env can be built here and is a MuJoCo env.
+
+    :param demonstrations: The imported demonstrations
+    :param env_id: The env they are said to come from (``None``: nothing to check)
+    :param importer: The importer's name, for the messages
+    :return: The report, or ``None`` when nothing was replayed (no env id, an env not registered here, not MuJoCo)
+    :raises DemonstrationError: When the data is off by one step, or does not follow the env's dynamics (data of
+        another robot with observations of the same shape)
+    """
+    environment = None if env_id is None else _buildable_env(env_id)
+    if environment is None:
+        return None
+    opt_out = f"pass `check_replay=False` to {importer} to import the data as it is"
+    try:
+        if not _is_mujoco(environment):
+            return None
+        report = dynamics_replay_check(demonstrations, environment)
+    except DemonstrationError as error:  # (observations without the full state, trajectories too short)
+        warnings.warn(f"{importer}: the data was not replayed on {env_id}: {error}", stacklevel=3)
+        return None
+    finally:
+        environment.close()
+    if report.ok:
+        return report
+    if report.best_shift == 0 and report.pairing_clear:
+        # Aligned, on slightly other physics (another MuJoCo version or model file): usable, but worth knowing
+        warnings.warn(f"{importer}: {report}", stacklevel=3)
+        return report
+    if report.best_shift != 0 and report.pairing_clear:
+        raise DemonstrationError(f"{importer}: {report} Or {opt_out}.")
+    raise DemonstrationError(
+        f"{importer}: {report} Data recorded on another robot whose observations have the same shape fails so: check "
+        f"that it comes from {env_id!r}, or {opt_out}."
     )

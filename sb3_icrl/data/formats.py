@@ -32,6 +32,7 @@ import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_icrl.data.checks import check_env_id
+from sb3_icrl.data.importers import is_safe_global
 from sb3_icrl.data.serialize import DemonstrationError, check_spaces, package_versions, trajectory_statistics
 from sb3_icrl.data.types import Demonstrations, Trajectory
 
@@ -211,20 +212,48 @@ def _warn_missing_costs(source: str, n_missing: int, missing_costs: str, cost_in
         )
 
 
+#: jsonpickle tags whose value names a Python object to import (``py/repr`` and ``py/mod`` are never accepted)
+_JSONPICKLE_NAME_TAGS = ("py/object", "py/type", "py/function")
+
+
+def _check_jsonpickle_names(content: Any, source: str) -> None:
+    """Refuse jsonpickle content that names anything but numpy's array and scalar builders or plain containers."""
+    if isinstance(content, list):
+        for item in content:
+            _check_jsonpickle_names(item, source)
+    if not isinstance(content, dict):
+        return
+    for key, value in content.items():
+        if key in ("py/repr", "py/mod") or (
+            key in _JSONPICKLE_NAME_TAGS and not (isinstance(value, str) and is_safe_global(*value.rpartition(".")[::2]))
+        ):
+            raise DemonstrationError(
+                f"{source}: refusing an info that names {value!r} ({key}): only numpy arrays, numpy scalars and plain "
+                "containers are read from jsonpickle infos."
+            )
+        _check_jsonpickle_names(value, source)
+
+
 def _decode_info(text: str, source: str) -> dict[str, Any]:
     try:
         info = json.loads(text)
     except json.JSONDecodeError as error:
         raise DemonstrationError(f"{source}: an info is not JSON ({error}).") from error
     if any(isinstance(value, dict) and any(str(key).startswith("py/") for key in value) for value in info.values()):
-        # jsonpickle tags (numpy values written by imitation): decode them with jsonpickle itself
+        # jsonpickle tags (numpy values written by imitation): decode them with jsonpickle itself, once they are known
+        # to name nothing but numpy's array and scalar builders (jsonpickle calls what a file names)
+        _check_jsonpickle_names(info, source)
         try:
             import jsonpickle  # type: ignore[import-untyped]
         except ImportError as error:
             raise DemonstrationError(
-                f"{source}: the infos hold jsonpickle-encoded objects; pip install jsonpickle to read them."
+                f"{source}: the infos hold jsonpickle-encoded objects; pip install 'sb3-icrl[datasets]' (or jsonpickle) "
+                "to read them."
             ) from error
-        info = jsonpickle.decode(text)
+        with warnings.catch_warnings():
+            # (jsonpickle 4.1 warns of its 5.0 default on every call; keys=False reads what imitation writes)
+            warnings.filterwarnings("ignore", message="keys will default", category=DeprecationWarning)
+            info = jsonpickle.decode(text, keys=False)
     return info if isinstance(info, dict) else {"value": info}
 
 
@@ -329,7 +358,6 @@ def to_minari(
     :return: The ``MinariDataset``
     """
     minari = _import("minari", "minari")
-    from minari.data_collector import EpisodeBuffer
     from minari.storage import get_dataset_path
 
     trajectories = list(demonstrations)
@@ -339,10 +367,60 @@ def to_minari(
     env = env if env is not None else metadata.get("env_id")
     if env is None:
         raise DemonstrationError("Minari datasets record their env: pass `env=` (the metadata has no `env_id`).")
-    if dataset_id in minari.list_local_datasets():
+    folder = _minari_dataset_folder(dataset_id, get_dataset_path)
+    if folder.exists():
         if not overwrite:
             raise FileExistsError(f"A local Minari dataset {dataset_id!r} exists: pass `overwrite=True` to replace it.")
-        minari.delete_dataset(dataset_id)
+        nested = sorted(path.name for path in folder.iterdir() if path.is_dir() and path.name != "data")
+        if nested:
+            raise DemonstrationError(
+                f"{folder} holds other folders ({', '.join(nested)}): a namespace of other datasets, not one dataset. "
+                "Nothing was deleted: choose another id."
+            )
+        # (a folder Minari does not list, left half-written by a failed write, goes too)
+        shutil.rmtree(folder)
+    try:
+        return _write_minari(minari, trajectories, metadata, dataset_id, env, cost_info_key, kwargs, folder)
+    except BaseException:
+        # A half-written dataset would block its id: Minari refuses to write over it and does not list it to delete
+        shutil.rmtree(folder, ignore_errors=True)
+        raise
+
+
+def _minari_dataset_folder(dataset_id: str, get_dataset_path: Any) -> pathlib.Path:
+    """
+    The folder of a local Minari dataset; an id that is not ``(namespace/)name-v<N>``, or that names a folder outside
+    the datasets' root, is refused (the folder may be deleted: it must be one dataset's own).
+    """
+    from minari.dataset.minari_dataset import parse_dataset_id
+
+    root = pathlib.Path(get_dataset_path()).resolve()
+    folder = pathlib.Path(get_dataset_path(dataset_id)).resolve()
+    try:
+        parse_dataset_id(dataset_id)
+        well_formed = root in folder.parents
+    except (TypeError, ValueError):
+        well_formed = False
+    if not well_formed:
+        raise DemonstrationError(
+            f"{dataset_id!r} is not a Minari dataset id: use `namespace/name-v0` or `name-v0` (a version is required)."
+        )
+    return folder
+
+
+def _write_minari(
+    minari: Any,
+    trajectories: list[Trajectory],
+    metadata: dict[str, Any],
+    dataset_id: str,
+    env: str | gym.Env,
+    cost_info_key: str,
+    kwargs: dict[str, Any],
+    folder: pathlib.Path,
+) -> Any:
+    """The body of :func:`to_minari`, once the id is free: the episodes, then our metadata beside them."""
+    from minari.data_collector import EpisodeBuffer
+
     buffers = []
     for index, trajectory in enumerate(trajectories):
         length = len(trajectory)
@@ -372,7 +450,7 @@ def to_minari(
     content.update({"format": "minari", "cost_info_key": cost_info_key, "versions": package_versions()})
     if "env_id" not in content and isinstance(env, str):
         content["env_id"] = env
-    _write_json(pathlib.Path(get_dataset_path(dataset_id)) / METADATA_FILE, content)
+    _write_json(folder / METADATA_FILE, content)
     return dataset
 
 

@@ -8,8 +8,13 @@ Demonstrations recorded by other code, converted to :class:`~sb3_icrl.data.types
 What a source does not record is flagged in the metadata rather than guessed: ``true_costs_known`` (the true cost of
 each step; when false the ``costs`` are zeros and say nothing about the constraint) and ``rewards_known`` (when false
 the per-step ``rews`` are zeros). Save the result with :func:`~sb3_icrl.data.serialize.save` to get an ``.npz`` the
-rest of the library loads, and check it against the env with
-:func:`~sb3_icrl.data.checks.dynamics_replay_check` before training on it.
+rest of the library loads.
+
+Given the ``env_id`` of a MuJoCo env that can be built here, each importer replays the data on it
+(:func:`~sb3_icrl.data.checks.import_replay_check`): data whose observations and actions are off by one step, or that
+does not follow the env's dynamics (recorded on another robot with observations of the same shape), is refused;
+aligned data that replays only roughly (other physics) passes with a warning. ``check_replay=False`` imports the data
+as it is.
 
 The pickles are read with an unpickler that only rebuilds numpy arrays and plain Python containers: a file that
 holds anything else is refused instead of running its code.
@@ -24,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from sb3_icrl.data.checks import import_replay_check
 from sb3_icrl.data.serialize import DemonstrationError
 from sb3_icrl.data.types import Demonstrations, Trajectory
 
@@ -46,11 +52,16 @@ _SAFE_GLOBALS = {
 _LIU_FILE_PATTERN = re.compile(r"^scene-(?P<scene>.+?)_len-(?P<length>\d+)(?:_(?P<reasons>.*))?\.pkl$")
 
 
+def is_safe_global(module: str, name: str) -> bool:
+    """Whether an imported file may name ``module.name``: what rebuilds numpy arrays and scalars, plain containers."""
+    return (module, name) in _SAFE_GLOBALS or (module == "numpy" and name.startswith(("float", "int", "uint", "bool")))
+
+
 class _ArrayUnpickler(pickle.Unpickler):
     """Unpickles numpy arrays and plain containers only."""
 
     def find_class(self, module: str, name: str) -> Any:
-        if (module, name) in _SAFE_GLOBALS or (module == "numpy" and name.startswith(("float", "int", "uint", "bool"))):
+        if is_safe_global(module, name):
             return super().find_class(module, name)
         raise pickle.UnpicklingError(f"refusing to load {module}.{name}: only numpy arrays and plain containers are read")
 
@@ -73,6 +84,13 @@ def read_pickle(path: str | os.PathLike) -> dict[str, Any]:
     if not isinstance(content, dict):
         raise DemonstrationError(f"{path} holds a {type(content).__name__}, expected a dict of arrays.")
     return content
+
+
+def _checked(demonstrations: Demonstrations, env_id: str | None, check_replay: bool, importer: str) -> Demonstrations:
+    """The demonstrations, once replayed on ``env_id`` (:func:`~sb3_icrl.data.checks.import_replay_check`)."""
+    if check_replay:
+        import_replay_check(demonstrations, env_id, importer)
+    return demonstrations
 
 
 def _trajectory(
@@ -139,6 +157,7 @@ def from_arrays(
     terminals: Sequence[bool] | np.ndarray | None = None,
     env_id: str | None = None,
     metadata: dict[str, Any] | None = None,
+    check_replay: bool = True,
 ) -> Demonstrations:
     """
     Build demonstrations from flat arrays, one row per step: ``observations[i]`` is the state *before*
@@ -157,6 +176,8 @@ def from_arrays(
     :param terminals: One bool per episode: whether it ended in a terminal state (default: none did)
     :param env_id: The env the data was recorded on (stored as ``env_id`` in the metadata)
     :param metadata: More metadata to store
+    :param check_replay: Replay the data on ``env_id`` (:func:`~sb3_icrl.data.checks.import_replay_check`, where
+        it can be built); ``False``: import the data as it is
     :return: The demonstrations
     """
     observations, actions = np.asarray(observations), np.asarray(actions)
@@ -200,7 +221,7 @@ def from_arrays(
     recorded.setdefault("true_costs_known", costs is not None)
     if env_id is not None:
         recorded["env_id"] = env_id
-    return Demonstrations(trajectories, recorded)
+    return _checked(Demonstrations(trajectories, recorded), env_id, check_replay, "from_arrays")
 
 
 def _pickle_paths(paths: str | os.PathLike | Sequence[str | os.PathLike], pattern: str) -> list[pathlib.Path]:
@@ -229,6 +250,7 @@ def _require_keys(data: dict[str, Any], keys: Sequence[str], path: pathlib.Path,
 def from_malik_rollouts(
     paths: str | os.PathLike | Sequence[str | os.PathLike],
     env_id: str | None = None,
+    check_replay: bool = True,
 ) -> Demonstrations:
     """
     Import the expert rollouts of Malik et al.'s ICRL code (``expert_data/<Env>/files/EXPERT/rollouts/<i>.pkl``).
@@ -248,6 +270,8 @@ def from_malik_rollouts(
 
     :param paths: A ``rollouts`` folder (all its ``*.pkl``), or a list of files
     :param env_id: The env the data was recorded on, for the metadata
+    :param check_replay: Replay the data on ``env_id`` (:func:`~sb3_icrl.data.checks.import_replay_check`, where
+        it can be built); ``False``: import the data as it is
     :return: The demonstrations, one trajectory per file
     """
     trajectories, returns, files = [], [], []
@@ -282,13 +306,14 @@ def from_malik_rollouts(
     }
     if env_id is not None:
         metadata["env_id"] = env_id
-    return Demonstrations(trajectories, metadata)
+    return _checked(Demonstrations(trajectories, metadata), env_id, check_replay, "from_malik_rollouts")
 
 
 def from_liu_pickles(
     paths: str | os.PathLike | Sequence[str | os.PathLike],
     env_id: str | None = None,
     observation_key: str = "original_observations",
+    check_replay: bool = True,
 ) -> Demonstrations:
     """
     Import the expert data of Liu et al.'s ICRL benchmark (``scene-<id>_len-<T>_<reasons>.pkl``).
@@ -305,6 +330,8 @@ def from_liu_pickles(
     :param paths: A folder (all its ``scene-*_len-*.pkl``), or a list of files
     :param env_id: The env the data was recorded on, for the metadata
     :param observation_key: ``"original_observations"`` (raw states) or ``"observations"`` (the expert's normalised ones)
+    :param check_replay: Replay the data on ``env_id`` (:func:`~sb3_icrl.data.checks.import_replay_check`, where
+        it can be built); ``False``: import the data as it is
     :return: The demonstrations, one trajectory per file
     """
     trajectories, episodes, rewards_recorded = [], [], []
@@ -348,4 +375,4 @@ def from_liu_pickles(
     }
     if env_id is not None:
         metadata["env_id"] = env_id
-    return Demonstrations(trajectories, metadata)
+    return _checked(Demonstrations(trajectories, metadata), env_id, check_replay, "from_liu_pickles")

@@ -4,7 +4,8 @@ Compare finished zoo runs over seeds, as the benchmark reports them::
     sb3-icrl compare logs/s6/mecl*/mecl/BlockedHalfCheetah-v0_1 logs/s6/vicrl*/vicrl/BlockedHalfCheetah-v0_1 -n 20000
     python -m sb3_icrl.zoo compare RUN [RUN ...] --reference vicrl --json results.json
 
-Each ``RUN`` is a run folder ``<folder>/<algo>/<EnvName>_<N>`` of ``train.py``. Its final model (or ``--model best``)
+Each ``RUN`` is a run folder ``<folder>/<algo>/<EnvName>_<N>`` of ``train.py``, or one that rl_zoo3 made (its
+``<EnvName>`` is the env id with ``/`` turned into ``-``). Its final model (or ``--model best``)
 is run on held-out env seeds, deterministically, as ``enjoy.py`` does; the table gives per run the training seed, the
 steps trained, the training wall time (the monitor's clock), the true violation rate and the feasible reward (and, for
 the driving envs, a second table of how the held-out episodes ended: collision, off road, time out, goal reached). Per
@@ -26,7 +27,6 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
-import yaml
 from stable_baselines3.common.save_util import load_from_zip_file
 
 from sb3_icrl.common.evaluation import OUTCOME_KEYS, OUTCOME_RATE_KEYS
@@ -34,7 +34,16 @@ from sb3_icrl.common.statistics import MIN_PAIRS_FOR_WILCOXON, sample_std, wilco
 from sb3_icrl.common.utils import atomic_write_json, plain_docstring
 from sb3_icrl.zoo import enjoy
 from sb3_icrl.zoo.hyperparams import ALGOS, env_name, import_gym_packages
-from sb3_icrl.zoo.runs import FINISHED_FILE, failure, is_finished, run_wall_time
+from sb3_icrl.zoo.runs import (
+    FINISHED_FILE,
+    failure,
+    is_finished,
+    load_run_yaml,
+    made_by_rl_zoo3,
+    rl_zoo3_env_name,
+    run_env_name,
+    run_wall_time,
+)
 from sb3_icrl.zoo.train import non_negative_int, positive_int
 
 
@@ -99,12 +108,11 @@ def describe_run(run: str) -> tuple[str, str, int, str]:
     if algo not in ALGOS or not exp_id.isdigit() or not os.path.isfile(args_path):
         raise RunFolderError(
             f"{run} is not a train.py run folder: expected <folder>/<algo>/<EnvName>_<N> with <EnvName>/args.yml inside "
-            f"(algo one of {sorted(ALGOS)})."
+            f"(algo one of {sorted(ALGOS)}; rl_zoo3's run folders have the same layout)."
         )
-    with open(args_path) as file:
-        args = yaml.safe_load(file) or {}
+    args = load_run_yaml(args_path)
     import_gym_packages(args.get("gym_packages"))  # a user's env registers itself on import
-    if env_name(args["env"]) != name:
+    if name not in (env_name(args["env"]), rl_zoo3_env_name(args["env"])):
         raise RunFolderError(f"{run}: args.yml names env {args['env']!r}, but the folder is named after {name!r}.")
     if args.get("seed") is None:
         raise RunFolderError(f"{run} trained without a fixed --seed: it cannot be paired or reported per seed.")
@@ -151,8 +159,7 @@ def evaluate_run(
     evaluation = enjoy.enjoy(args)
     if len(evaluation.violations) == 0:
         raise RunFolderError(f"No evaluation episode of {run} finished in {n_timesteps} steps: raise -n.")
-    name = env_name(env_id)
-    model_path = enjoy.model_path(run, name, load_best, None, False)
+    model_path = enjoy.model_path(run, run_env_name(run, env_id), load_best, None, False)
     data, _, _ = load_from_zip_file(model_path, load_data=True, device="cpu")
     return RunResult(
         run=run,
@@ -245,7 +252,13 @@ def check_runs(runs: list[str]) -> None:
         reason = failure(run)
         if reason is not None:
             raise RunFolderError(f"{run} failed ({reason}): finish it with train.py --resume, or leave it out.")
-        if not is_finished(run):
+        if made_by_rl_zoo3(run, os.path.basename(os.path.normpath(run)).rpartition("_")[0]):
+            print(
+                f"note: {run} is an rl_zoo3 run, which records no end of training: its final model is compared as it "
+                "stands",
+                file=sys.stderr,
+            )
+        elif not is_finished(run):
             print(
                 f"warning: {run} did not finish its training (no {FINISHED_FILE}): it is compared as it stands",
                 file=sys.stderr,
@@ -346,8 +359,7 @@ def recipe_differences(runs: list[str]) -> dict[str, dict[str, list[str]]]:
     labels = run_labels(runs)  # variants of an algorithm differ on purpose
     for run in runs:
         _, env_id, _, _ = describe_run(run)
-        with open(os.path.join(run, env_name(env_id), "config.yml")) as file:
-            config = yaml.safe_load(file) or {}
+        config = load_run_yaml(os.path.join(run, run_env_name(run, env_id), "config.yml"))
         config.pop("n_timesteps", None)
         configs.setdefault(labels[run], []).append(config)
     differences: dict[str, dict[str, list[str]]] = {}

@@ -21,7 +21,6 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import torch as th
-import yaml
 from gymnasium.envs.registration import load_env_creator
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
@@ -37,7 +36,16 @@ from sb3_icrl.zoo.hyperparams import (
     resolve_env_id,
 )
 from sb3_icrl.zoo.recording import FrameWriter, configure_headless_rendering, has_display, recording_backend
-from sb3_icrl.zoo.runs import CHECKPOINT_PATTERN, TrainedAgentError, check_trained_agent, failure, find_vecnormalize
+from sb3_icrl.zoo.runs import (
+    CHECKPOINT_PATTERN,
+    TrainedAgentError,
+    check_trained_agent,
+    failure,
+    find_vecnormalize,
+    load_run_yaml,
+    rl_zoo3_env_name,
+    run_env_name,
+)
 from sb3_icrl.zoo.train import StoreDict, create_env, get_latest_run_id, non_negative_int, positive_int
 
 
@@ -98,6 +106,20 @@ def run_folder(folder: str, algo: str, name: str, exp_id: int) -> str:
     if not os.path.isdir(path):
         raise FileNotFoundError(f"No run folder {path}.")
     return path
+
+
+def _run_folder_ours_or_rl_zoo3(folder: str, algo: str, env_id: str, exp_id: int) -> str:
+    """:func:`run_folder` of ``train.py``'s name of the env, else of rl_zoo3's (``sb3_icrl-MyEnv-v0_1``)."""
+    name, theirs = env_name(env_id), rl_zoo3_env_name(env_id)
+    try:
+        return run_folder(folder, algo, name, exp_id)
+    except FileNotFoundError as error:
+        if theirs == name:
+            raise
+        try:
+            return run_folder(folder, algo, theirs, exp_id)
+        except FileNotFoundError:
+            raise error from None  # (the message of train.py's name: rl_zoo3's is the exception)
 
 
 def model_path(run: str, name: str, load_best: bool, checkpoint: int | None, last_checkpoint: bool) -> str:
@@ -163,17 +185,16 @@ def enjoy(args: argparse.Namespace) -> ConstraintEvaluation:
         if not os.path.isdir(run):
             raise FileNotFoundError(f"No run folder {run}.")
     else:
-        run = run_folder(args.folder, args.algo, name, args.exp_id)
+        run = _run_folder_ours_or_rl_zoo3(args.folder, args.algo, env_id, args.exp_id)
+    name = run_env_name(run, env_id)  # (rl_zoo3 names its files after the whole id)
     path = model_path(run, name, args.load_best, args.load_checkpoint, args.load_last_checkpoint)
     check_trained_agent(path, args.algo)
 
     params_path = os.path.join(run, name)
-    with open(os.path.join(params_path, "config.yml")) as file:
-        params = preprocess_hyperparams(yaml.safe_load(file))
+    params = preprocess_hyperparams(load_run_yaml(os.path.join(params_path, "config.yml")))
     saved_args: dict[str, Any] = {}
     if os.path.isfile(os.path.join(params_path, "args.yml")):
-        with open(os.path.join(params_path, "args.yml")) as file:
-            saved_args = yaml.safe_load(file) or {}
+        saved_args = load_run_yaml(os.path.join(params_path, "args.yml"))
     env_kwargs = {**(saved_args.get("env_kwargs") or {}), **(args.env_kwargs or {})}
     stats_path = find_vecnormalize(path, name) if params["normalize"] else None
     if params["normalize"] and stats_path is None:

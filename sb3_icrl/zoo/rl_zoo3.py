@@ -302,8 +302,15 @@ def main(argv: Sequence[str] | None = None) -> None:
     if not arguments or arguments[0] not in ("train", "enjoy"):
         raise SystemExit("usage: python -m sb3_icrl.zoo.rl_zoo3 {train,enjoy} [rl_zoo3's arguments] (see --help of each)")
     command, rest = arguments[0], arguments[1:]
-    register_rl_zoo3()
     algo = _option_value(rest, ("--algo",))
+    optimize = [argument for argument in rest if argument == "-optimize" or argument.startswith("--optimize")]
+    if command == "train" and algo in RL_ZOO3_ALGOS and optimize:
+        raise SystemExit(
+            f"error: {optimize[0]} is rl_zoo3's Optuna search, whose samplers know its own algorithms only: it has no "
+            f"search space for {algo}. Train with the shipped recipe (drop {optimize[0]}) or set hyper-parameters with "
+            "--hyperparams KEY:VALUE."
+        )
+    register_rl_zoo3()
     if command == "train" and algo in RL_ZOO3_ALGOS and _option_value(rest, ("-conf", "--conf-file")) is None:
         config = pathlib.Path(tempfile.mkdtemp(prefix="sb3_icrl_rl_zoo3_")) / f"{algo}.yml"
         rest += ["--conf-file", export_rl_zoo3_config(algo, config)]

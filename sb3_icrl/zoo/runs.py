@@ -16,6 +16,7 @@ import warnings
 import zipfile
 from typing import Any
 
+import yaml
 from stable_baselines3.common.save_util import load_from_zip_file
 
 from sb3_icrl.common.utils import atomic_write_text
@@ -142,8 +143,6 @@ def run_vecnormalize(run: str, model_path: str, name: str) -> str | None:
     :return: The statistics, or ``None`` when the run did not normalise
     :raises FileNotFoundError: When the run normalised and the statistics are missing
     """
-    import yaml
-
     from sb3_icrl.zoo.hyperparams import preprocess_hyperparams
 
     stats_path = find_vecnormalize(model_path, name)
@@ -156,8 +155,7 @@ def run_vecnormalize(run: str, model_path: str, name: str) -> str | None:
                 stacklevel=2,
             )
         return stats_path
-    with open(config) as file:
-        normalize = preprocess_hyperparams(yaml.safe_load(file) or {})["normalize"]
+    normalize = preprocess_hyperparams(load_run_yaml(config))["normalize"]
     if not normalize:
         return None
     if stats_path is None:
@@ -388,3 +386,62 @@ def trim_monitors(run: str | os.PathLike, counts: dict[str, int]) -> dict[str, i
             dropped[name] = len(lines) - keep
             atomic_write_text(path, "\n".join(lines[:keep]) + "\n")
     return dropped
+
+
+#: The tag PyYAML writes for an ``OrderedDict``, as rl_zoo3 saves its run's ``args.yml`` and ``config.yml``
+ORDERED_DICT_TAG = "tag:yaml.org,2002:python/object/apply:collections.OrderedDict"
+
+
+class RunYamlLoader(yaml.SafeLoader):
+    """A safe YAML loader that also reads the ``OrderedDict`` tag of rl_zoo3's run files (as a plain dict)."""
+
+
+def _ordered_dict(loader: yaml.SafeLoader, node: yaml.Node) -> dict[Any, Any]:
+    # Written as OrderedDict(pairs): a sequence holding one argument, the list of [key, value] pairs
+    arguments = loader.construct_sequence(node, deep=True)  # type: ignore[arg-type]
+    return dict(arguments[0]) if arguments else {}
+
+
+RunYamlLoader.add_constructor(ORDERED_DICT_TAG, _ordered_dict)
+
+
+def load_run_yaml(path: str | os.PathLike) -> dict[str, Any]:
+    """
+    A run's ``args.yml`` or ``config.yml``, written by ``train.py`` or by rl_zoo3 (whose ``OrderedDict`` tags a plain
+    ``yaml.safe_load`` refuses); nothing else that a YAML file could ask to build is built.
+
+    :param path: The file
+    :return: Its mapping (empty for an empty file)
+    """
+    with open(path) as file:
+        content = yaml.load(file, Loader=RunYamlLoader)  # (a safe loader with one constructor added)
+    return content or {}
+
+
+def rl_zoo3_env_name(env_id: str) -> str:
+    """The folder name rl_zoo3 gives an env (its ``EnvironmentName``): the id with ``/`` turned into ``-``."""
+    return env_id.replace("/", "-")
+
+
+def run_env_name(run: str, env_id: str) -> str:
+    """
+    The name of a run's ``<EnvName>.zip`` and ``<EnvName>/`` folder: ours (:func:`~sb3_icrl.zoo.hyperparams.env_name`,
+    ``GridWorldWall-v0``), or rl_zoo3's (:func:`rl_zoo3_env_name`, ``sb3_icrl-GridWorldWall-v0``) for a run it made.
+
+    :param run: The run folder
+    :param env_id: The env it trained on
+    """
+    from sb3_icrl.zoo.hyperparams import env_name
+
+    ours = env_name(env_id)
+    theirs = rl_zoo3_env_name(env_id)
+    return theirs if not os.path.isdir(os.path.join(run, ours)) and os.path.isdir(os.path.join(run, theirs)) else ours
+
+
+def made_by_rl_zoo3(run: str, name: str) -> bool:
+    """Whether rl_zoo3 wrote the run folder (its ``args.yml`` is an ``OrderedDict``; ``train.py`` writes plain maps)."""
+    path = os.path.join(run, name, "args.yml")
+    if not os.path.isfile(path):
+        return False
+    with open(path) as file:
+        return file.readline().startswith("!!python/object/apply:collections.OrderedDict")
