@@ -108,11 +108,15 @@ def run_policy(
     return Episodes(float(np.mean(violated)), float(np.mean(returns)), float(np.mean(feasible)), closest)
 
 
-def run_paths(run: str) -> tuple[str, str | None, str]:
+def run_paths(run: str, model: str = "final") -> tuple[str, str | None, str]:
+    """The model zip of a run folder (its final model, or ``best_model.zip``), its VecNormalize statistics and algo."""
     algo, env_id, _, _ = describe_run(run)
     name = env_name(env_id)
-    statistics = os.path.join(run, name, "vecnormalize.pkl")
-    return os.path.join(run, f"{name}.zip"), statistics if os.path.isfile(statistics) else None, algo
+    if model == "best":
+        zip_path, statistics = os.path.join(run, "best_model.zip"), os.path.join(run, "best_model_vecnormalize.pkl")
+    else:
+        zip_path, statistics = os.path.join(run, f"{name}.zip"), os.path.join(run, name, "vecnormalize.pkl")
+    return zip_path, statistics if os.path.isfile(statistics) else None, algo
 
 
 def demonstrations_closest(name: str, source: str, obs_index: int, threshold: float, op: str) -> list[float]:
@@ -125,6 +129,12 @@ def main() -> None:
     parser.add_argument("--env", required=True, help="A benchmark env or binding variant")
     parser.add_argument("--ppo", required=True, help="Run folder of unconstrained PPO on the env")
     parser.add_argument("--expert", required=True, help="Run folder of the PPO-Lagrangian expert, or 'shipped'")
+    parser.add_argument(
+        "--expert-model",
+        choices=("final", "best"),
+        default="final",
+        help="with a run folder: its final model or its best_model.zip (picked on its own evaluations, env seed 0)",
+    )
     parser.add_argument("--demos", default=None, help="The expert's demonstrations: an .npz path or 'shipped'")
     parser.add_argument("--episodes", type=int, default=20)
     parser.add_argument("--eval-seed", type=int, default=100)
@@ -143,7 +153,7 @@ def main() -> None:
         zip_path, statistics = expert_paths(name)
         expert_args = (str(zip_path), str(statistics) if statistics else None)
     else:
-        expert_args = run_paths(args.expert)[:2]
+        expert_args = run_paths(args.expert, args.expert_model)[:2]
     expert_model, expert_env = load_model(*expert_args, env_id, "ppolag")
     expert = run_policy(expert_model, expert_env, args.episodes, args.eval_seed, *where)
     demos = demonstrations_closest(name, args.demos, *where) if args.demos else None

@@ -69,6 +69,7 @@ SHIPPED_DATASETS: dict[str, ShippedDataset] = {
     "BlockedSwimmer-v0": ShippedDataset(20),
     # The binding variants (sb3_icrl.envs.binding_envs)
     "BiasedPendulumReach-v0": ShippedDataset(20),
+    "BlockedHalfCheetahReach-v0": ShippedDataset(20),
     "BlockedWalkerReach-v0": ShippedDataset(20),
     "HighwayVelocity-v0": ShippedDataset(100),
     "HighwayDistance-v0": ShippedDataset(100),
