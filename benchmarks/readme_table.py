@@ -111,8 +111,8 @@ def table(results: pathlib.Path = RESULTS) -> str:
             rows.append(
                 f"| {suite_label(summary)} | {cell['env']} | {cell['variant']} | {cell['algo'].upper()} | "
                 f"{', '.join(str(seed['seed']) for seed in cell['per_seed'])} | "
-                f"{100 * cell['violation_rate_mean']:.0f}% ± {100 * cell['violation_rate_std']:.0f}% | "
-                f"{format_mean_std(cell['feasible_reward_mean'], cell['feasible_reward_std'])} | "
+                f"{rate_mean_std(cell['violation_rate_mean'], cell['violation_rate_std'])} | "
+                f"{reward_mean_std(cell['feasible_reward_mean'], cell['feasible_reward_std'])} | "
                 + ((f"{fraction:.2f} of expert | " if fraction is not None else "- | ") if with_fraction else "")
                 + f"{paper} |{others}"
             )
@@ -139,6 +139,16 @@ def table(results: pathlib.Path = RESULTS) -> str:
         )
         lines += f"\nCompute: {format_hours(total)} core-hours over {runs} runs ({parts}).\n"
     return lines
+
+
+def rate_mean_std(mean: float, std: float | None) -> str:
+    """A violation rate's ``mean ± std`` in percents; the mean alone for one seed (no sample std)."""
+    return f"{100 * mean:.0f}%" if std is None else f"{100 * mean:.0f}% ± {100 * std:.0f}%"
+
+
+def reward_mean_std(mean: float, std: float | None) -> str:
+    """A reward's ``mean ± std``; the mean alone for one seed (no sample std)."""
+    return f"{mean:.{reward_digits(mean)}f}" if std is None else format_mean_std(mean, std)
 
 
 def suite_label(summary: dict) -> str:

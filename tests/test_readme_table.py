@@ -71,6 +71,12 @@ def test_table_rows_come_from_the_summaries(tmp_path):
         readme_table.render("no markers here", "")
 
 
+def test_one_seed_cells_show_their_mean_alone():
+    assert readme_table.rate_mean_std(0.1, None) == "10%"
+    assert readme_table.reward_mean_std(2353.02, None) == "2353"
+    assert readme_table.rate_mean_std(0.1, 0.05) == "10% ± 5%"
+
+
 def test_rewards_keep_the_digits_their_size_needs():
     from sb3_icrl.benchmark.report import format_mean_std
 
