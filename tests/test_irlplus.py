@@ -140,8 +140,9 @@ def test_sac_lagrangian_with_a_zero_multiplier_is_sac() -> None:
     lagrangian = SACLagrangian(
         "MlpPolicy", CostInfoPendulum(gym.make("Pendulum-v1")), lagrange_kwargs={"init": 0.0, "lr": 0.0}, **kwargs
     ).learn(60)
-    for (name, value), other in zip(sac.policy.state_dict().items(), lagrangian.policy.state_dict().values(), strict=False):
-        assert th.equal(value, other), name
+    extended = lagrangian.policy.state_dict()
+    for name, value in sac.policy.state_dict().items():  # the actor, the reward critics and their targets
+        assert th.equal(value, extended[name]), name
     # ...while the cost critic learned the costs
     assert lagrangian.logger.name_to_value["train/cost_critic_loss"] > 0
 
@@ -284,3 +285,83 @@ def test_irlplus_on_ppo_learns_and_round_trips(tmp_path) -> None:
     model.save(tmp_path / "ppo.zip")
     loaded = IRLPlusPPO.load(tmp_path / "ppo.zip", env=make_env(), demonstrations=line_demonstrations())
     assert all(th.equal(v, loaded.constraint_net.state_dict()[k]) for k, v in model.constraint_net.state_dict().items())
+
+
+# ---------------------------------------------------------------------------------------------------- recovery (slow)
+
+
+class WallWorld(gym.Env):
+    """
+    The wall grid world (``GridWorldWall-v0``'s unsafe row 3, columns 0-4, on a 7x7 grid) with continuous moves, as SAC
+    needs Box actions: the position ``(row, column)`` moves by the action (at most one cell per axis and step). Reward:
+    the rows gained, -0.1 per step, 1 on reaching the bottom row (which ends the episode); 20 steps at most. Straight
+    down through the wall is the shortest way, a detour right of column 5 the safe one.
+    """
+
+    def __init__(self):
+        self.observation_space = spaces.Box(0.0, 1.0, (2,), np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
+        self.position, self.t = np.array([0.5, 0.5]), 0
+
+    def _obs(self) -> np.ndarray:
+        return (self.position / 7.0).astype(np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.position, self.t = np.array([0.5, 0.5]), 0
+        return self._obs(), {}
+
+    def step(self, action):
+        row_before = self.position[0]
+        self.position = np.clip(self.position + np.clip(action, -1.0, 1.0), 0.0, 6.999)
+        self.t += 1
+        at_goal = bool(self.position[0] >= 6.0)
+        unsafe = bool(3.0 <= self.position[0] < 4.0 and self.position[1] < 5.0)
+        reward = self.position[0] - row_before - 0.1 + float(at_goal)
+        return self._obs(), float(reward), at_goal, self.t >= 20, {"cost": float(unsafe)}
+
+
+def wall_world_expert() -> Trajectory:
+    """The safe detour: diagonally to (2.5, 2.5), right to column 5.5, down to the bottom row (9 steps)."""
+    env = WallWorld()
+    obs, _ = env.reset()
+    observations, actions, rewards = [obs], [], []
+    for waypoint in ([2.5, 2.5], [2.5, 5.5], [6.5, 5.5]):
+        while np.linalg.norm(env.position - waypoint) > 1e-6:
+            action = np.clip(np.array(waypoint) - env.position, -1.0, 1.0).astype(np.float32)
+            obs, reward, _, _, info = env.step(action)
+            assert info["cost"] == 0.0
+            observations.append(obs)
+            actions.append(action)
+            rewards.append(reward)
+    return Trajectory(np.array(observations), np.array(actions), None, True, np.array(rewards), np.zeros(len(actions)))
+
+
+@pytest.mark.slow
+def test_irlplus_recovers_the_wall_and_detours() -> None:
+    """IRL-Plus on SAC learns the wall from the expert's detour: the final policy reaches the goal and never crosses it."""
+    from sb3_icrl.common.evaluation import evaluate_constraint
+
+    model = IRLPlus(
+        "MlpPolicy",
+        WallWorld(),
+        Demonstrations([wall_world_expert() for _ in range(5)], {}),
+        update_every=500,
+        warmup_timesteps=2000,
+        constraint_steps=10,
+        constraint_learning_rate=3e-3,
+        constraint_net_kwargs={"hidden_sizes": [32], "use_action": False},
+        learning_starts=500,
+        batch_size=128,
+        learning_rate=1e-3,
+        train_freq=2,
+        policy_kwargs={"net_arch": [64, 64]},
+        seed=0,
+    )
+    model.learn(10_000)
+    evaluation = evaluate_constraint(model, WallWorld(), n_eval_episodes=10, seed=0)
+    assert evaluation.violation_rate <= 0.1
+    assert np.all(evaluation.episode_rewards > 5.0)  # every episode reaches the bottom row (6 rows + 1, less the steps)
+    cells = np.array([[row + 0.5, col + 0.5] for row in range(7) for col in range(7)]) / 7.0
+    costs = model.constraint_cost(cells, np.zeros((49, 2))).reshape(7, 7)
+    assert costs[3, :3].mean() > 0.5 > costs[:3, 5:].max()  # the wall costs, the expert's way does not

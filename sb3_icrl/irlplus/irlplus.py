@@ -107,7 +107,10 @@ class _IRLPlusOptions:
         raise NotImplementedError
 
     def _reset_if_due(self) -> None:
-        """Reset once ``reset_every`` timesteps (default: the constraint update interval) have passed since the last."""
+        """
+        Reset once ``reset_every`` timesteps (default: the constraint update interval) have passed since the last, but
+        for the last interval of a ``learn()`` call.
+        """
         if not self.policy_resets:
             return
         if self.num_timesteps < self._last_reset:  # a new learn() that counts from 0 again
@@ -115,7 +118,9 @@ class _IRLPlusOptions:
         interval = self.reset_every
         if interval is None:
             interval = self.update_every if self.update_every is not None else self._default_update_every()  # type: ignore[attr-defined]
-        if self.num_timesteps - self._last_reset >= interval:
+        # Not within the last interval of the run: the policy a run ends with has trained since its last reset
+        remaining = getattr(self, "_total_timesteps", 0) - self.num_timesteps
+        if self.num_timesteps - self._last_reset >= interval and remaining >= interval:
             self.reset_policy_layers()
             self._last_reset = self.num_timesteps
 
@@ -127,7 +132,8 @@ class IRLPlus(_IRLPlusOptions, OffPolicyICRL):
     ``Q_c`` of its own (:class:`~sb3_icrl.SACLagrangian`, the multiplier held at 1 as in the reference; pass
     ``lagrange_kwargs`` to let it adapt). Every ``reset_every`` timesteps the actor's output layers and the cost
     critics' last layers are drawn anew; the reward critics, the targets and the replay buffer are kept, so the
-    policy relearns quickly from the stored experience without the bias of costs that have since changed.
+    policy relearns quickly from the stored experience without the bias of costs that have since changed. No reset
+    falls in the last ``reset_every`` timesteps of a ``learn()`` call, so the final policy has trained since its last.
 
     The three additions of IRL-Plus over plain inverse RL can be switched off, for the paper's ablations:
     ``l2_coef=0.0`` (no L2 penalty), ``separate_critics=False`` (one critic on ``r - c``; the resets then draw the
