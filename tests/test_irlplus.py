@@ -365,3 +365,17 @@ def test_irlplus_recovers_the_wall_and_detours() -> None:
     cells = np.array([[row + 0.5, col + 0.5] for row in range(7) for col in range(7)]) / 7.0
     costs = model.constraint_cost(cells, np.zeros((49, 2))).reshape(7, 7)
     assert costs[3, :3].mean() > 0.5 > costs[:3, 5:].max()  # the wall costs, the expert's way does not
+
+
+def test_train_cli_runs_irlplus_on_blocked_half_cheetah(tmp_path) -> None:
+    """``train.py --algo irlplus --env BlockedHalfCheetah-v0`` trains on the shipped recipe and demonstrations."""
+    from sb3_icrl.zoo import main
+
+    params = ["warmup_timesteps:0", "update_every:500", "learning_starts:100", "batch_size:32", "buffer_size:2000"]
+    params += ["policy_kwargs:dict(net_arch=[16])", "constraint_net_kwargs:dict(hidden_sizes=[8], normalize_input=False)"]
+    args = ["--algo", "irlplus", "--env", "BlockedHalfCheetah-v0", "-n", "1200", "-params", *params]
+    assert main([*args, "--eval-freq", "1200", "--eval-episodes", "1", "-f", str(tmp_path), "--verbose", "0"]) == 0
+    run = tmp_path / "irlplus" / "BlockedHalfCheetah-v0_1"
+    model = IRLPlus.load(run / "BlockedHalfCheetah-v0.zip", device="cpu")
+    assert model.num_timesteps == 1200 and model.n_constraint_updates >= 1
+    assert isinstance(model.constraint_net, CostNet) and model.warmup_timesteps == 0
