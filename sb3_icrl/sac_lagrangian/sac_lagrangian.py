@@ -43,7 +43,8 @@ class SACLagrangian(SAC):
     :param cost_budget: The budget ``d`` on ``J_c``, in the units of ``budget_statistic``
     :param budget_statistic: ``"episode"``: ``J_c`` is the mean undiscounted cost of the episodes that ended since the
         last multiplier update (no update while none ended; needs the env's costs, not ``cost_fn``); ``"critic"``: the
-        mean of ``Q_c(s, pi(s))`` on the batch of the last gradient step, a discounted cost-to-go
+        mean of ``Q_c(s, pi(s))`` on the batch of the last gradient step, a discounted cost-to-go (without a cost
+        critic, ``separate_cost_critic=False``, the multiplier then keeps its value)
     :param cost_gamma: Discount factor of the cost critic (default: ``gamma``)
     :param lagrange_update: ``"gradient"`` or ``"pid"`` (see :mod:`sb3_icrl.common.lagrange`)
     :param lagrange_kwargs: Arguments of the multiplier (``init``, ``lr``, ``optimizer``, ``upper_bound`` for gradient
