@@ -8,9 +8,11 @@ from sb3_icrl.bc2l import BC2L
 from sb3_icrl.common.evaluation import ConstraintEvaluation, evaluate_constraint
 from sb3_icrl.envs.constraint_spec import ConstraintSpec, FeatureConstraint, declare_constraint, get_constraint_spec
 from sb3_icrl.gacl import GACL
+from sb3_icrl.irlplus import IRLPlus, IRLPlusPPO
 from sb3_icrl.mecl import MECL
 from sb3_icrl.pi_lagrangian import PILagrangian
 from sb3_icrl.ppo_lagrangian import PPOLagrangian
+from sb3_icrl.sac_lagrangian import SACLagrangian
 from sb3_icrl.vicrl import VICRL
 
 # Read version from file
@@ -26,8 +28,11 @@ __all__ = [
     "ConstraintEvaluation",
     "ConstraintSpec",
     "FeatureConstraint",
+    "IRLPlus",
+    "IRLPlusPPO",
     "PILagrangian",
     "PPOLagrangian",
+    "SACLagrangian",
     "__version__",
     "declare_constraint",
     "evaluate_constraint",

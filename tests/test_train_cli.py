@@ -10,6 +10,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import yaml
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from sb3_icrl.data.registry import DEMONSTRATIONS_DIR
@@ -32,12 +33,14 @@ from sb3_icrl.zoo.hyperparams import (
 )
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
+#: The algorithms that act in discrete action spaces too (the grid worlds, the corridor): SAC-based ones need Box actions
+DISCRETE_ACTION_ALGOS = [algo for algo in ALGOS if not issubclass(ALGOS[algo], OffPolicyAlgorithm)]
 # The policy-gradient forward solver everywhere (the grid recipes plan instead): its rollouts fix checkpoints and updates
 FAST = ["-n", "256", "-params", "n_steps:128", "batch_size:32", "forward_solver:policy_gradient", "--eval-freq", "128"]
 FAST += ["--eval-episodes", "2", "--seed", "1"]
 
 
-@pytest.mark.parametrize("algo", list(ALGOS))
+@pytest.mark.parametrize("algo", DISCRETE_ACTION_ALGOS)
 def test_train_subprocess_writes_zoo_run_folder(algo: str, tmp_path: pathlib.Path) -> None:
     """The root ``train.py`` trains each algo on the grid world (shipped demonstrations) and leaves rl-zoo's layout."""
     command = [sys.executable, str(ROOT / "train.py"), "--algo", algo, "--env", "GridWorldWall-v0", *FAST]
@@ -173,11 +176,12 @@ def test_every_benchmark_env_has_an_entry() -> None:
     mujoco = ["BlockedHalfCheetah-v0", "BlockedAnt-v0", "BiasedPendulum-v0", "BlockedWalker-v0", "BlockedSwimmer-v0"]
     for algo in ALGOS:
         assert (DEFAULT_HYPERPARAMS_DIR / f"{algo}.yml").is_file()
-        assert {"default", "GridWorldWall-v0", *mujoco} <= set(read_hyperparams_file(algo)), algo
+        grid = {"GridWorldWall-v0"} if algo in DISCRETE_ACTION_ALGOS else set()
+        assert {"default", *grid, *mujoco} <= set(read_hyperparams_file(algo)), algo
     highway = {"HighwayVelocity-v0", "HighwayDistance-v0", "HighwayVelocityDistance-v0"}
     for algo in ALGOS:
         assert highway <= set(read_hyperparams_file(algo)), algo
-        if algo in ICRL_ALGOS:
+        if algo in ICRL_ALGOS and algo in DISCRETE_ACTION_ALGOS:
             params = preprocess_hyperparams(load_hyperparams(algo, "HighwayDistance-v0")[0])
             assert (params["n_timesteps"], params["update_every"], params["constraint_steps"]) == (500_000, 50_000, 5)
             assert params["constraint_net_kwargs"] == {"hidden_sizes": [64, 64]} and params["normalize"]
@@ -313,12 +317,13 @@ def test_halfcheetah_entries_are_the_recipe_of_the_results() -> None:
 @pytest.mark.parametrize("algo, key", _entries())
 def test_every_entry_builds_its_model(algo: str, key: str) -> None:
     """Each yml entry's arguments are accepted by its algorithm (env: the entry's own, the corridor for `default`)."""
-    env_id = resolve_env_id("ConstrainedCorridor-v0" if key == "default" else key)
+    default_env = "ConstrainedCorridor-v0" if algo in DISCRETE_ACTION_ALGOS else "BiasedPendulum-v0"
+    env_id = resolve_env_id(default_env if key == "default" else key)
     params = preprocess_hyperparams(load_hyperparams(algo, env_id)[0])
     env = gym.make(env_id)
     try:
         model = ALGOS[algo](params["policy"], env, device="cpu", **algo_kwargs(params))
-        assert model.n_steps == params["n_steps"]
+        assert model.n_steps == params.get("n_steps", 1)  # (off-policy: SAC's one-step returns)
     finally:
         env.close()
 
@@ -413,7 +418,7 @@ def _safe_corridor_demonstrations(path: pathlib.Path) -> None:
     save(path, trajectories, {"env_id": "sb3_icrl/ConstrainedCorridor-v0"})
 
 
-@pytest.mark.parametrize("algo", ICRL_ALGOS)
+@pytest.mark.parametrize("algo", [algo for algo in ICRL_ALGOS if algo in DISCRETE_ACTION_ALGOS])
 def test_icrl_with_vecnormalize_and_demonstration_path(algo: str, tmp_path: pathlib.Path) -> None:
     """ICRL models wrap their training env further than the eval env: normalisation statistics must still reach it."""
     demos = tmp_path / "demos.npz"

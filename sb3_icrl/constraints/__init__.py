@@ -7,17 +7,19 @@ from sb3_icrl.constraints.losses import (
     bc2l_trajectory_loss,
     beta_kl_divergence,
     gacl_discriminator_loss,
+    irl_plus_loss,
     mecl_importance_weights,
     mecl_loss,
     mecl_should_stop,
     vicrl_loss,
 )
-from sb3_icrl.constraints.networks import BetaFeasibilityNet, FeasibilityNet, InputNormalizer, beta_tail_feasibility
+from sb3_icrl.constraints.networks import BetaFeasibilityNet, CostNet, FeasibilityNet, InputNormalizer, beta_tail_feasibility
 from sb3_icrl.constraints.wrappers import GACLRewardWrapper, LearnedCostVecEnvWrapper
 
 __all__ = [
     "BetaFeasibilityNet",
     "ConstraintLoss",
+    "CostNet",
     "FeasibilityNet",
     "GACLRewardWrapper",
     "ImportanceWeights",
@@ -28,6 +30,7 @@ __all__ = [
     "beta_kl_divergence",
     "beta_tail_feasibility",
     "gacl_discriminator_loss",
+    "irl_plus_loss",
     "mecl_importance_weights",
     "mecl_loss",
     "mecl_should_stop",

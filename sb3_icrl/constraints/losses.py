@@ -1,5 +1,5 @@
 """
-Losses of the constraint models of BC2L, GACL, MECL and VICRL, as pure functions of tensors.
+Losses of the constraint models of BC2L, GACL, MECL, VICRL and IRL-Plus, as pure functions of tensors.
 
 Notation: ``phi`` is the feasibility of a state-action pair (1: allowed, 0: forbidden), so the learned cost is
 ``1 - phi``. ``E`` is the expert batch, ``N`` the nominal batch (the learner's own rollouts), ``mean_E`` / ``mean_N``
@@ -396,3 +396,25 @@ def vicrl_loss(
     )
     regularizer = kl_coef * kl
     return ConstraintLoss(expert_term + nominal_term + regularizer, expert_term, nominal_term, regularizer)
+
+
+def irl_plus_loss(expert_cost: th.Tensor, nominal_cost: th.Tensor, l2_coef: float = 0.1) -> ConstraintLoss:
+    """
+    IRL-Plus's cost loss (Hugessen et al., NeurIPS 2024), an inverse-RL loss on a cost seen as a negative reward:
+    ``mean_E[c] - mean_N[c] + l2_coef * mean_E[c^2]``. Minimising it makes the cost low where the expert goes and
+    high where the learner goes; the L2 term keeps the expert's costs near 0, so the costs cannot all drift upward
+    together. Here ``c`` is a cost (:class:`~sb3_icrl.constraints.CostNet`), not ``1 - phi``.
+
+    :param expert_cost: ``c`` on the expert batch, shape ``(n_expert,)``
+    :param nominal_cost: ``c`` on the nominal batch, shape ``(n_nominal,)``
+    :param l2_coef: Weight of the penalty on the expert's squared costs (reference: 0.1; 0: the plain IRL loss)
+    :return: The loss and its parts (the penalty as ``regularizer``)
+    """
+    _check_batch("expert_cost", expert_cost)
+    _check_batch("nominal_cost", nominal_cost)
+    if not l2_coef >= 0:  # NaN too
+        raise ValueError(f"`l2_coef` must be >= 0 (0: no penalty), got {l2_coef}.")
+    expert = expert_cost.mean()
+    nominal = -nominal_cost.mean()
+    regularizer = l2_coef * (expert_cost**2).mean()
+    return ConstraintLoss(expert + nominal + regularizer, expert, nominal, regularizer)

@@ -629,3 +629,66 @@ def _space_features(space: spaces.Space, what: str) -> tuple[int, bool]:
         f"The constraint nets take a flat Box or a Discrete {what} space, got {space}. Flatten the {what}s first "
         "(e.g. gymnasium.wrappers.FlattenObservation)."
     )
+
+
+class CostNet(_ConstraintNet):
+    """
+    A learned cost ``c(s, a) = LeakyReLU(MLP(x))``, unbounded above and (but for LeakyReLU's small negative slope)
+    non-negative: the cost model of :class:`~sb3_icrl.irlplus.IRLPlus`, which learns a cost as a negative reward
+    instead of a feasibility in ``(0, 1)``. Its output layer starts at zero, so every pair starts at cost 0 and the
+    learner first follows the reward alone. ``predict_feasibility`` returns ``exp(-c)`` (1 at zero cost), used only
+    for logging and for the trainer's ``feasibility_gap``; :meth:`cost` returns ``c`` itself.
+    See :class:`_ConstraintNet` for the arguments.
+    """
+
+    #: Slope of the output LeakyReLU below 0 (torch's default)
+    negative_slope: float = 0.01
+
+    def __init__(self, *args: Any, **kwargs: Any):
+        super().__init__(*args, **kwargs)
+        output_layer = self.network[-1]
+        assert isinstance(output_layer, nn.Linear)
+        with th.no_grad():
+            output_layer.weight.zero_()
+            output_layer.bias.zero_()
+
+    def forward(self, inputs: th.Tensor) -> th.Tensor:
+        """
+        :param inputs: Preprocessed inputs, ``(batch, input_dim)``
+        :return: ``c``, shape ``(batch,)``
+        """
+        return nn.functional.leaky_relu(self.network(inputs), self.negative_slope).reshape(-1)
+
+    def cost_tensor(self, obs: ArrayLike, actions: ArrayLike | None) -> th.Tensor:
+        """
+        ``c`` for a batch, with gradient (for the losses).
+
+        :param obs: Observations
+        :param actions: Actions
+        :return: ``c``, shape ``(batch,)``
+        """
+        return self(self.preprocess(obs, actions))
+
+    def cost(self, obs: np.ndarray, actions: np.ndarray | None) -> np.ndarray:
+        """
+        The learned cost ``c`` for a batch (no gradient).
+
+        :param obs: Observations as the env returned them, ``(batch, obs_dim)``
+        :param actions: Actions as sent to the env, ``(batch, action_dim)``
+        :return: Costs, float32 of shape ``(batch,)``
+        """
+        outputs = self._numpy_forward(obs, actions)
+        if outputs is not None:
+            return _leaky_relu(outputs[:, 0]).astype(np.float32)
+        with th.no_grad():
+            return self.cost_tensor(obs, actions).cpu().numpy().astype(np.float32)
+
+    def predict_feasibility(self, obs: ArrayLike, actions: ArrayLike | None) -> np.ndarray:
+        """
+        ``exp(-c)`` for a batch: 1 at zero cost, towards 0 as the cost grows (for logging).
+
+        :param obs: Observations
+        :param actions: Actions
+        :return: Float32 of shape ``(batch,)``
+        """
+        return np.exp(-self.cost(obs, actions)).astype(np.float32)  # type: ignore[arg-type]

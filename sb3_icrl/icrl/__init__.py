@@ -2,6 +2,7 @@
 
 from sb3_icrl.icrl.base import DEFAULT_LAGRANGE_KWARGS, ICRLAlgorithmMixin, LagrangianICRL
 from sb3_icrl.icrl.callbacks import TrueConstraintLogger
+from sb3_icrl.icrl.off_policy import OffPolicyICRL
 from sb3_icrl.icrl.recorder import NominalData, NominalTrajectory, TrajectoryRecorderVecEnvWrapper
 from sb3_icrl.icrl.tabular import TabularICRLResult, cost_table, tabular_icrl
 from sb3_icrl.icrl.trainer import ICRLTrainer, install_constraint
@@ -13,6 +14,7 @@ __all__ = [
     "LagrangianICRL",
     "NominalData",
     "NominalTrajectory",
+    "OffPolicyICRL",
     "TabularICRLResult",
     "TrajectoryRecorderVecEnvWrapper",
     "TrueConstraintLogger",

@@ -38,8 +38,8 @@ DemonstrationsLike = Demonstrations | Sequence[Trajectory] | str | os.PathLike
 
 class ICRLAlgorithmMixin:
     """
-    Turns an SB3 on-policy algorithm into an ICRL algorithm; listed first in the bases
-    (``class BC2L(ICRLAlgorithmMixin, PPOLagrangian)``).
+    Turns an SB3 algorithm, on-policy or off-policy, into an ICRL algorithm; listed first in the bases
+    (``class BC2L(ICRLAlgorithmMixin, PPOLagrangian)``, ``class IRLPlus(ICRLAlgorithmMixin, SACLagrangian)``).
 
     The env is wrapped at its bottom, below any ``VecNormalize``, as
     ``constraint_wrapper(TrajectoryRecorderVecEnvWrapper(raw_venv))``: the recorder keeps the learner's raw
@@ -84,7 +84,8 @@ class ICRLAlgorithmMixin:
     ) -> None:
         if constraint_net is not None and not isinstance(constraint_net, _ConstraintNet):
             raise TypeError(
-                f"`constraint_net` must be a FeasibilityNet or BetaFeasibilityNet, got {type(constraint_net).__name__}."
+                "`constraint_net` must be a FeasibilityNet, BetaFeasibilityNet or CostNet, got "
+                f"{type(constraint_net).__name__}."
             )
         if constraint_net is not None and constraint_net_kwargs:
             raise ValueError("Give either `constraint_net` (a built model) or `constraint_net_kwargs`, not both.")
@@ -169,7 +170,7 @@ class ICRLAlgorithmMixin:
         else:
             obs = np.asarray(self.observation_space.sample())[None]
             acts = np.asarray(self.action_space.sample())[None]
-        update_every = self.update_every if self.update_every is not None else self.n_steps * self.n_envs
+        update_every = self.update_every if self.update_every is not None else self._default_update_every()
         try:
             self.trainer_class(
                 self.constraint_net,
@@ -188,6 +189,10 @@ class ICRLAlgorithmMixin:
             if "unexpected keyword argument" not in str(error):
                 raise  # e.g. a constraint net of the wrong kind: the trainer's message says it
             raise TypeError(f"Bad `trainer_kwargs` for {self.trainer_class.__name__}: {error}") from error
+
+    def _default_update_every(self) -> int:
+        """Policy timesteps between constraint updates when ``update_every`` is not given: one on-policy rollout."""
+        return self.n_steps * self.n_envs
 
     def _check_constraint_net_spaces(self) -> None:
         assert self.constraint_net is not None
@@ -296,7 +301,7 @@ class ICRLAlgorithmMixin:
         assert self.constraint_net is not None and self.constraint_optimizer is not None
         assert self.recorder is not None and self.constraint_wrapper is not None and self.demonstrations is not None
         assert self.expert_obs is not None and self.expert_acts is not None
-        update_every = self.update_every if self.update_every is not None else self.n_steps * self.n_envs
+        update_every = self.update_every if self.update_every is not None else self._default_update_every()
         n_nominal = self.n_nominal_trajectories if self.n_nominal_trajectories is not None else len(self.demonstrations)
         return self.trainer_class(
             self.constraint_net,

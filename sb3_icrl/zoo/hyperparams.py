@@ -23,7 +23,7 @@ import yaml
 from stable_baselines3 import PPO
 from stable_baselines3.common.base_class import BaseAlgorithm
 
-from sb3_icrl import BC2L, GACL, MECL, VICRL, PPOLagrangian
+from sb3_icrl import BC2L, GACL, MECL, VICRL, IRLPlus, PPOLagrangian
 
 #: Command-line name -> algorithm class
 ALGOS: dict[str, type[BaseAlgorithm]] = {
@@ -33,9 +33,10 @@ ALGOS: dict[str, type[BaseAlgorithm]] = {
     "bc2l": BC2L,
     "mecl": MECL,
     "vicrl": VICRL,
+    "irlplus": IRLPlus,
 }
 #: Algorithms that learn a constraint from demonstrations
-ICRL_ALGOS = ("gacl", "bc2l", "mecl", "vicrl")
+ICRL_ALGOS = ("gacl", "bc2l", "mecl", "vicrl", "irlplus")
 #: Keys handled by the zoo itself, not passed to the algorithm (``forward_solver`` and ``planner_kwargs``: the ICRL
 #: algorithms' exact planner on tabular envs, see :func:`sb3_icrl.icrl.tabular.learn_with_planner`)
 ZOO_KEYS = (

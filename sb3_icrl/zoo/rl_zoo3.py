@@ -5,7 +5,7 @@ Train and evaluate sb3-icrl's algorithms with rl_zoo3 itself (``pip install rl_z
     python -m sb3_icrl.zoo.rl_zoo3 enjoy --algo mecl --env sb3_icrl/BlockedHalfCheetah-v0 --gym-packages sb3_icrl -f logs
 
 ``train`` and ``enjoy`` are rl_zoo3's own commands (``rl_zoo3.train``, ``rl_zoo3.enjoy``), run after
-:func:`register_rl_zoo3` has added ``ppolag``, ``gacl``, ``bc2l``, ``mecl`` and ``vicrl`` to rl_zoo3's ``ALGOS``
+:func:`register_rl_zoo3` has added ``ppolag``, ``gacl``, ``bc2l``, ``mecl``, ``vicrl`` and ``irlplus`` to rl_zoo3's ``ALGOS``
 (rl_zoo3 checks ``--algo`` against ``ALGOS`` before it imports ``--gym-packages``, so ``python -m rl_zoo3.train --algo
 mecl`` alone cannot know them). Without ``--conf-file``, ``train`` uses the shipped ``zoo_hyperparams/<algo>.yml``,
 written for rl_zoo3 by :func:`export_rl_zoo3_config` (rl_zoo3 looks entries up by the full env id,
@@ -41,7 +41,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList, EvalCallback, EventCallback
 from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 
-from sb3_icrl import BC2L, GACL, MECL, VICRL, PPOLagrangian
+from sb3_icrl import BC2L, GACL, MECL, VICRL, IRLPlus, PPOLagrangian
 from sb3_icrl.data.checks import env_id_of
 from sb3_icrl.zoo.callbacks import ConstraintEvalCallback
 from sb3_icrl.zoo.hyperparams import DEFAULT_HYPERPARAMS_DIR, EVAL_KEYS, NAMESPACE, _eval_string
@@ -212,6 +212,12 @@ class ZooVICRL(_ICRLZooMixin, VICRL):
     zoo_name = "vicrl"
 
 
+class ZooIRLPlus(_ICRLZooMixin, IRLPlus):
+    """:class:`~sb3_icrl.IRLPlus` for rl_zoo3 (see :class:`_ICRLZooMixin`)."""
+
+    zoo_name = "irlplus"
+
+
 #: The algorithms added to rl_zoo3's ``ALGOS``
 RL_ZOO3_ALGOS: dict[str, type[BaseAlgorithm]] = {
     "ppolag": ZooPPOLagrangian,
@@ -219,6 +225,7 @@ RL_ZOO3_ALGOS: dict[str, type[BaseAlgorithm]] = {
     "bc2l": ZooBC2L,
     "mecl": ZooMECL,
     "vicrl": ZooVICRL,
+    "irlplus": ZooIRLPlus,
 }
 
 

@@ -1,0 +1,381 @@
+"""IRL-Plus and the off-policy ICRL machinery: its loss, SAC-Lagrangian, what the learner sees, resets, saving."""
+
+import itertools
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch as th
+from gymnasium import spaces
+from stable_baselines3 import SAC
+from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.vec_env import DummyVecEnv
+
+from sb3_icrl import IRLPlus, IRLPlusPPO, SACLagrangian
+from sb3_icrl.common.costs import CostError
+from sb3_icrl.constraints import CostNet, FeasibilityNet, LearnedCostVecEnvWrapper, irl_plus_loss
+from sb3_icrl.data import Demonstrations, Trajectory
+from sb3_icrl.icrl import TrajectoryRecorderVecEnvWrapper
+from sb3_icrl.icrl.trainer import Minibatch
+from sb3_icrl.irlplus import IRLPlusTrainer
+from sb3_icrl.sac_lagrangian import CostReplayBuffer
+
+EPISODE = 8
+TRUE_COST = 1000.0  # far from any learned cost: a leak cannot go unnoticed
+
+
+class Line(gym.Env):
+    """A point on a line, moved by a Box action; reward for going right; info["cost"] is always TRUE_COST."""
+
+    def __init__(self):
+        self.observation_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
+        self.x, self.t = 0.0, 0
+
+    def _obs(self) -> np.ndarray:
+        return np.array([self.x, self.t / EPISODE], dtype=np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.x, self.t = 0.0, 0
+        return self._obs(), {}
+
+    def step(self, action):
+        self.x = float(np.clip(self.x + 0.25 * float(np.asarray(action).reshape(-1)[0]), -1.0, 1.0))
+        self.t += 1
+        return self._obs(), self.x, False, self.t >= EPISODE, {"cost": TRUE_COST}
+
+
+def line_demonstrations(n_trajectories: int = 2) -> Demonstrations:
+    """An expert that goes right to x = 0.5 and stays."""
+    trajectories = []
+    for _ in range(n_trajectories):
+        env = Line()
+        obs, _ = env.reset()
+        observations, actions, rewards = [obs], [], []
+        for _ in range(EPISODE):
+            action = np.array([1.0 if env.x < 0.5 else 0.0], dtype=np.float32)
+            obs, reward, _, _, _ = env.step(action)
+            observations.append(obs)
+            actions.append(action)
+            rewards.append(reward)
+        trajectories.append(
+            Trajectory(np.array(observations), np.array(actions), None, False, np.array(rewards), np.zeros(EPISODE))
+        )
+    return Demonstrations(trajectories, {})
+
+
+def make_env() -> DummyVecEnv:
+    return DummyVecEnv([lambda: Monitor(Line())])
+
+
+def make_irlplus(**kwargs) -> IRLPlus:
+    kwargs = {
+        "learning_starts": 16,
+        "batch_size": 16,
+        "buffer_size": 500,
+        "update_every": 16,
+        "seed": 0,
+        "policy_kwargs": {"net_arch": [8]},
+        "constraint_net_kwargs": {"hidden_sizes": [8]},
+        **kwargs,
+    }
+    return IRLPlus("MlpPolicy", make_env(), line_demonstrations(), **kwargs)
+
+
+# ---------------------------------------------------------------------------------------------------- the loss
+
+
+def test_irl_plus_loss_matches_a_hand_computed_value() -> None:
+    loss = irl_plus_loss(th.tensor([0.5, 1.0]), th.tensor([2.0, 0.0, 1.0]), l2_coef=0.1)
+    # mean_E c = 0.75, mean_N c = 1, 0.1 * mean_E c^2 = 0.1 * (0.25 + 1) / 2 = 0.0625
+    assert loss.total.item() == pytest.approx(0.75 - 1.0 + 0.0625)
+    assert (loss.expert.item(), loss.nominal.item(), loss.regularizer.item()) == pytest.approx((0.75, -1.0, 0.0625))
+    assert irl_plus_loss(th.tensor([0.5, 1.0]), th.tensor([2.0]), l2_coef=0.0).total.item() == pytest.approx(-1.25)
+    with pytest.raises(ValueError, match="l2_coef"):
+        irl_plus_loss(th.tensor([0.5]), th.tensor([1.0]), l2_coef=-1.0)
+
+
+def test_trainer_loss_on_a_tiny_fixed_batch() -> None:
+    """The trainer's loss through a CostNet set by hand: c = LeakyReLU(x), on raw inputs."""
+    net = CostNet(1, 1, hidden_sizes=[], use_action=False, normalize_input=False)
+    assert np.all(net.cost(np.array([[3.0], [-2.0]]), None) == 0.0)  # the output layer starts at 0
+    with th.no_grad():
+        net.network[0].weight.fill_(1.0)
+    expert_obs, nominal_obs = np.array([[0.5], [1.0]]), np.array([[2.0], [-1.0]])
+    trainer = IRLPlusTrainer(net, th.optim.SGD(net.parameters(), lr=0.1), expert_obs, np.zeros((2, 1)), None, None, 1)
+    batch = Minibatch(expert_obs, np.zeros((2, 1)), nominal_obs, np.zeros((2, 1)), np.arange(2))
+    loss, parts = trainer.loss(batch)
+    # expert costs 0.5 and 1 (mean 0.75, squares 0.625); nominal 2 and -0.01 (LeakyReLU), mean 0.995
+    assert loss.item() == pytest.approx(0.75 - 0.995 + 0.1 * 0.625, abs=1e-6)
+    assert parts == pytest.approx({"expert_cost": 0.75, "nominal_cost": 0.995, "l2_penalty": 0.0625})
+    np.testing.assert_allclose(net.cost(nominal_obs, None), [2.0, -0.01], rtol=1e-6)
+    np.testing.assert_allclose(net.predict_feasibility(expert_obs, None), np.exp([-0.5, -1.0]), rtol=1e-6)
+
+
+def test_an_update_lowers_the_expert_cost_relative_to_the_learner() -> None:
+    net = CostNet(1, 1, hidden_sizes=[4], use_action=False, normalize_input=False)
+    expert_obs, nominal_obs = np.full((8, 1), -1.0), np.full((8, 1), 1.0)
+    trainer = IRLPlusTrainer(net, th.optim.Adam(net.parameters(), lr=0.05), expert_obs, np.zeros((8, 1)), None, None, 1)
+    trainer.constraint_steps = 20
+    from sb3_icrl.icrl import NominalData, NominalTrajectory
+
+    trainer.update(NominalData.from_trajectories([NominalTrajectory(nominal_obs, np.zeros((8, 1)))]))
+    assert net.cost(nominal_obs, None).mean() > net.cost(expert_obs, None).mean() + 0.1
+
+
+# ---------------------------------------------------------------------------------------------------- SAC-Lagrangian
+
+
+class CostInfoPendulum(gym.Wrapper):
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        info["cost"] = float(abs(obs[0]))
+        return obs, reward, terminated, truncated, info
+
+
+def test_sac_lagrangian_with_a_zero_multiplier_is_sac() -> None:
+    kwargs = dict(learning_starts=20, batch_size=16, buffer_size=200, policy_kwargs=dict(net_arch=[8]), seed=0)
+    sac = SAC("MlpPolicy", "Pendulum-v1", **kwargs).learn(60)
+    lagrangian = SACLagrangian(
+        "MlpPolicy", CostInfoPendulum(gym.make("Pendulum-v1")), lagrange_kwargs={"init": 0.0, "lr": 0.0}, **kwargs
+    ).learn(60)
+    extended = lagrangian.policy.state_dict()
+    for name, value in sac.policy.state_dict().items():  # the actor, the reward critics and their targets
+        assert th.equal(value, extended[name]), name
+    # ...while the cost critic learned the costs
+    assert lagrangian.logger.name_to_value["train/cost_critic_loss"] > 0
+
+
+def test_sac_lagrangian_multiplier_rises_over_budget_and_costs_are_stored() -> None:
+    env = DummyVecEnv([lambda: CostInfoPendulum(gym.make("Pendulum-v1", max_episode_steps=20))])
+    model = SACLagrangian(
+        "MlpPolicy", env, budget_statistic="episode", learning_starts=10, batch_size=8, buffer_size=100, seed=0
+    )
+    model.learn(60)
+    assert isinstance(model.replay_buffer, CostReplayBuffer)
+    assert np.all(model.replay_buffer.costs[:60] > 0)  # |cos| is never 0 here
+    assert model.lagrange_multiplier.value[0] > 1.0  # default init 1, each 20-step episode costs far more than 0
+    assert len(model.ep_cost_buffer) == 3
+
+
+def test_sac_lagrangian_clear_errors() -> None:
+    env = CostInfoPendulum(gym.make("Pendulum-v1"))
+    with pytest.raises(ValueError, match="cost_budget"):
+        SACLagrangian("MlpPolicy", env, cost_budget=-1.0)
+    with pytest.raises(ValueError, match="budget_statistic"):
+        SACLagrangian("MlpPolicy", env, budget_statistic="step")
+    with pytest.raises(ValueError, match="critic"):
+        SACLagrangian("MlpPolicy", env, cost_fn=lambda obs, acts: np.zeros(len(obs)))
+    with pytest.raises(ValueError, match="n_steps"):
+        SACLagrangian("MlpPolicy", env, n_steps=3)
+    with pytest.raises(TypeError, match="CostSACPolicy"):
+        SACLagrangian(SAC.policy_aliases["MlpPolicy"], env)
+    model = SACLagrangian("MlpPolicy", gym.make("Pendulum-v1"), learning_starts=5, batch_size=4, buffer_size=50)
+    with pytest.raises(CostError, match="cost"):
+        model.learn(10)
+
+
+def test_sac_lagrangian_cost_fn_is_computed_on_sampled_batches() -> None:
+    calls = []
+
+    def cost_fn(observations, actions):
+        calls.append((observations.shape, actions.shape))
+        return np.ones(len(observations))
+
+    model = SACLagrangian(
+        "MlpPolicy", gym.make("Pendulum-v1"), cost_fn=cost_fn, budget_statistic="critic", learning_starts=10, batch_size=8
+    )
+    model.learn(20)
+    assert calls and set(calls) == {((8, 3), (8, 1))}  # once per gradient step, on the batch, never per env step
+    assert model.logger.name_to_value["train/batch_cost"] == 1.0
+
+
+# ---------------------------------------------------------------------------------------------------- IRL-Plus
+
+
+def test_the_learner_never_sees_the_true_cost() -> None:
+    model = make_irlplus()
+    wrapper = model.env
+    assert isinstance(wrapper, LearnedCostVecEnvWrapper) and isinstance(wrapper.venv, TrajectoryRecorderVecEnvWrapper)
+    seen = []
+    model.set_cost_fn(lambda obs, acts: (seen.append(model.constraint_cost(obs, acts)), seen[-1])[1])
+    model.learn(48)
+    assert model.replay_buffer.cost_info_key is None and np.all(model.replay_buffer.costs == 0)
+    assert seen and max(float(np.max(np.abs(costs))) for costs in seen) < TRUE_COST / 10
+    assert model.n_constraint_updates >= 2
+    assert isinstance(model.constraint_net, CostNet)
+
+
+def test_resets_draw_new_output_layers_and_keep_the_reward_critic() -> None:
+    model = make_irlplus()
+    reward_critic = {k: v.clone() for k, v in model.critic.state_dict().items()}
+    mu, cost_last = model.actor.mu.weight.clone(), model.cost_critic.q_networks[0][-1].weight.clone()
+    model.reset_policy_layers()
+    assert not th.equal(mu, model.actor.mu.weight) and not th.equal(cost_last, model.cost_critic.q_networks[0][-1].weight)
+    assert all(th.equal(value, model.critic.state_dict()[key]) for key, value in reward_critic.items())
+
+    counts = []
+    model.reset_policy_layers = lambda: counts.append(model.num_timesteps)  # type: ignore[method-assign]
+    model.learn(64)
+    assert counts and all(b - a >= 16 for a, b in itertools.pairwise(counts))
+    model = make_irlplus(policy_resets=False)
+    model.reset_policy_layers = lambda: counts.append(-1)  # type: ignore[method-assign]
+    model.learn(64)
+    assert -1 not in counts
+
+
+def test_without_separate_critics_the_cost_joins_the_reward_critic() -> None:
+    model = make_irlplus(separate_critics=False)
+    cost_critic = {k: v.clone() for k, v in model.cost_critic.state_dict().items()}
+    model.learn(48)
+    assert all(th.equal(value, model.cost_critic.state_dict()[key]) for key, value in cost_critic.items())
+    assert "train/cost_critic_loss" not in model.logger.name_to_value
+    assert not model.separate_critics
+
+
+def test_warmup_postpones_the_cost_updates() -> None:
+    model = make_irlplus(warmup_timesteps=40)
+    model.learn(32)
+    assert model.n_constraint_updates == 0 and np.all(model.constraint_cost(np.zeros((3, 2)), np.zeros((3, 1))) == 0)
+    model.learn(32, reset_num_timesteps=False)
+    assert model.n_constraint_updates >= 1
+
+
+def test_irlplus_save_load_round_trip(tmp_path) -> None:
+    model = make_irlplus()
+    model.learn(48)
+    model.save(tmp_path / "irlplus.zip")
+    loaded = IRLPlus.load(tmp_path / "irlplus.zip", env=make_env(), demonstrations=line_demonstrations())
+    for name in ("policy", "constraint_net"):
+        saved, restored = getattr(model, name).state_dict(), getattr(loaded, name).state_dict()
+        assert saved.keys() == restored.keys()
+        assert all(th.equal(value, restored[key]) for key, value in saved.items()), name
+    for name in ("constraint_optimizer", "cost_critic"):
+        assert str(getattr(model, name).state_dict()) == str(getattr(loaded, name).state_dict())
+    assert loaded.n_constraint_updates == model.n_constraint_updates and loaded.l2_coef == 0.1
+    np.testing.assert_array_equal(loaded.lagrange_multiplier.value, [1.0])
+    obs = np.array([[0.3, 0.5], [-0.2, 0.1]], dtype=np.float32)
+    np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0], loaded.predict(obs, deterministic=True)[0])
+    assert loaded.cost_fn == loaded.constraint_cost  # the learner computes the loaded model's cost
+    loaded.learn(32)
+    with pytest.raises(ValueError, match="IRLPlus"):
+        SACLagrangian.load(tmp_path / "irlplus.zip")
+
+
+def test_irlplus_clear_errors() -> None:
+    with pytest.raises(ValueError, match="cost_fn"):
+        make_irlplus(cost_fn=lambda obs, acts: np.zeros(len(obs)))
+    with pytest.raises(ValueError, match="reset_every"):
+        make_irlplus(reset_every=0)
+    with pytest.raises(TypeError, match="CostNet"):
+        make_irlplus(constraint_net=FeasibilityNet(2, 1), constraint_net_kwargs=None)
+    with pytest.raises(ValueError, match="budget_statistic"):
+        make_irlplus(budget_statistic="episode")
+
+
+def test_irlplus_on_ppo_learns_and_round_trips(tmp_path) -> None:
+    kwargs = dict(n_steps=16, batch_size=16, n_epochs=1, seed=0, policy_kwargs={"net_arch": [8]}, reset_every=16)
+    model = IRLPlusPPO("MlpPolicy", make_env(), line_demonstrations(), constraint_net_kwargs={"hidden_sizes": [8]}, **kwargs)
+    action_net = model.policy.action_net.weight.clone()
+    model.learn(48)
+    assert model.n_constraint_updates >= 2 and isinstance(model.constraint_net, CostNet)
+    assert not th.equal(action_net, model.policy.action_net.weight)
+    np.testing.assert_array_equal(model.lagrange_multiplier.value, [1.0])
+    model.save(tmp_path / "ppo.zip")
+    loaded = IRLPlusPPO.load(tmp_path / "ppo.zip", env=make_env(), demonstrations=line_demonstrations())
+    assert all(th.equal(v, loaded.constraint_net.state_dict()[k]) for k, v in model.constraint_net.state_dict().items())
+
+
+# ---------------------------------------------------------------------------------------------------- recovery (slow)
+
+
+class WallWorld(gym.Env):
+    """
+    The wall grid world (``GridWorldWall-v0``'s unsafe row 3, columns 0-4, on a 7x7 grid) with continuous moves, as SAC
+    needs Box actions: the position ``(row, column)`` moves by the action (at most one cell per axis and step). Reward:
+    the rows gained, -0.1 per step, 1 on reaching the bottom row (which ends the episode); 20 steps at most. Straight
+    down through the wall is the shortest way, a detour right of column 5 the safe one.
+    """
+
+    def __init__(self):
+        self.observation_space = spaces.Box(0.0, 1.0, (2,), np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
+        self.position, self.t = np.array([0.5, 0.5]), 0
+
+    def _obs(self) -> np.ndarray:
+        return (self.position / 7.0).astype(np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.position, self.t = np.array([0.5, 0.5]), 0
+        return self._obs(), {}
+
+    def step(self, action):
+        row_before = self.position[0]
+        self.position = np.clip(self.position + np.clip(action, -1.0, 1.0), 0.0, 6.999)
+        self.t += 1
+        at_goal = bool(self.position[0] >= 6.0)
+        unsafe = bool(3.0 <= self.position[0] < 4.0 and self.position[1] < 5.0)
+        reward = self.position[0] - row_before - 0.1 + float(at_goal)
+        return self._obs(), float(reward), at_goal, self.t >= 20, {"cost": float(unsafe)}
+
+
+def wall_world_expert() -> Trajectory:
+    """The safe detour: diagonally to (2.5, 2.5), right to column 5.5, down to the bottom row (9 steps)."""
+    env = WallWorld()
+    obs, _ = env.reset()
+    observations, actions, rewards = [obs], [], []
+    for waypoint in ([2.5, 2.5], [2.5, 5.5], [6.5, 5.5]):
+        while np.linalg.norm(env.position - waypoint) > 1e-6:
+            action = np.clip(np.array(waypoint) - env.position, -1.0, 1.0).astype(np.float32)
+            obs, reward, _, _, info = env.step(action)
+            assert info["cost"] == 0.0
+            observations.append(obs)
+            actions.append(action)
+            rewards.append(reward)
+    return Trajectory(np.array(observations), np.array(actions), None, True, np.array(rewards), np.zeros(len(actions)))
+
+
+@pytest.mark.slow
+def test_irlplus_recovers_the_wall_and_detours() -> None:
+    """IRL-Plus on SAC learns the wall from the expert's detour: the final policy reaches the goal and never crosses it."""
+    from sb3_icrl.common.evaluation import evaluate_constraint
+
+    model = IRLPlus(
+        "MlpPolicy",
+        WallWorld(),
+        Demonstrations([wall_world_expert() for _ in range(5)], {}),
+        update_every=500,
+        warmup_timesteps=2000,
+        constraint_steps=10,
+        constraint_learning_rate=3e-3,
+        constraint_net_kwargs={"hidden_sizes": [32], "use_action": False},
+        learning_starts=500,
+        batch_size=128,
+        learning_rate=1e-3,
+        train_freq=2,
+        policy_kwargs={"net_arch": [64, 64]},
+        seed=0,
+    )
+    model.learn(10_000)
+    evaluation = evaluate_constraint(model, WallWorld(), n_eval_episodes=10, seed=0)
+    assert evaluation.violation_rate <= 0.1
+    assert np.all(evaluation.episode_rewards > 5.0)  # every episode reaches the bottom row (6 rows + 1, less the steps)
+    cells = np.array([[row + 0.5, col + 0.5] for row in range(7) for col in range(7)]) / 7.0
+    costs = model.constraint_cost(cells, np.zeros((49, 2))).reshape(7, 7)
+    assert costs[3, :3].mean() > 0.5 > costs[:3, 5:].max()  # the wall costs, the expert's way does not
+
+
+def test_train_cli_runs_irlplus_on_blocked_half_cheetah(tmp_path) -> None:
+    """``train.py --algo irlplus --env BlockedHalfCheetah-v0`` trains on the shipped recipe and demonstrations."""
+    from sb3_icrl.zoo import main
+
+    params = ["warmup_timesteps:0", "update_every:500", "learning_starts:100", "batch_size:32", "buffer_size:2000"]
+    params += ["policy_kwargs:dict(net_arch=[16])", "constraint_net_kwargs:dict(hidden_sizes=[8], normalize_input=False)"]
+    args = ["--algo", "irlplus", "--env", "BlockedHalfCheetah-v0", "-n", "1200", "-params", *params]
+    assert main([*args, "--eval-freq", "1200", "--eval-episodes", "1", "-f", str(tmp_path), "--verbose", "0"]) == 0
+    run = tmp_path / "irlplus" / "BlockedHalfCheetah-v0_1"
+    model = IRLPlus.load(run / "BlockedHalfCheetah-v0.zip", device="cpu")
+    assert model.num_timesteps == 1200 and model.n_constraint_updates >= 1
+    assert isinstance(model.constraint_net, CostNet) and model.warmup_timesteps == 0
