@@ -206,3 +206,23 @@ def test_a_cache_from_before_the_per_constraint_rates(tmp_path, monkeypatch, rep
     [(_, result)] = evaluate_finished([run], root, suite, log=lambda line: None)
     assert bool(calls) == evaluated_again
     assert result.constraint_violation_rates == (fresh.constraint_violation_rates if evaluated_again else {})
+
+
+def test_training_evaluations_log_each_constraint(tmp_path):
+    """The evaluations during training log each constraint's violation rate beside the overall one."""
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.logger import configure
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from sb3_icrl.zoo.callbacks import ConstraintEvalCallback
+
+    eval_env = DummyVecEnv([lambda: gym.make(MULTI)])
+    model = PPO("MlpPolicy", DummyVecEnv([lambda: gym.make(MULTI)]), n_steps=32, batch_size=32, device="cpu", seed=0)
+    model.set_logger(configure(str(tmp_path), ["csv"]))
+    callback = ConstraintEvalCallback(eval_env, n_eval_episodes=1, eval_freq=1, verbose=0)
+    callback.init_callback(model)
+    callback.num_timesteps = callback.n_calls = 1
+    callback.on_step()
+    model.logger.close()
+    logged = (tmp_path / "progress.csv").read_text().splitlines()[0].split(",")
+    assert {"eval/violation_rate", "eval/violation_rate_velocity", "eval/violation_rate_distance"} <= set(logged)
