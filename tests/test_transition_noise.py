@@ -234,3 +234,25 @@ def test_recorded_noise_of_a_run():
     assert isinstance(env, TransitionNoiseWrapper) and (env.sigma, env.model) == (0.01, "shared")
     with pytest.raises(ValueError, match="transition_noise_model"):
         recorded_transition_noise({"transition_noise": 0.01, "transition_noise_model": "scalar"})
+
+
+def test_identification_episodes_draw_the_noise_of_the_run():
+    """The learner's own episodes of the identification probes run under the run's noise model."""
+    from sb3_icrl.metrics.identification import policy_pairs
+
+    class Push:
+        def predict(self, observation, deterministic=True):
+            return np.zeros(len(observation), dtype=np.int64), None
+
+    def observations(sigma: float, model: str) -> np.ndarray:
+        return policy_pairs(Push(), "CartPole-v1", n_episodes=1, seed=0, transition_noise=sigma, transition_noise_model=model)[
+            0
+        ]
+
+    clean = observations(0.0, "component")
+    shared, component = observations(0.01, "shared")[: len(clean)], observations(0.01, "component")[: len(clean)]
+    # Row 0 is the reset; CartPole's own state is untouched by observation noise, so the episodes stay aligned
+    shared_noise, component_noise = (shared - clean)[1:5], (component - clean)[1:5]
+    np.testing.assert_allclose(shared_noise, np.repeat(shared_noise[:, :1], 4, axis=1), atol=1e-6)
+    assert np.abs(shared_noise).min() > 0
+    assert all(len(np.unique(np.round(row, 6))) == 4 for row in component_noise)
