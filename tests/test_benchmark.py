@@ -127,6 +127,9 @@ def test_variant_settings_become_train_flags():
     assert argv[argv.index("--violating-fraction") + 1] == "0.2"
     noisy = load_suite("noise").runs()[-1].train_argv("logs")
     assert noisy[noisy.index("--transition-noise") + 1] == "0.1"
+    # The noise suite is compared with the paper's table: it draws the noise as the paper's code does
+    assert {settings["transition_noise_model"] for settings in load_suite("noise").variants.values()} == {"shared"}
+    assert noisy[noisy.index("--transition-noise-model") + 1] == "shared"
 
 
 # ---------------------------------------------------------------- statistics against hand computation

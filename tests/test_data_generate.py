@@ -133,3 +133,33 @@ def test_info_says_unknown_for_data_without_true_costs(tmp_path, capsys):
     clean = str(tmp_path / "clean.npz")
     save(clean, demos.trajectories, {**demos.metadata, "true_costs_known": True})
     assert main(["info", clean]) == 0 and json.loads(capsys.readouterr().out)["violating_share"] == 0.0
+
+
+@pytest.mark.parametrize("fraction", [0.3, 1.0])
+def test_cli_keeps_the_violating_share_asked(tmp_path, fraction):
+    """``python -m sb3_icrl.data generate --violating-fraction``: the saved dataset holds that share, on the true cost."""
+    out = tmp_path / "demos.npz"
+    args = ["generate", "--env", "GridWorldWall-v0", "--expert", "pilag", "--n", "10", "--out", str(out)]
+    assert main([*args, "--violating-fraction", str(fraction), "--seed", "0"]) == 0
+    demos = load(out)
+    sidecar = json.loads(out.with_suffix(".json").read_text())
+    assert demos.violations.sum() == round(fraction * 10) == sidecar["n_violating_trajectories"]
+    assert sidecar["violating_share"] == pytest.approx(fraction)
+    # A trajectory counts as violating by its own true costs, not by the slot it was drawn for
+    assert all(t.violates == (t.episode_cost > 0) for t in demos)
+    words = sidecar["command"].split()
+    assert float(words[words.index("--violating-fraction") + 1]) == fraction  # the command that makes it again
+
+
+def test_a_share_of_a_count_that_is_not_whole_rounds_to_the_nearest():
+    demos = generate_demonstrations(CorridorExpert(), CORRIDOR, n_trajectories=5, violating_fraction=0.3, seed=2)
+    assert demos.violations.sum() == 2  # round(1.5)
+    assert demos.metadata["generation"]["n_violating_requested"] == 2
+
+
+def test_cli_refuses_a_share_outside_zero_to_one(tmp_path, capsys):
+    out = tmp_path / "demos.npz"
+    args = ["generate", "--env", "GridWorldWall-v0", "--expert", "pilag", "--n", "4", "--out", str(out)]
+    assert main([*args, "--violating-fraction", "1.5"]) == 1
+    assert "`violating_fraction` is a share of trajectories in [0, 1], got 1.5" in capsys.readouterr().err
+    assert not out.exists()

@@ -1,7 +1,6 @@
 """How driving episodes ended (collision, off road, time out, goal) in ``sb3-icrl compare`` and the benchmark report."""
 
 import csv
-import functools
 import io
 import json
 import os
@@ -10,7 +9,7 @@ from dataclasses import asdict
 
 import pytest
 
-from sb3_icrl.benchmark import load_suite, report, summarise_suite
+from sb3_icrl.benchmark import report, summarise_suite
 from sb3_icrl.benchmark.report import HELDOUT_FILE, csv_rows, evaluate_finished, markdown_table
 from sb3_icrl.zoo.compare import RunResult, format_table, summarise
 from sb3_icrl.zoo.runs import FINISHED_FILE
@@ -54,11 +53,8 @@ SUITE = "description: outcomes\nenvs: [GridWorldWall-v0]\nalgos: [bc2l, vicrl]\n
 
 
 @pytest.fixture
-def suite(tmp_path, monkeypatch):
-    monkeypatch.setattr(report, "stratified_bootstrap_ci", functools.partial(report.stratified_bootstrap_ci, reps=20))
-    path = tmp_path / "suite.yml"
-    path.write_text(SUITE)
-    return load_suite(str(path))
+def suite(report_suite):
+    return report_suite(SUITE)
 
 
 def test_report_shows_how_the_episodes_ended_per_cell_and_per_seed(suite):

@@ -37,6 +37,11 @@ def write(tmp_path, text: str) -> str:
             "`variants.a.transition_noise` is given twice",
         ),
         (HEAD + "variants:\n  imperfect: {violating_fraction: 1.5}\n", 5, r"within \[0, 1\], got 1.5"),
+        (
+            HEAD + "variants:\n  noisy: {transition_noise: 0.1, transition_noise_model: scalar}\n",
+            5,
+            "`transition_noise_model` is one of component, shared .*got 'scalar'",
+        ),
         (HEAD + "train_args: {eval_episodes: -1}\n", 4, "`eval_episodes` is at least 1"),
         (
             "envs: [GridWorld-v0]\nalgos: [bc2l]\nseeds: [0]\n",

@@ -603,3 +603,45 @@ def test_a_relative_demonstrations_path_is_recorded_absolute(tmp_path, monkeypat
     run = tmp_path / "logs" / "bc2l" / "GridWorldWall-v0_1"
     recorded = yaml.safe_load((run / "GridWorldWall-v0" / "args.yml").read_text())
     assert recorded["demonstrations"] == str(tmp_path / "mine.npz")  # plots and reports run elsewhere still find it
+
+
+def test_noise_model_is_recorded_and_resume_keeps_it(tmp_path: pathlib.Path) -> None:
+    """The run's args.yml carries the noise model its envs drew with; resuming with another one is refused."""
+    from sb3_icrl.envs.wrappers import TransitionNoiseWrapper, recorded_transition_noise
+    from sb3_icrl.zoo.train import create_env
+
+    args = ["--algo", "ppolag", "--env", "ConstrainedCorridor-v0", *FAST, "--transition-noise", "0.01"]
+    args += ["--env-kwargs", "max_steps:8", "-f", str(tmp_path), "--verbose", "0", "--exp-id", "1"]
+    assert main([*args, "--transition-noise-model", "shared"]) == 0
+    recorded = yaml.safe_load(
+        (tmp_path / "ppolag" / "ConstrainedCorridor-v0_1" / "ConstrainedCorridor-v0" / "args.yml").read_text()
+    )
+    assert recorded_transition_noise(recorded) == (0.01, "shared")
+    # An env rebuilt from the record (as evaluation and enjoy build it) draws the same way
+    sigma, noise_model = recorded_transition_noise(recorded)
+    params = preprocess_hyperparams(load_hyperparams("ppolag", resolve_env_id("ConstrainedCorridor-v0"))[0])
+    venv, _ = create_env(
+        resolve_env_id("ConstrainedCorridor-v0"),
+        params,
+        1,
+        0,
+        {},
+        sigma,
+        None,
+        eval_env=True,
+        transition_noise_model=noise_model,
+    )
+    noise_wrappers = [env for env in _wrapper_chain(venv.unwrapped.envs[0]) if isinstance(env, TransitionNoiseWrapper)]
+    assert [(env.sigma, env.model) for env in noise_wrappers] == [(0.01, "shared")]
+    venv.close()
+    assert main([*args, "--resume", "--transition-noise-model", "component"]) == 2
+    assert main([*args, "--resume", "--transition-noise-model", "shared"]) == 0  # finished: nothing to do
+    with pytest.raises(SystemExit, match="2"):
+        main([*args, "--transition-noise-model", "scalar"])
+
+
+def _wrapper_chain(env: gym.Env) -> list[gym.Env]:
+    chain = [env]
+    while isinstance(chain[-1], gym.Wrapper):
+        chain.append(chain[-1].env)
+    return chain

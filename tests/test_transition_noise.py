@@ -161,3 +161,98 @@ def test_works_with_make_vec_env():
     first = rollout()
     np.testing.assert_array_equal(first, rollout())
     assert not np.allclose(first[:, 0], first[:, 1])
+
+
+def test_shared_model_adds_one_draw_to_every_component_on_mujoco():
+    env, twin = TransitionNoiseWrapper(gym.make("sb3_icrl/BlockedHalfCheetah-v0"), 0.05, model="shared"), gym.make(
+        "sb3_icrl/BlockedHalfCheetah-v0"
+    )
+    env.reset(seed=3)
+    twin.reset(seed=3)
+    for _ in range(3):
+        twin.step(np.full(6, 0.2))
+        env.step(np.full(6, 0.2))
+        qpos, qvel = env.unwrapped.data.qpos.copy(), env.unwrapped.data.qvel.copy()
+        shift = np.concatenate([qpos - twin.unwrapped.data.qpos, qvel - twin.unwrapped.data.qvel])
+        np.testing.assert_allclose(shift, np.full(18, shift[0]), atol=1e-12)
+        np.testing.assert_allclose(shift, env.last_noise, atol=1e-12)
+        assert shift[0] != 0.0
+        twin.unwrapped.set_state(qpos, qvel)  # the twin goes on from the same perturbed state
+
+
+def test_component_model_draws_each_component_apart_on_mujoco():
+    env = noisy("BlockedHalfCheetah-v0", 0.05)
+    assert env.model == "component"
+    env.reset(seed=3)
+    env.step(np.zeros(6))
+    assert len(np.unique(env.last_noise)) == env.last_noise.size
+
+
+@pytest.mark.parametrize("model, distinct", [("shared", 1), ("component", 4)])
+def test_noise_models_on_a_box_env_without_mujoco(model, distinct):
+    # CartPole's bounds (4.8, inf, 0.42 rad, inf) are far from its first states: no clipping blurs the noise
+    env, twin = TransitionNoiseWrapper(gym.make("CartPole-v1"), 0.01, model=model), gym.make("CartPole-v1")
+    env.reset(seed=1)
+    twin.reset(seed=1)
+    obs, *_ = env.step(0)
+    clean, *_ = twin.step(0)
+    noise = obs.astype(np.float64) - clean
+    np.testing.assert_allclose(noise, env.last_noise, atol=1e-6)
+    assert len(np.unique(np.round(noise, 6))) == distinct
+
+
+def test_same_seed_same_shared_noise():
+    def first_noises(seed: int) -> list[float]:
+        env = TransitionNoiseWrapper(gym.make("sb3_icrl/BlockedSwimmer-v0"), 0.05, model="shared")
+        env.reset(seed=seed)
+        noises = []
+        for _ in range(4):
+            env.step(np.zeros(2))
+            noises.append(float(env.last_noise[0]))
+        return noises
+
+    assert first_noises(7) == first_noises(7) != first_noises(8)
+
+
+@pytest.mark.parametrize("model", ["scalar", "Shared", None])
+def test_bad_noise_model(model):
+    with pytest.raises(ValueError, match=r"names a transition noise model: 'component' .* or 'shared'"):
+        TransitionNoiseWrapper(gym.make("CartPole-v1"), 0.1, model=model)
+
+
+def test_recorded_noise_of_a_run():
+    from sb3_icrl.envs.wrappers import recorded_transition_noise, transition_noise_wrapper
+
+    assert recorded_transition_noise({"transition_noise": 0.01, "transition_noise_model": "shared"}) == (0.01, "shared")
+    # Runs recorded before the noise had a model drew it per component
+    assert recorded_transition_noise({"transition_noise": 0.01}) == (0.01, "component")
+    assert recorded_transition_noise({}) == (0.0, "component")
+    assert transition_noise_wrapper(0.0, "shared") is None
+    wrap = transition_noise_wrapper(*recorded_transition_noise({"transition_noise": 0.01, "transition_noise_model": "shared"}))
+    assert wrap is not None
+    env = wrap(gym.make("CartPole-v1"))
+    assert isinstance(env, TransitionNoiseWrapper) and (env.sigma, env.model) == (0.01, "shared")
+    with pytest.raises(ValueError, match="transition_noise_model"):
+        recorded_transition_noise({"transition_noise": 0.01, "transition_noise_model": "scalar"})
+
+
+def test_identification_episodes_draw_the_noise_of_the_run():
+    """The learner's own episodes of the identification probes run under the run's noise model."""
+    from sb3_icrl.metrics.identification import policy_pairs
+
+    class Push:
+        def predict(self, observation, deterministic=True):
+            return np.zeros(len(observation), dtype=np.int64), None
+
+    def observations(sigma: float, model: str) -> np.ndarray:
+        return policy_pairs(Push(), "CartPole-v1", n_episodes=1, seed=0, transition_noise=sigma, transition_noise_model=model)[
+            0
+        ]
+
+    clean = observations(0.0, "component")
+    shared, component = observations(0.01, "shared")[: len(clean)], observations(0.01, "component")[: len(clean)]
+    # Row 0 is the reset; CartPole's own state is untouched by observation noise, so the episodes stay aligned
+    shared_noise, component_noise = (shared - clean)[1:5], (component - clean)[1:5]
+    np.testing.assert_allclose(shared_noise, np.repeat(shared_noise[:, :1], 4, axis=1), atol=1e-6)
+    assert np.abs(shared_noise).min() > 0
+    assert all(len(np.unique(np.round(row, 6))) == 4 for row in component_noise)

@@ -32,7 +32,7 @@ import numpy as np
 import yaml
 
 from sb3_icrl.benchmark.suite import RunSpec, Suite
-from sb3_icrl.common.evaluation import OUTCOME_KEYS, OUTCOME_RATE_KEYS
+from sb3_icrl.common.evaluation import CONSTRAINT_VIOLATION_PREFIX, OUTCOME_KEYS, OUTCOME_RATE_KEYS
 from sb3_icrl.common.statistics import (
     MIN_PAIRS_FOR_WILCOXON,
     MIN_SEEDS_FOR_INTERVAL,
@@ -48,6 +48,7 @@ from sb3_icrl.common.statistics import (
 )
 from sb3_icrl.common.utils import atomic_write_bytes, atomic_write_json
 from sb3_icrl.envs import heldout_env_kwargs
+from sb3_icrl.envs.constraint_spec import get_constraint_spec
 from sb3_icrl.zoo.compare import OUTCOME_TITLES, RunResult, evaluate_run, format_outcome_rate, summarise
 from sb3_icrl.zoo.hyperparams import env_name
 from sb3_icrl.zoo.runs import (
@@ -137,7 +138,7 @@ def evaluate_finished(
             if (
                 isinstance(saved, dict)
                 and saved.get("settings") == settings
-                and {entry.name for entry in fields(RunResult)} == set(saved.get("result", {}))
+                and _cache_fields_fit(saved.get("result", {}), run.env_id, env_kwargs)
                 and os.path.getmtime(cache) >= os.path.getmtime(os.path.join(folder, "finished.json"))
             ):
                 cached = RunResult(**saved["result"])
@@ -155,6 +156,33 @@ def evaluate_finished(
         cached.run = os.path.relpath(folder, root)
         results.append((run, cached))
     return results
+
+
+def declares_several_constraints(env_id: str, env_kwargs: dict[str, Any] | None = None) -> bool:
+    """
+    :param env_id: A registered env id
+    :param env_kwargs: The keyword arguments it is made with
+    :return: Whether the env declares several constraints (its evaluations report each one's violation rate);
+        ``True`` when the declaration cannot be read, so that a result without those rates is not taken as complete
+    """
+    try:
+        spec = get_constraint_spec(env_id, env_kwargs)
+    except Exception:  # an env that cannot be made here: its result is evaluated again, which says why
+        return True
+    return spec is not None and len(spec.features) > 1
+
+
+def _cache_fields_fit(result: Any, env_id: str, env_kwargs: dict[str, Any]) -> bool:
+    """
+    Whether a cached held-out result has the fields of :class:`RunResult`; one saved before the per-constraint
+    violation rates were kept fits too (as none) on an env with one constraint, which has none to keep.
+    """
+    if not isinstance(result, dict):
+        return False
+    expected = {entry.name for entry in fields(RunResult)}
+    if set(result) == expected:
+        return True
+    return set(result) == expected - {"constraint_violation_rates"} and not declares_several_constraints(env_id, env_kwargs)
 
 
 def constraint_metrics(
@@ -263,6 +291,7 @@ def previous_results(
                 )
             key = os.path.relpath(run.run_folder(root), root)
             rates = {column: seed[column] for column in OUTCOME_RATE_KEYS.values() if column in seed}
+            per_constraint = {column: seed[column] for column in seed if column.startswith(CONSTRAINT_VIOLATION_PREFIX)}
             result = RunResult(
                 key,
                 run.algo,
@@ -276,9 +305,11 @@ def previous_results(
                 int(seed["n_episodes"]),
                 episode_length=_float(seed.get("episode_length")),
                 outcome_rates=rates,
+                constraint_violation_rates=per_constraint,
             )
             results.append((run, result))
-            metrics[key] = {column: value for column, value in seed.items() if column not in (*_RESULT_KEYS, *rates)}
+            kept = (*_RESULT_KEYS, *rates, *per_constraint)
+            metrics[key] = {column: value for column, value in seed.items() if column not in kept}
     missing = [by_name[name] for name in summary.get("runs_missing", []) if name in by_name]
     return results, metrics, missing
 
@@ -721,6 +752,7 @@ def summarise_suite(
                             # A learner that ends its episodes on purpose shows here (null: evaluated before it was kept)
                             "episode_length": r.episode_length,
                             **r.outcome_rates,  # driving envs: how the held-out episodes ended
+                            **r.constraint_violation_rates,  # envs with several constraints: each one's
                             **metrics.get(r.run, {}),
                         }
                         for r in mine
@@ -892,6 +924,7 @@ def markdown_table(summary: dict[str, Any]) -> str:
         row.append(format_hours(hours) if hours is not None else "-")
         lines.append("| " + " | ".join(row) + " |")
     lines += aggregate_lines(summary)
+    lines += constraint_lines(summary)
     lines += outcome_lines(summary)
     if summary.get("model") == "best":
         lines += ["", BEST_MODELS_NOTE]
@@ -973,6 +1006,50 @@ def aggregate_lines(summary: dict[str, Any]) -> list[str]:
 OUTCOME_COLUMNS = tuple(OUTCOME_RATE_KEYS[key] for key in OUTCOME_KEYS)
 
 
+def constraint_columns(summary: dict[str, Any]) -> list[str]:
+    """The per-seed keys of each constraint's violation rate in a summary, in the order the cells first give them."""
+    columns: list[str] = []
+    for cell in summary["cells"]:
+        for seed in cell["per_seed"]:
+            columns += [key for key in seed if key.startswith(CONSTRAINT_VIOLATION_PREFIX) and key not in columns]
+    return columns
+
+
+def constraint_lines(summary: dict[str, Any]) -> list[str]:
+    """
+    For the cells of envs with several constraints: each constraint's violation rate beside the overall one (an
+    episode that breaks any) and the feasible reward, mean over seeds and per seed, as Markdown lines after a blank
+    line; no lines for a summary without such cells.
+    """
+    cells = [cell for cell in summary["cells"] if len(cell.get("constraint_violation_rates_mean") or {}) > 1]
+    if not cells:
+        return []
+    columns = [column for column in constraint_columns(summary) if any(column in cell["per_seed"][0] for cell in cells)]
+    names = [column.removeprefix(CONSTRAINT_VIOLATION_PREFIX) for column in columns]
+    heading = (
+        "Each constraint's violation rate (envs with several constraints; mean over seeds, then per seed; an episode "
+        "that breaks two counts in both, and once in the overall rate):"
+    )
+    lines = ["", heading, ""]
+    lines += [
+        f"| env | variant | algo | feasible reward | violation rate (any) | {' | '.join(names)} "
+        f"| per seed (any / {' / '.join(names)}) |",
+        "|---" * (6 + len(names)) + "|",
+    ]
+    for cell in cells:
+        means = cell["constraint_violation_rates_mean"]
+        row = " | ".join(format_outcome_rate(means.get(column)) for column in columns)
+        per_seed = ", ".join(
+            f"{seed['seed']}: " + " / ".join(format_outcome_rate(seed.get(column)) for column in ("violation_rate", *columns))
+            for seed in cell["per_seed"]
+        )
+        lines.append(
+            f"| {cell['env']} | {cell['variant']} | {cell['algo']} | {_fmt(cell['feasible_reward_mean'])} "
+            f"| {format_outcome_rate(cell['violation_rate_mean'])} | {row} | {per_seed} |"
+        )
+    return lines
+
+
 def outcome_lines(summary: dict[str, Any]) -> list[str]:
     """
     For the cells of driving envs: how their held-out episodes ended (collision, off road, time out, goal reached),
@@ -1049,6 +1126,7 @@ def csv_rows(summary: dict[str, Any]) -> str:
     writer = csv.writer(buffer)
     header = ["env", "variant", "algo", "seed", "feasible_reward", "violation_rate", "reward", "timesteps", "n_episodes"]
     header.append("episode_length")
+    per_constraint = constraint_columns(summary)  # none for suites without such envs
     published = ["paper_feasible_reward", "paper_violation_rate"]
     for source in sources:
         published += [f"{source}_feasible_reward", f"{source}_violation_rate"]
@@ -1056,6 +1134,7 @@ def csv_rows(summary: dict[str, Any]) -> str:
         [
             *header,
             *OUTCOME_COLUMNS,
+            *per_constraint,
             *IDENTIFICATION_COLUMNS,
             *TRANSFER_COLUMNS,
             *LAST_TRAINING_COLUMNS,
@@ -1081,7 +1160,7 @@ def csv_rows(summary: dict[str, Any]) -> str:
                     seed["timesteps"],
                     seed["n_episodes"],
                     _csv_number(seed.get("episode_length")),
-                    *(_csv_number(seed.get(column)) for column in OUTCOME_COLUMNS),
+                    *(_csv_number(seed.get(column)) for column in (*OUTCOME_COLUMNS, *per_constraint)),
                     *(seed.get(column, "") for column in (*IDENTIFICATION_COLUMNS, *TRANSFER_COLUMNS, *LAST_TRAINING_COLUMNS)),
                     seed.get("wall_time_s", ""),
                     *("" if value is None else value for value in (cell.get("expert_return"), *numbers)),

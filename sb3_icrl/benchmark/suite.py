@@ -16,6 +16,7 @@ import yaml
 
 from sb3_icrl.data.registry import DEMONSTRATIONS_DIR, available_demonstrations, dataset_file_name
 from sb3_icrl.envs import REWARD_TRANSFER_TASKS
+from sb3_icrl.envs.wrappers import TRANSITION_NOISE_MODELS
 from sb3_icrl.metrics.transfer import TASKS as TRANSFER_TASKS
 from sb3_icrl.metrics.transfer import transfer_file
 from sb3_icrl.zoo.hyperparams import ALGOS, ICRL_ALGOS, REFERENCE_ALGOS, env_name, import_gym_packages, resolve_env_id
@@ -56,6 +57,7 @@ SUCCESS_KEYS = ("max_violation_rate", "min_normalised_score")
 #: What a variant may change, with the train.py flag it becomes
 VARIANT_KEYS = {
     "transition_noise": "--transition-noise",
+    "transition_noise_model": "--transition-noise-model",
     "violating_fraction": "--violating-fraction",
     "demonstrations": "--demonstrations",
     "hyperparams": "-params",
@@ -414,6 +416,12 @@ class _SuiteReader:
                     isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0
                 ):
                     raise self.error((*where, key), f"`{key}` is a number >= 0, got {value!r}.")
+                if key == "transition_noise_model" and value not in TRANSITION_NOISE_MODELS:
+                    raise self.error(
+                        (*where, key),
+                        f"`transition_noise_model` is one of {', '.join(TRANSITION_NOISE_MODELS)} (component: an independent "
+                        f"draw per state component; shared: one draw per step added to every component), got {value!r}.",
+                    )
                 if key == "violating_fraction" and value > 1:
                     raise self.error(
                         (*where, key), f"`violating_fraction` is a share of trajectories, within [0, 1], got {value!r}."

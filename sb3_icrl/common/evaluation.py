@@ -15,6 +15,22 @@ EPISODE_FIELDS = ("episode_rewards", "episode_costs", "feasible_rewards", "viola
 OUTCOME_KEYS = ("collision", "off_road", "time_out", "goal_reached")
 #: The key of each outcome's rate in :attr:`ConstraintEvaluation.outcome_rates`, run results and reports
 OUTCOME_RATE_KEYS = {key: f"{key}_rate" for key in OUTCOME_KEYS}
+#: The info key where an env with several constraints reports each one's true cost of the step, ``{name: cost}`` (the
+#: driving envs: ``{"velocity": ..., "distance": ...}``), besides their combined cost in ``info["cost"]``
+CONSTRAINT_COSTS_INFO_KEY = "constraint_costs"
+
+
+#: The start of each constraint's violation-rate key (see :func:`constraint_violation_key`)
+CONSTRAINT_VIOLATION_PREFIX = "violation_rate_"
+
+
+def constraint_violation_key(name: str) -> str:
+    """
+    :param name: A constraint's name in ``info[CONSTRAINT_COSTS_INFO_KEY]``
+    :return: The key of its violation rate in :attr:`ConstraintEvaluation.constraint_violation_rates`, run results and
+        reports, e.g. ``"violation_rate_velocity"``
+    """
+    return f"{CONSTRAINT_VIOLATION_PREFIX}{name}"
 
 
 @dataclass
@@ -29,6 +45,8 @@ class ConstraintEvaluation:
     :param episode_lengths: Steps per episode
     :param outcomes: For envs that flag them (driving): ``{key: whether each episode ended that way}`` for the
         :data:`OUTCOME_KEYS` present in every episode's last info
+    :param constraint_violations: For envs that report each constraint's cost (``info[CONSTRAINT_COSTS_INFO_KEY]``):
+        ``{name: whether each episode broke that constraint at least once}``
     """
 
     episode_rewards: np.ndarray
@@ -37,6 +55,7 @@ class ConstraintEvaluation:
     violations: np.ndarray
     episode_lengths: np.ndarray
     outcomes: dict[str, np.ndarray] = field(default_factory=dict)
+    constraint_violations: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def mean_reward(self) -> float:
@@ -59,6 +78,15 @@ class ConstraintEvaluation:
         """``{"<key>_rate": share of episodes}`` for each flagged outcome (empty for envs without outcome flags)."""
         return {OUTCOME_RATE_KEYS[key]: float(np.mean(flags)) for key, flags in self.outcomes.items()}
 
+    @property
+    def constraint_violation_rates(self) -> dict[str, float]:
+        """
+        ``{"violation_rate_<name>": share of episodes that broke that constraint}`` for each constraint the env reports
+        apart (empty for envs that report only the combined cost). An episode that breaks two constraints counts in
+        both, so the rates may sum to more than :attr:`violation_rate`.
+        """
+        return {constraint_violation_key(name): float(np.mean(flags)) for name, flags in self.constraint_violations.items()}
+
     def summary(self) -> dict[str, float]:
         """The means, as plain floats (for JSON and loggers)."""
         return {
@@ -68,12 +96,14 @@ class ConstraintEvaluation:
             "mean_cost": self.mean_cost,
             "n_episodes": float(len(self.violations)),
             **self.outcome_rates,
+            **self.constraint_violation_rates,
         }
 
     def to_dict(self) -> dict[str, Any]:
         return {
             **{key: np.asarray(getattr(self, key)).tolist() for key in EPISODE_FIELDS},
             "outcomes": {key: np.asarray(flags).tolist() for key, flags in self.outcomes.items()},
+            "constraint_violations": {name: np.asarray(flags).tolist() for name, flags in self.constraint_violations.items()},
         }
 
 
@@ -92,6 +122,11 @@ class EpisodeAccumulator:
         self._outcomes: dict[str, list[bool | None]] = {key: [] for key in OUTCOME_KEYS}
         self._rewards, self._costs, self._feasible, self._lengths = (np.zeros(n_envs) for _ in range(4))
         self._violated = np.zeros(n_envs, dtype=bool)
+        # Per constraint the env reports apart: each episode's flag (None: not reported in that episode), and the
+        # sub-envs' running episodes (reported in them yet, broken in them yet)
+        self._constraint_flags: dict[str, list[bool | None]] = {}
+        self._constraint_reported: dict[str, np.ndarray] = {}
+        self._constraint_violated: dict[str, np.ndarray] = {}
 
     def add(self, idx: int, reward: float, info: dict[str, Any]) -> None:
         """
@@ -108,6 +143,14 @@ class EpisodeAccumulator:
         self._lengths[idx] += 1
         if not self._violated[idx]:
             self._feasible[idx] += reward
+        for name, cost in (info.get(CONSTRAINT_COSTS_INFO_KEY) or {}).items():
+            if name not in self._constraint_flags:
+                # The episodes that ended before the env first reported it did not report it
+                self._constraint_flags[name] = [None] * len(self.results["violations"])
+                self._constraint_reported[name] = np.zeros(len(self._violated), dtype=bool)
+                self._constraint_violated[name] = np.zeros(len(self._violated), dtype=bool)
+            self._constraint_reported[name][idx] = True
+            self._constraint_violated[name][idx] |= float(np.sum(cost)) > 0
 
     def end_episode(self, idx: int, info: dict[str, Any]) -> tuple[float, float, float, bool, float]:
         """
@@ -128,14 +171,26 @@ class EpisodeAccumulator:
             self.results[key].append(value)
         for key, flags in self._outcomes.items():
             flags.append(bool(info[key]) if key in info else None)
+        for name, constraint_flags in self._constraint_flags.items():
+            reported = self._constraint_reported[name]
+            constraint_flags.append(bool(self._constraint_violated[name][idx]) if reported[idx] else None)
+            reported[idx] = self._constraint_violated[name][idx] = False
         self._rewards[idx] = self._costs[idx] = self._feasible[idx] = self._lengths[idx] = 0.0
         self._violated[idx] = False
         return episode
 
     def evaluation(self) -> ConstraintEvaluation:
-        """The finished episodes; outcome flags where every episode's last info had them."""
+        """The finished episodes; outcome flags where every episode's last info had them, and each constraint's
+        violations where every episode reported it."""
         flagged = {key: np.array(flags, dtype=bool) for key, flags in self._outcomes.items() if None not in flags}
-        return ConstraintEvaluation(**{key: np.array(value) for key, value in self.results.items()}, outcomes=flagged)
+        per_constraint = {
+            name: np.array(flags, dtype=bool) for name, flags in self._constraint_flags.items() if flags and None not in flags
+        }
+        return ConstraintEvaluation(
+            **{key: np.array(value) for key, value in self.results.items()},
+            outcomes=flagged,
+            constraint_violations=per_constraint,
+        )
 
 
 def evaluate_constraint(

@@ -1,5 +1,6 @@
 """Wrappers that turn the benchmark's environments into its variants, and that add the true cost of a declared constraint."""
 
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import gymnasium as gym
@@ -10,14 +11,64 @@ from gymnasium.envs.mujoco.mujoco_env import MujocoEnv
 
 from sb3_icrl.envs.constraint_spec import ConstraintSpec, FeatureConstraint, as_constraint_spec, get_constraint_spec
 
+#: Noise model of :class:`TransitionNoiseWrapper`: an independent draw for each component of the state
+COMPONENT_NOISE = "component"
+#: Noise model of :class:`TransitionNoiseWrapper`: one draw per step, added to every component alike (the paper's code)
+SHARED_NOISE = "shared"
+#: The noise models :class:`TransitionNoiseWrapper` takes
+TRANSITION_NOISE_MODELS = (COMPONENT_NOISE, SHARED_NOISE)
+
+
+def check_noise_model(model: Any, where: str = "model") -> str:
+    """
+    :param model: A transition noise model's name
+    :param where: What the name was given as, for the error message (an argument, a flag, a suite key)
+    :return: The name, when it is one of :data:`TRANSITION_NOISE_MODELS`
+    :raises ValueError: When it is not
+    """
+    if model not in TRANSITION_NOISE_MODELS:
+        raise ValueError(
+            f"`{where}` names a transition noise model: {COMPONENT_NOISE!r} (an independent draw per state component) or "
+            f"{SHARED_NOISE!r} (one draw per step added to every component, as the paper's code does), got {model!r}."
+        )
+    return str(model)
+
+
+def recorded_transition_noise(run_args: Mapping[str, Any]) -> tuple[float, str]:
+    """
+    The transition noise a run trained with, to rebuild its env (evaluation, identification, plots, transfer).
+
+    :param run_args: The run's ``args.yml``
+    :return: ``(sigma, model)``; a run recorded before the noise had a model used the per-component one
+    """
+    sigma = float(run_args.get("transition_noise") or 0.0)
+    return sigma, check_noise_model(run_args.get("transition_noise_model") or COMPONENT_NOISE, "transition_noise_model")
+
+
+def transition_noise_wrapper(sigma: float, model: str = COMPONENT_NOISE) -> Callable[[gym.Env], gym.Env] | None:
+    """
+    :param sigma: Standard deviation of the noise
+    :param model: One of :data:`TRANSITION_NOISE_MODELS`
+    :return: A ``wrapper_class`` for SB3's ``make_vec_env`` that adds the noise, or ``None`` when ``sigma`` is 0
+    """
+    check_noise_model(model)
+    if sigma <= 0:
+        return None
+    return lambda env: TransitionNoiseWrapper(env, sigma=sigma, model=model)
+
 
 class TransitionNoiseWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """
     Stochastic transitions: add ``N(0, sigma^2)`` noise to every component of the next state
     (the paper's "noisy environments", sigma in {1e-3, 1e-2, 1e-1}).
 
-    On MuJoCo environments the noise perturbs the simulator state itself: after each step every
-    component of ``qpos`` and ``qvel`` gets independent noise (quaternions are re-normalised), the
+    Two noise models: ``"component"`` draws independent noise for each component of the state; ``"shared"`` draws one
+    value per step and adds it to every component alike, as the paper's code does. Independent noise is the usual
+    reading of "``N(0, sigma)`` on the next state"; the shared draw moves the whole state along one diagonal direction,
+    which is what the paper's results measured.
+
+    On MuJoCo environments the noise perturbs the simulator state itself: after each step the components
+    of ``qpos`` and ``qvel`` get the noise (quaternions are re-normalised), the
     simulator continues from the perturbed state, and the returned observation, ``info["x_position"]``
     and ``info["cost"]`` are recomputed from it, so the true cost stays consistent with what the agent
     sees. The reward and ``terminated`` are those of the noiseless step (as in the paper's code: noise in
@@ -32,15 +83,18 @@ class TransitionNoiseWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     :param env: Environment to wrap, e.g. ``gymnasium.make("sb3_icrl/BlockedHalfCheetah-v0")``
     :param sigma: Standard deviation of the noise (0 disables it)
+    :param model: ``"component"`` (an independent draw per state component) or ``"shared"`` (one draw per step added to
+        every component)
     """
 
-    def __init__(self, env: gym.Env, sigma: float):
+    def __init__(self, env: gym.Env, sigma: float, model: str = COMPONENT_NOISE):
         # Recorded so that gymnasium can rebuild the wrapped env from its spec
-        gym.utils.RecordConstructorArgs.__init__(self, sigma=sigma)
+        gym.utils.RecordConstructorArgs.__init__(self, sigma=sigma, model=model)
         gym.Wrapper.__init__(self, env)
         if not (np.isfinite(sigma) and sigma >= 0):
             raise ValueError(f"`sigma` is a standard deviation: a finite float >= 0, got {sigma!r} (paper: 1e-3, 1e-2, 1e-1).")
         self.sigma = float(sigma)
+        self.model = check_noise_model(model)
         self._mujoco_env: MujocoEnv | None = env.unwrapped if isinstance(env.unwrapped, MujocoEnv) else None
         if self._mujoco_env is None and not isinstance(env.observation_space, spaces.Box):
             raise TypeError(
@@ -78,7 +132,7 @@ class TransitionNoiseWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if self._noise_rng is None:
             raise gym.error.ResetNeeded("Call reset() before step().")
         if self._mujoco_env is None:
-            noise = self._noise_rng.normal(0.0, self.sigma, size=np.shape(observation))
+            noise = self._draw_noise(np.shape(observation))
             space = self.observation_space
             assert isinstance(space, spaces.Box)
             observation = np.clip(observation + noise, space.low, space.high).astype(space.dtype)
@@ -87,11 +141,18 @@ class TransitionNoiseWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.last_noise = noise
         return observation, reward, terminated, truncated, info
 
+    def _draw_noise(self, shape: tuple[int, ...]) -> np.ndarray:
+        """The noise of one step, one value per component of ``shape``."""
+        assert self._noise_rng is not None
+        if self.model == SHARED_NOISE:
+            return np.full(shape, self._noise_rng.normal(0.0, self.sigma))
+        return self._noise_rng.normal(0.0, self.sigma, size=shape)
+
     def _perturb_simulator(self, info: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
         env = self._mujoco_env
         assert env is not None and self._noise_rng is not None
         model, data = env.model, env.data
-        noise = self._noise_rng.normal(0.0, self.sigma, size=model.nq + model.nv)
+        noise = self._draw_noise((model.nq + model.nv,))
         # In place rather than through set_state(), which copies both arrays: this runs every step
         data.qpos += noise[: model.nq]
         data.qvel += noise[model.nq :]

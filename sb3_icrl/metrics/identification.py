@@ -554,6 +554,7 @@ def policy_pairs(
     vecnormalize_path: str | None = None,
     transition_noise: float = 0.0,
     max_steps: int = 20_000,
+    transition_noise_model: str = "component",
 ) -> tuple[np.ndarray, np.ndarray]:
     """
     Raw observations and actions of a policy's deterministic episodes (with its saved ``VecNormalize`` statistics).
@@ -566,14 +567,15 @@ def policy_pairs(
     :param vecnormalize_path: The policy's ``VecNormalize`` statistics, if it was trained with them
     :param transition_noise: Transition noise of the env the policy was trained on
     :param max_steps: Stop after this many steps even if the episodes have not ended
+    :param transition_noise_model: How that noise is drawn (see :class:`~sb3_icrl.envs.wrappers.TransitionNoiseWrapper`)
     :return: ``(observations, actions)``, one row per step
     """
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from sb3_icrl.envs.wrappers import TransitionNoiseWrapper
+    from sb3_icrl.envs.wrappers import transition_noise_wrapper
 
-    wrapper = (lambda env: TransitionNoiseWrapper(env, sigma=transition_noise)) if transition_noise > 0 else None
+    wrapper = transition_noise_wrapper(transition_noise, transition_noise_model)
     venv: Any = make_vec_env(env_id, n_envs=1, seed=seed, env_kwargs=dict(env_kwargs or {}), wrapper_class=wrapper)
     if vecnormalize_path is not None:
         venv = VecNormalize.load(vecnormalize_path, venv)
@@ -783,13 +785,14 @@ def run_probes(
     :return: The probes (:class:`RunProbes`)
     """
     from sb3_icrl.data import load_demonstrations
+    from sb3_icrl.envs.wrappers import recorded_transition_noise
     from sb3_icrl.zoo.hyperparams import resolve_env_id
 
     run, args = read_icrl_run(run_folder)
     learner, _, stats = _load_run_policy(run, model)
     env_id = resolve_env_id(args["env"])
     env_kwargs = dict(args.get("env_kwargs") or {})
-    noise = float(args.get("transition_noise") or 0.0)
+    noise, noise_model = recorded_transition_noise(args)
     demonstrations = load_demonstrations(
         args.get("demonstrations") or env_id.split("/")[-1], violating_fraction=args.get("violating_fraction")
     )
@@ -797,11 +800,15 @@ def run_probes(
     expert = (np.asarray(transitions.obs), np.asarray(transitions.acts))
     other: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     if not getattr(learner.constraint_net, "discrete_obs", False):
-        other["learner"] = policy_pairs(learner, env_id, env_kwargs, n_episodes, seed, stats, noise)
+        other["learner"] = policy_pairs(
+            learner, env_id, env_kwargs, n_episodes, seed, stats, noise, transition_noise_model=noise_model
+        )
         if unconstrained_run is not None:
             agent, agent_args, agent_stats = _load_run_policy(pathlib.Path(unconstrained_run))
-            agent_noise = float(agent_args.get("transition_noise") or 0.0)
-            other["unconstrained"] = policy_pairs(agent, env_id, env_kwargs, n_episodes, seed, agent_stats, agent_noise)
+            agent_noise, agent_noise_model = recorded_transition_noise(agent_args)
+            other["unconstrained"] = policy_pairs(
+                agent, env_id, env_kwargs, n_episodes, seed, agent_stats, agent_noise, transition_noise_model=agent_noise_model
+            )
     return RunProbes(learner, env_id, env_kwargs, expert, other, args)
 
 

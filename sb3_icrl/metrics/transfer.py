@@ -87,7 +87,7 @@ def transfer_env(env_id: str, task: str, transition_noise: float = 0.0) -> tuple
     return f"{NAMESPACE}/{REWARD_TRANSFER_TASKS[name]}", transition_noise
 
 
-def _wrapper_class(params: dict[str, Any], transition_noise: float) -> Any:
+def _wrapper_class(params: dict[str, Any], transition_noise: float, noise_model: str) -> Any:
     """The yml's env wrappers under the task's transition noise, as ``train.py`` wraps its envs."""
     from sb3_icrl.envs.wrappers import TransitionNoiseWrapper
 
@@ -97,7 +97,7 @@ def _wrapper_class(params: dict[str, Any], transition_noise: float) -> Any:
 
     def wrap(env: Any) -> Any:
         if transition_noise > 0:
-            env = TransitionNoiseWrapper(env, sigma=transition_noise)
+            env = TransitionNoiseWrapper(env, sigma=transition_noise, model=noise_model)
         for wrapper, kwargs in wrappers:
             env = wrapper(env, **kwargs)
         return env
@@ -152,6 +152,7 @@ def train_learner(
     budget: float | None = None,
     budget_statistic: str | None = None,
     log: Any = None,
+    transition_noise_model: str = "component",
 ) -> tuple[Any, Any]:
     """
     Train one learner of a transfer from scratch.
@@ -168,6 +169,8 @@ def train_learner(
     :param budget: The learned cost's budget (``learned`` only)
     :param budget_statistic: Its statistic, ``"step"`` or ``"episode"`` (``learned`` only)
     :param log: Where a progress line goes every tenth of the steps (none when ``None``)
+    :param transition_noise_model: How the transition noise is drawn (see
+        :class:`~sb3_icrl.envs.wrappers.TransitionNoiseWrapper`)
     :return: The model and its training env (``VecNormalize`` statistics inside, when normalising)
     """
     from stable_baselines3 import PPO
@@ -185,7 +188,7 @@ def train_learner(
         n_envs=params["n_envs"],
         seed=seed,
         env_kwargs=env_kwargs,
-        wrapper_class=_wrapper_class(params, transition_noise),
+        wrapper_class=_wrapper_class(params, transition_noise, transition_noise_model),
         vec_env_cls=DummyVecEnv,
     )
     kwargs = algo_kwargs(params)
@@ -215,9 +218,11 @@ def evaluate_learner(
     params: dict[str, Any],
     n_episodes: int,
     eval_seed: int,
+    transition_noise_model: str = "component",
 ) -> dict[str, float]:
     """
-    Held-out episodes of a trained learner against the true cost (``info["cost"]`` of the raw task env).
+    Held-out episodes of a trained learner against the true cost (``info["cost"]`` of the raw task env), under the
+    transition noise it trained with (``transition_noise`` drawn by ``transition_noise_model``).
 
     :return: ``violation_rate``, ``feasible_reward``, ``reward``, ``mean_cost``, ``n_episodes``
     """
@@ -231,7 +236,7 @@ def evaluate_learner(
         n_envs=1,
         seed=eval_seed,
         env_kwargs=env_kwargs,
-        wrapper_class=_wrapper_class(params, transition_noise),
+        wrapper_class=_wrapper_class(params, transition_noise, transition_noise_model),
         vec_env_cls=DummyVecEnv,
     )
     if isinstance(train_env, VecNormalize):
@@ -322,6 +327,7 @@ def run_transfer(
     :return: The JSON written
     """
     from sb3_icrl import __version__ as sb3_icrl_version
+    from sb3_icrl.envs.wrappers import COMPONENT_NOISE, recorded_transition_noise
     from sb3_icrl.metrics.identification import _load_run_policy, read_icrl_run, run_model_path
     from sb3_icrl.zoo.hyperparams import load_hyperparams, preprocess_hyperparams, resolve_env_id
 
@@ -332,7 +338,8 @@ def run_transfer(
         raise ValueError(f"--eval-episodes must be >= 1, got {eval_episodes}.")
     source_env = resolve_env_id(args["env"])
     env_kwargs = dict(args.get("env_kwargs") or {})
-    env_id, noise = transfer_env(source_env, task, float(args.get("transition_noise") or 0.0))
+    recorded_noise, noise_model = recorded_transition_noise(args)
+    env_id, noise = transfer_env(source_env, task, recorded_noise)
     icrl_model, _, _ = _load_run_policy(run, model)
     model_file = run_model_path(run, args, model)
     budget = float(np.asarray(icrl_model.cost_budget).reshape(-1)[0])
@@ -360,6 +367,8 @@ def run_transfer(
             "budget_statistic": budget_statistic,
             "hyperparams": f"ppolag.yml:{key}",
             "ppolag_hyperparams": entry,
+            # Named only when not the default, so that results saved before noise had a model keep their settings
+            **({"transition_noise_model": noise_model} if noise_model != COMPONENT_NOISE else {}),
         }
     )
     previous = read_transfers(run).get(task, {})
@@ -378,7 +387,11 @@ def run_transfer(
             continue
         if learner != "learned":
             reference_settings = _as_json(
-                {**{name: settings[name] for name in REFERENCE_SETTINGS}, "learner": learner, "hyperparams": entry}
+                {
+                    **{name: settings[name] for name in (*REFERENCE_SETTINGS, "transition_noise_model") if name in settings},
+                    "learner": learner,
+                    "hyperparams": entry,
+                }
             )
             cache = reference_file(shared_dir, learner, reference_settings)
             reference_files[learner] = str(cache)
@@ -401,8 +414,11 @@ def run_transfer(
             budget=budget,
             budget_statistic=budget_statistic,
             log=log,
+            transition_noise_model=noise_model,
         )
-        results[learner] = evaluate_learner(trained, train_env, env_id, env_kwargs, noise, params, eval_episodes, eval_seed)
+        results[learner] = evaluate_learner(
+            trained, train_env, env_id, env_kwargs, noise, params, eval_episodes, eval_seed, transition_noise_model=noise_model
+        )
         results[learner]["wall_time_min"] = (time.time() - start) / 60.0
         train_env.close()
         if cache is not None:

@@ -210,10 +210,9 @@ def policy_observations(
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from sb3_icrl.envs.wrappers import TransitionNoiseWrapper
+    from sb3_icrl.envs.wrappers import recorded_transition_noise, transition_noise_wrapper
 
-    noise = float(run_args.get("transition_noise") or 0.0)
-    wrapper = (lambda env: TransitionNoiseWrapper(env, sigma=noise)) if noise > 0 else None
+    wrapper = transition_noise_wrapper(*recorded_transition_noise(run_args))
     venv: Any = make_vec_env(env_id, n_envs=1, seed=seed, env_kwargs=env_kwargs, wrapper_class=wrapper)
     if stats_path is not None:
         venv = VecNormalize.load(stats_path, venv)

@@ -392,6 +392,7 @@ class ConstraintEvalCallback(EvalCallback):
             "mean_cost": result.mean_cost,
             "mean_ep_length": float(np.mean(result.episode_lengths)),
             **result.outcome_rates,  # driving envs: collision, off-road, time-out and goal rates
+            **result.constraint_violation_rates,  # envs with several constraints: each one's violation rate
         }
         episodes = self.recorder.counted_episodes(self.n_eval_episodes) if self.recorder is not None else []
         learned_per_episode: dict[str, np.ndarray | None] = dict.fromkeys(LEARNED_EPISODE_KEYS.values())

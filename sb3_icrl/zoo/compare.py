@@ -71,6 +71,8 @@ class RunResult:
         ``nan`` when unknown (results saved before it was recorded)
     :param outcome_rates: For envs that flag how an episode ended (driving): ``{"collision_rate": share of held-out
         episodes, ...}`` for each of :data:`~sb3_icrl.common.evaluation.OUTCOME_KEYS`; empty for the other envs
+    :param constraint_violation_rates: For envs that report each constraint's cost apart (several constraints):
+        ``{"violation_rate_<name>": share of held-out episodes that broke it}``; empty for the other envs
     """
 
     run: str
@@ -86,6 +88,7 @@ class RunResult:
     label: str = ""
     episode_length: float = float("nan")
     outcome_rates: dict[str, float] = field(default_factory=dict)
+    constraint_violation_rates: dict[str, float] = field(default_factory=dict)
 
     @property
     def name(self) -> str:
@@ -174,6 +177,7 @@ def evaluate_run(
         n_episodes=len(evaluation.violations),
         episode_length=float(np.mean(evaluation.episode_lengths)),
         outcome_rates=evaluation.outcome_rates,
+        constraint_violation_rates=evaluation.constraint_violation_rates,
     )
 
 
@@ -208,6 +212,9 @@ def summarise(results: list[RunResult], reference: str | None = None) -> dict[st
         outcomes = outcome_rate_means(list(runs.values()))
         if outcomes:
             entry["outcome_rates_mean"] = outcomes
+        per_constraint = rate_means([run.constraint_violation_rates for run in runs.values()])
+        if per_constraint:
+            entry["constraint_violation_rates_mean"] = per_constraint
         if reference is not None and algo != reference:
             paired = sorted(set(runs) & set(by_algo[reference]))
             differences = [runs[s].feasible_reward - by_algo[reference][s].feasible_reward for s in paired]
@@ -224,12 +231,18 @@ def outcome_rate_means(results: list[RunResult]) -> dict[str, float]:
     :param results: Runs of one algorithm
     :return: ``{"collision_rate": mean, ...}`` in :data:`~sb3_icrl.common.evaluation.OUTCOME_KEYS` order
     """
-    keys = list(OUTCOME_RATE_KEYS.values())
-    return {
-        key: float(np.mean([result.outcome_rates[key] for result in results]))
-        for key in keys
-        if results and all(key in result.outcome_rates for result in results)
-    }
+    means = rate_means([result.outcome_rates for result in results])
+    return {key: means[key] for key in OUTCOME_RATE_KEYS.values() if key in means}
+
+
+def rate_means(rates: list[dict[str, float]]) -> dict[str, float]:
+    """
+    :param rates: One ``{key: rate}`` per run
+    :return: The mean over runs of each key that every run has, in the first run's order (empty without runs)
+    """
+    if not rates:
+        return {}
+    return {key: float(np.mean([run[key] for run in rates])) for key in rates[0] if all(key in run for run in rates)}
 
 
 def check_runs(runs: list[str]) -> None:

@@ -26,6 +26,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from sb3_icrl.common.evaluation import ConstraintEvaluation, EpisodeAccumulator
 from sb3_icrl.common.utils import plain_docstring
+from sb3_icrl.envs.wrappers import recorded_transition_noise
 from sb3_icrl.zoo.hyperparams import (
     ALGOS,
     ICRL_ALGOS,
@@ -220,8 +221,19 @@ def enjoy(args: argparse.Namespace) -> ConstraintEvaluation:
         else:
             print(f"{name} has no on-screen rendering (render modes: {modes or 'none'}): use --record or --no-render.")
 
-    transition_noise = float(saved_args.get("transition_noise") or 0.0)
-    env, _ = create_env(env_id, params, 1, args.seed, env_kwargs, transition_noise, None, eval_env=True, stats_path=stats_path)
+    transition_noise, noise_model = recorded_transition_noise(saved_args)
+    env, _ = create_env(
+        env_id,
+        params,
+        1,
+        args.seed,
+        env_kwargs,
+        transition_noise,
+        None,
+        eval_env=True,
+        stats_path=stats_path,
+        transition_noise_model=noise_model,
+    )
     # No env: an ICRL model would wrap it with its learned cost; no demonstrations: they only serve training
     extra: dict[str, Any] = {"demonstrations_source": None} if args.algo in ICRL_ALGOS else {}
     model = ALGOS[args.algo].load(path, device=args.device, **extra)

@@ -65,10 +65,13 @@ from sb3_icrl.common.utils import (
 from sb3_icrl.common.vec_env import ShallowCopyDummyVecEnv
 from sb3_icrl.data import load_demonstrations
 from sb3_icrl.envs.wrappers import (
+    COMPONENT_NOISE,
     EPISODE_CONSTRAINT_KEYS,
+    TRANSITION_NOISE_MODELS,
     DeclaredCostWrapper,
     EpisodeConstraintWrapper,
     TransitionNoiseWrapper,
+    recorded_transition_noise,
 )
 from sb3_icrl.icrl.tabular import forward_solver, learn_function
 from sb3_icrl.plots import ConstraintFigureCallback
@@ -261,6 +264,13 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
         "--transition-noise", type=non_negative_float, default=0.0, help="Std of N(0, sigma) next-state noise (0: none)"
     )
     parser.add_argument(
+        "--transition-noise-model",
+        choices=TRANSITION_NOISE_MODELS,
+        default=COMPONENT_NOISE,
+        help="How --transition-noise is drawn: component (an independent draw per state component) or shared (one draw "
+        "per step added to every component, as the paper's code does)",
+    )
+    parser.add_argument(
         "--allow-env-mismatch",
         action="store_true",
         default=False,
@@ -331,7 +341,7 @@ def _wrapper_class(wrappers: list[tuple[Any, dict[str, Any]]]) -> Any:
     return wrap
 
 
-def _env_factory(env_id: str, transition_noise: float, require_cost: bool) -> Callable[..., gym.Env]:
+def _env_factory(env_id: str, transition_noise: float, noise_model: str, require_cost: bool) -> Callable[..., gym.Env]:
     """
     The env below ``Monitor``: gymnasium's (as ``make_vec_env`` makes it), the transition noise, the true cost of a
     declared constraint, and each episode's constraint totals for the Monitor files (``EPISODE_CONSTRAINT_KEYS``).
@@ -343,7 +353,7 @@ def _env_factory(env_id: str, transition_noise: float, require_cost: bool) -> Ca
         except TypeError:
             env = gym.make(env_id, **env_kwargs)
         if transition_noise > 0:
-            env = TransitionNoiseWrapper(env, sigma=transition_noise)
+            env = TransitionNoiseWrapper(env, sigma=transition_noise, model=noise_model)
         # Outside the noise (the cost of the state the agent sees), inside the yml's wrappers (raw observations)
         env = DeclaredCostWrapper(env, required=require_cost)
         return EpisodeConstraintWrapper(env)
@@ -375,6 +385,7 @@ def create_env(
     stats_path: str | None = None,
     append_monitor: bool = False,
     require_cost: bool | None = None,
+    transition_noise_model: str = COMPONENT_NOISE,
 ) -> tuple[VecEnv, LearnedCostRecorder | None]:
     """
     Vectorised env (:class:`~sb3_icrl.common.vec_env.ShallowCopyDummyVecEnv`) with Monitor, transition noise, the true
@@ -394,6 +405,8 @@ def create_env(
     :param append_monitor: Append to the Monitor files instead of replacing them (a resumed run)
     :param require_cost: Fail at a step without ``info["cost"]`` when the env declares no constraint either;
         ``None``: for evaluation envs only (learners other than PPO-Lagrangian do not read the true cost)
+    :param transition_noise_model: How the next-state noise is drawn (see
+        :class:`~sb3_icrl.envs.wrappers.TransitionNoiseWrapper`)
     :return: The env and its recorder (eval envs only)
     """
     if require_cost is None:
@@ -402,7 +415,7 @@ def create_env(
     if append_monitor:
         monitor_kwargs["override_existing"] = False
     venv = make_vec_env(
-        _env_factory(env_id, transition_noise, require_cost),
+        _env_factory(env_id, transition_noise, transition_noise_model, require_cost),
         n_envs=n_envs,
         seed=seed,
         env_kwargs=env_kwargs,
@@ -484,6 +497,29 @@ def check_same_recipe(config_file: str, recipe: dict[str, Any]) -> None:
             f"Cannot resume {os.path.dirname(os.path.dirname(config_file))}: its hyper-parameters changed since it started "
             f"({details}). Resume with the recipe in {config_file} (-params / -n / the yml as they were), or start a "
             "new run (another --exp-id, or remove the folder)."
+        )
+
+
+def check_same_noise(args_file: str, args: argparse.Namespace) -> None:
+    """
+    Refuse to resume a run with other transition noise than it started with (``--transition-noise`` and
+    ``--transition-noise-model`` as its ``args.yml`` records them): its envs would change under the model mid-run.
+
+    :param args_file: The run's ``<EnvName>/args.yml``
+    :param args: The arguments of the resumed run
+    :raises ValueError: When the noise differs
+    """
+    if not os.path.isfile(args_file):
+        return
+    with open(args_file) as file:
+        saved = yaml.safe_load(file) or {}
+    then = recorded_transition_noise(saved)
+    now = (float(args.transition_noise), args.transition_noise_model)
+    if then != now:
+        raise ValueError(
+            f"Cannot resume {os.path.dirname(os.path.dirname(args_file))}: it started with --transition-noise {then[0]:g} "
+            f"--transition-noise-model {then[1]}, not {now[0]:g} {now[1]}. Resume with the noise it started with, or "
+            "start a new run (another --exp-id)."
         )
 
 
@@ -711,6 +747,7 @@ def _setup(
             append_monitor=resuming,
             # PPO-Lagrangian learns from the true cost; the ICRL learners and PPO never read it
             require_cost=args.algo == "ppolag" and kwargs.get("cost_fn") is None,
+            transition_noise_model=args.transition_noise_model,
         )
     except TypeError as error:  # an env keyword it does not take, or a wrong type
         raise ValueError(f"Cannot make {env_id} with --env-kwargs {env_kwargs} and the yml's wrappers: {error}") from error
@@ -800,6 +837,7 @@ def _callbacks(
             os.path.join(save_path, "eval"),
             eval_env=True,
             append_monitor=resuming,
+            transition_noise_model=args.transition_noise_model,
         )
         if resuming:
             _continue_monitor_clocks(eval_env)
@@ -945,6 +983,7 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
     if args.resume and (is_finished(save_path) or latest_checkpoint(save_path) is not None):
         # Before anything in the folder changes: a run made with another recipe is neither resumed nor passed as done
         check_same_recipe(os.path.join(save_path, name, "config.yml"), recipe)
+        check_same_noise(os.path.join(save_path, name, "args.yml"), args)
     if args.resume and is_finished(save_path):
         if args.verbose:
             print(f"{save_path} has finished: nothing to do")

@@ -56,7 +56,8 @@ paper's CommonRoad-RL environment.
 
 ``info`` of every step (and of ``reset``): ``cost`` (1.0 when one of this env's constraints is broken
 in the state reached, else 0.0), ``cost_velocity`` and ``cost_distance`` (each constraint alone,
-whether the env uses it or not), ``ego_speed``, ``lead_gap`` and the outcome flags ``collision``,
+whether the env uses it or not), ``constraint_costs`` (``{name: cost}`` of this env's own constraints, for
+the per-constraint violation rates of evaluations), ``ego_speed``, ``lead_gap`` and the outcome flags ``collision``,
 ``off_road``, ``time_out``, ``goal_reached`` (also as ``is_success``). The learner must not read the costs.
 ``reset`` adds ``scenario``, ``ego_car`` and ``start_frame``: which recorded car the ego replaces, and when.
 
@@ -452,6 +453,8 @@ class HighwayConstraintEnv(gymnasium.Env):
             "cost": max(per_constraint[name] for name in self.constraints),
             "cost_velocity": cost_velocity,
             "cost_distance": cost_distance,
+            # Each of this env's own constraints apart, for the per-constraint violation rates of evaluations
+            "constraint_costs": {name: per_constraint[name] for name in self.constraints},
             "ego_speed": ego_speed,
             "lead_gap": float(gaps[1]),
             "collision": collision,
