@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 import yaml
 
-from sb3_icrl.icrl.tabular import distill_planner, forward_solver, learned_planning_costs
+from sb3_icrl.hyperparams import forward_solver
+from sb3_icrl.icrl.tabular import distill_planner, learned_planning_costs
 from sb3_icrl.zoo import enjoy as enjoy_module
 from sb3_icrl.zoo.recording import FrameWriter, configure_headless_rendering, has_display
 from sb3_icrl.zoo.summary import evaluation_line, feature_constraint_summary, grid_constraint_report

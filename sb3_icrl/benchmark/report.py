@@ -48,9 +48,8 @@ from sb3_icrl.common.statistics import (
 )
 from sb3_icrl.common.utils import atomic_write_bytes, atomic_write_json
 from sb3_icrl.envs import heldout_env_kwargs
-from sb3_icrl.zoo.compare import OUTCOME_TITLES, RunResult, evaluate_run, format_outcome_rate, summarise
-from sb3_icrl.zoo.hyperparams import env_name
-from sb3_icrl.zoo.runs import (
+from sb3_icrl.registry import ICRL_ALGOS, env_name
+from sb3_icrl.run_folder import (
     LAST_TRAINING_EPISODES,
     find_vecnormalize,
     is_finished,
@@ -58,6 +57,7 @@ from sb3_icrl.zoo.runs import (
     last_training_episodes,
     run_wall_time,
 )
+from sb3_icrl.zoo.compare import OUTCOME_TITLES, RunResult, evaluate_run, format_outcome_rate, summarise
 
 #: Held-out evaluation cached in each run folder
 HELDOUT_FILE = "heldout.json"
@@ -177,7 +177,6 @@ def constraint_metrics(
     """
     from sb3_icrl.metrics.identification import headline, identification_file, identify_run
     from sb3_icrl.metrics.transfer import read_transfers
-    from sb3_icrl.zoo.hyperparams import ICRL_ALGOS
 
     metrics = run_facts(results, root)
     for run, result in results:

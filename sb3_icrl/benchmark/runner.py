@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from sb3_icrl.benchmark.suite import RunSpec, run_complete
-from sb3_icrl.zoo.runs import is_finished
+from sb3_icrl.run_folder import is_finished
 
 #: Attempts per run before it is listed as failed
 MAX_ATTEMPTS = 2

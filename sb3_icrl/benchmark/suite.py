@@ -18,8 +18,8 @@ from sb3_icrl.data.registry import DEMONSTRATIONS_DIR, available_demonstrations,
 from sb3_icrl.envs import REWARD_TRANSFER_TASKS
 from sb3_icrl.metrics.transfer import TASKS as TRANSFER_TASKS
 from sb3_icrl.metrics.transfer import transfer_file
-from sb3_icrl.zoo.hyperparams import ALGOS, ICRL_ALGOS, REFERENCE_ALGOS, env_name, import_gym_packages, resolve_env_id
-from sb3_icrl.zoo.runs import is_finished
+from sb3_icrl.registry import ALGOS, ICRL_ALGOS, REFERENCE_ALGOS, env_name, import_gym_packages, resolve_env_id
+from sb3_icrl.run_folder import is_finished
 
 #: Where the shipped suites live
 SUITES_DIR = pathlib.Path(__file__).resolve().parent / "suites"

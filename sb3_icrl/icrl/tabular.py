@@ -10,7 +10,6 @@ usual run folder (evaluations, checkpoints, the model whose policy acts as plann
 """
 
 import functools
-import inspect
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -428,52 +427,6 @@ def _set_multiplier(model: Any, value: float) -> None:
             parameter.fill_(float(value))
     elif hasattr(multiplier, "_value"):
         multiplier._value = np.full_like(multiplier._value, float(value))
-
-
-def forward_solver(algo: str, params: dict[str, Any], env_id: str) -> str:
-    """
-    The forward solver a zoo run asks for (``forward_solver`` in its hyper-parameters; default ``"policy_gradient"``),
-    checked: ``"pi_lagrangian"`` needs an ICRL algorithm and a tabular env (one that exposes ``P``, ``R``, ``C`` and
-    ``start_state``, as :class:`~sb3_icrl.envs.GridWorldEnv`).
-
-    :param algo: Command-line algorithm name
-    :param params: The run's hyper-parameters
-    :param env_id: The registered env id
-    :return: One of :data:`FORWARD_SOLVERS`
-    :raises ValueError: For an unknown solver, or a planner asked for where it cannot plan
-    """
-    from sb3_icrl.zoo.hyperparams import ICRL_ALGOS
-
-    solver = params.get("forward_solver", "policy_gradient")
-    if solver not in FORWARD_SOLVERS:
-        raise ValueError(f"forward_solver must be one of {', '.join(FORWARD_SOLVERS)}, got {solver!r}.")
-    if solver == "policy_gradient":
-        return solver  # a recipe's planner_kwargs stay unused (-params forward_solver:policy_gradient on a grid entry)
-    if algo not in ICRL_ALGOS:
-        raise ValueError(
-            f"forward_solver: pi_lagrangian is the forward solver of the ICRL algorithms ({', '.join(ICRL_ALGOS)}); "
-            f"{algo} trains its own policy (use sb3_icrl.PILagrangian directly to plan on the true cost)."
-        )
-    unwrapped = gym.make(env_id).unwrapped
-    missing = [name for name in ("P", "R", "C", "start_state") if not hasattr(unwrapped, name)]
-    if missing:
-        raise ValueError(
-            f"forward_solver: pi_lagrangian plans on tables, and {env_id} has no {', '.join(missing)} (tabular envs such as "
-            "the grid worlds have them): pass -params forward_solver:policy_gradient."
-        )
-    planner_kwargs = params.get("planner_kwargs") or {}
-    if not isinstance(planner_kwargs, dict):
-        raise ValueError(f'planner_kwargs must be a dict, e.g. "dict(nominal_buffer_size=500)", got {planner_kwargs!r}.')
-    accepted = set(inspect.signature(PILagrangian).parameters) - {"env", "cost_table", "seed", "verbose"}
-    unknown = sorted(set(planner_kwargs) - accepted - set(PLANNER_LOOP_KEYS))
-    if unknown:
-        raise ValueError(
-            f"planner_kwargs: unknown {', '.join(unknown)}. PILagrangian takes {', '.join(sorted(accepted))}; the ICRL loop "
-            f"takes {', '.join(PLANNER_LOOP_KEYS)}."
-        )
-    if int(planner_kwargs.get("nominal_buffer_size", 0)) < 0:
-        raise ValueError(f"nominal_buffer_size must be >= 0 (0: no buffer), got {planner_kwargs['nominal_buffer_size']}.")
-    return solver
 
 
 def learn_function(model: Any, solver: str, planner_kwargs: dict[str, Any] | None = None) -> Callable[..., Any]:

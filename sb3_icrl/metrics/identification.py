@@ -32,6 +32,8 @@ import scipy.stats
 import torch as th
 
 from sb3_icrl.common.utils import atomic_write_json
+from sb3_icrl.registry import ALGOS, ICRL_ALGOS, env_name, import_gym_packages, resolve_env_id
+from sb3_icrl.run_folder import find_vecnormalize, is_finished
 
 #: Identification results cached in each run folder (keyed by their settings)
 IDENTIFICATION_FILE = "identification.json"
@@ -671,7 +673,6 @@ def find_unconstrained_run(run_folder: str | os.PathLike) -> pathlib.Path | None
     :param run_folder: The ICRL run folder ``<folder>/<algo>/<EnvName>_<N>``
     :return: The run folder, or ``None`` when there is none
     """
-    from sb3_icrl.zoo.runs import is_finished
 
     run = pathlib.Path(run_folder).resolve()
     name = run.name.rpartition("_")[0]
@@ -704,7 +705,6 @@ def read_icrl_run(run_folder: str | os.PathLike) -> tuple[pathlib.Path, dict[str
     :raises FileNotFoundError: When it is not a run folder
     :raises ValueError: When the run is not an ICRL run
     """
-    from sb3_icrl.zoo.hyperparams import ICRL_ALGOS
 
     run = pathlib.Path(run_folder)
     if not run.is_dir():
@@ -722,7 +722,6 @@ def run_model_path(run: pathlib.Path, args: dict[str, Any], which: str = "final"
     :param which: ``"final"``, ``"best"`` or a path
     :return: The file of that model
     """
-    from sb3_icrl.zoo.hyperparams import env_name, resolve_env_id
 
     candidates = {"final": run / f"{env_name(resolve_env_id(args['env']))}.zip", "best": run / "best_model.zip"}
     return candidates.get(which, pathlib.Path(which))
@@ -730,8 +729,6 @@ def run_model_path(run: pathlib.Path, args: dict[str, Any], which: str = "final"
 
 def _load_run_policy(run: pathlib.Path, which: str = "final") -> tuple[Any, dict[str, Any], str | None]:
     """The model saved in a run folder, its arguments and its VecNormalize statistics."""
-    from sb3_icrl.zoo.hyperparams import ALGOS, env_name, import_gym_packages, resolve_env_id
-    from sb3_icrl.zoo.runs import find_vecnormalize
 
     args = _read_args(run)
     import_gym_packages(args.get("gym_packages"))
@@ -783,7 +780,6 @@ def run_probes(
     :return: The probes (:class:`RunProbes`)
     """
     from sb3_icrl.data import load_demonstrations
-    from sb3_icrl.zoo.hyperparams import resolve_env_id
 
     run, args = read_icrl_run(run_folder)
     learner, _, stats = _load_run_policy(run, model)

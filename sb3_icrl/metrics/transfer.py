@@ -39,7 +39,8 @@ import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_icrl.common.utils import atomic_write_json, plain_docstring
-from sb3_icrl.zoo.hyperparams import import_gym_packages
+from sb3_icrl.hyperparams import algo_kwargs, load_hyperparams, preprocess_hyperparams
+from sb3_icrl.registry import import_gym_packages, resolve_env_id
 
 #: The transfer tasks
 TASKS = ("same", "reward", "dynamics")
@@ -176,7 +177,6 @@ def train_learner(
 
     from sb3_icrl import PPOLagrangian
     from sb3_icrl.constraints.wrappers import LearnedCostVecEnvWrapper
-    from sb3_icrl.zoo.hyperparams import algo_kwargs
 
     if learner not in LEARNERS:
         raise ValueError(f"Unknown learner {learner!r}: choose one of {', '.join(LEARNERS)}.")
@@ -323,7 +323,6 @@ def run_transfer(
     """
     from sb3_icrl import __version__ as sb3_icrl_version
     from sb3_icrl.metrics.identification import _load_run_policy, read_icrl_run, run_model_path
-    from sb3_icrl.zoo.hyperparams import load_hyperparams, preprocess_hyperparams, resolve_env_id
 
     run, args = read_icrl_run(run_folder)
     if n_timesteps is not None and n_timesteps < 1:

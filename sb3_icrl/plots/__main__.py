@@ -32,6 +32,8 @@ from sb3_icrl.plots.figures import (
     save_figure,
     training_curves_figure,
 )
+from sb3_icrl.registry import ALGOS, ICRL_ALGOS, env_name, import_gym_packages, resolve_env_id
+from sb3_icrl.run_folder import run_vecnormalize
 
 
 def get_parser() -> argparse.ArgumentParser:
@@ -95,7 +97,6 @@ def plot_methods(args: argparse.Namespace) -> pathlib.Path:
 
 def plot_curves(args: argparse.Namespace) -> pathlib.Path:
     """The ``curves`` command; returns the image written."""
-    from sb3_icrl.zoo.hyperparams import env_name, import_gym_packages
 
     import_gym_packages(args.gym_packages)
     try:
@@ -235,8 +236,6 @@ def plot_constraint(args: argparse.Namespace) -> pathlib.Path:
     import gymnasium as gym
 
     from sb3_icrl.data import load_demonstrations
-    from sb3_icrl.zoo.hyperparams import ALGOS, ICRL_ALGOS, env_name, import_gym_packages, resolve_env_id
-    from sb3_icrl.zoo.runs import run_vecnormalize
 
     import_gym_packages(args.gym_packages)
     folder, run_args = read_run(args.run_folder)

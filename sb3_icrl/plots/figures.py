@@ -23,6 +23,7 @@ from matplotlib.colors import ListedColormap
 from matplotlib.figure import Figure
 from matplotlib.ticker import EngFormatter, MaxNLocator
 
+from sb3_icrl.common.env_ids import env_name
 from sb3_icrl.common.utils import atomic_write_bytes
 from sb3_icrl.constraints.networks import BetaFeasibilityNet, _ConstraintNet
 
@@ -571,7 +572,6 @@ def find_runs(log_folder: str | os.PathLike, algo: str, env: str) -> list[pathli
     :return: The run folders (at least one)
     :raises FileNotFoundError: When there is none (the message lists what the folder holds)
     """
-    from sb3_icrl.zoo.hyperparams import env_name
 
     algo_folder = pathlib.Path(log_folder) / algo
     name = env_name(env)  # the folder name train.py gives the env

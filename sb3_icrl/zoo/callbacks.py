@@ -17,7 +17,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 
 from sb3_icrl.common.evaluation import evaluate_constraint
 from sb3_icrl.common.utils import atomic_save_model, atomic_save_npz, atomic_save_pickle
-from sb3_icrl.zoo.runs import BEST_VECNORMALIZE_FILE, CHECKPOINT_PATTERN, monitor_row_counts
+from sb3_icrl.run_folder import BEST_VECNORMALIZE_FILE, CHECKPOINT_PATTERN, monitor_row_counts
 from sb3_icrl.zoo.summary import evaluation_line, model_multiplier
 
 

@@ -32,9 +32,9 @@ from stable_baselines3.common.save_util import load_from_zip_file
 from sb3_icrl.common.evaluation import OUTCOME_KEYS, OUTCOME_RATE_KEYS
 from sb3_icrl.common.statistics import MIN_PAIRS_FOR_WILCOXON, sample_std, wilcoxon_p
 from sb3_icrl.common.utils import atomic_write_json, plain_docstring
+from sb3_icrl.registry import ALGOS, env_name, import_gym_packages
+from sb3_icrl.run_folder import FINISHED_FILE, failure, is_finished, run_wall_time
 from sb3_icrl.zoo import enjoy
-from sb3_icrl.zoo.hyperparams import ALGOS, env_name, import_gym_packages
-from sb3_icrl.zoo.runs import FINISHED_FILE, failure, is_finished, run_wall_time
 from sb3_icrl.zoo.train import non_negative_int, positive_int
 
 

@@ -27,17 +27,10 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from sb3_icrl.common.evaluation import ConstraintEvaluation, EpisodeAccumulator
 from sb3_icrl.common.utils import plain_docstring
-from sb3_icrl.zoo.hyperparams import (
-    ALGOS,
-    ICRL_ALGOS,
-    HyperparameterError,
-    env_name,
-    import_gym_packages,
-    preprocess_hyperparams,
-    resolve_env_id,
-)
+from sb3_icrl.hyperparams import HyperparameterError, preprocess_hyperparams
+from sb3_icrl.registry import ALGOS, ICRL_ALGOS, env_name, import_gym_packages, resolve_env_id
+from sb3_icrl.run_folder import CHECKPOINT_PATTERN, TrainedAgentError, check_trained_agent, failure, find_vecnormalize
 from sb3_icrl.zoo.recording import FrameWriter, configure_headless_rendering, has_display, recording_backend
-from sb3_icrl.zoo.runs import CHECKPOINT_PATTERN, TrainedAgentError, check_trained_agent, failure, find_vecnormalize
 from sb3_icrl.zoo.train import StoreDict, create_env, get_latest_run_id, non_negative_int, positive_int
 
 

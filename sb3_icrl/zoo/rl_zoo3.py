@@ -43,8 +43,9 @@ from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 
 from sb3_icrl import BC2L, GACL, MECL, VICRL, PPOLagrangian
 from sb3_icrl.data.checks import env_id_of
+from sb3_icrl.hyperparams import EVAL_KEYS, _eval_string
+from sb3_icrl.registry import DEFAULT_HYPERPARAMS_DIR, NAMESPACE
 from sb3_icrl.zoo.callbacks import ConstraintEvalCallback
-from sb3_icrl.zoo.hyperparams import DEFAULT_HYPERPARAMS_DIR, EVAL_KEYS, NAMESPACE, _eval_string
 
 #: The dict-valued arguments our yml files write as strings, evaluated by the registered classes (rl_zoo3 evaluates
 #: ``policy_kwargs`` itself)
@@ -167,7 +168,7 @@ class _ICRLZooMixin(_EvalNormalizationMixin):
         parent = type(self).__mro__[type(self).__mro__.index(_ICRLZooMixin) + 1]
         demonstrations = _demonstrations_or_shipped(parent, env, demonstrations, kwargs)
         if solver != "policy_gradient" or planner_kwargs:
-            from sb3_icrl.icrl.tabular import forward_solver
+            from sb3_icrl.hyperparams import forward_solver
 
             env_id = env_id_of(env) if env is not None else None
             params = {"forward_solver": solver, "planner_kwargs": planner_kwargs}

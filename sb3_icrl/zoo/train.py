@@ -70,8 +70,31 @@ from sb3_icrl.envs.wrappers import (
     EpisodeConstraintWrapper,
     TransitionNoiseWrapper,
 )
-from sb3_icrl.icrl.tabular import forward_solver, learn_function
+from sb3_icrl.hyperparams import (
+    EVAL_KEYS,
+    ZOO_KEYS,
+    HyperparameterError,
+    algo_kwargs,
+    forward_solver,
+    is_mapping_argument,
+    load_hyperparams,
+    preprocess_hyperparams,
+    read_mapping,
+)
+from sb3_icrl.icrl.tabular import learn_function
 from sb3_icrl.plots import ConstraintFigureCallback
+from sb3_icrl.registry import ALGOS, ICRL_ALGOS, env_name, import_gym_packages, resolve_env_id
+from sb3_icrl.run_folder import (
+    CHECKPOINT_PATTERN,
+    FAILED_FILE,
+    FINISHED_FILE,
+    TrainedAgentError,
+    check_trained_agent,
+    find_vecnormalize,
+    is_finished,
+    latest_checkpoint,
+    trim_monitors,
+)
 from sb3_icrl.zoo.callbacks import (
     AtomicCheckpointCallback,
     ConstraintEvalCallback,
@@ -82,32 +105,6 @@ from sb3_icrl.zoo.callbacks import (
     training_state_monitor_rows,
     training_state_path,
     training_state_wall_time,
-)
-from sb3_icrl.zoo.hyperparams import (
-    ALGOS,
-    EVAL_KEYS,
-    ICRL_ALGOS,
-    ZOO_KEYS,
-    HyperparameterError,
-    algo_kwargs,
-    env_name,
-    import_gym_packages,
-    is_mapping_argument,
-    load_hyperparams,
-    preprocess_hyperparams,
-    read_mapping,
-    resolve_env_id,
-)
-from sb3_icrl.zoo.runs import (
-    CHECKPOINT_PATTERN,
-    FAILED_FILE,
-    FINISHED_FILE,
-    TrainedAgentError,
-    check_trained_agent,
-    find_vecnormalize,
-    is_finished,
-    latest_checkpoint,
-    trim_monitors,
 )
 from sb3_icrl.zoo.summary import print_recovered_constraint, show_progress_bar
 
