@@ -11,6 +11,7 @@ from sb3_icrl.gacl import GACL
 from sb3_icrl.mecl import MECL
 from sb3_icrl.pi_lagrangian import PILagrangian
 from sb3_icrl.ppo_lagrangian import PPOLagrangian
+from sb3_icrl.registry import register_algorithm
 from sb3_icrl.vicrl import VICRL
 
 # Read version from file
@@ -32,4 +33,5 @@ __all__ = [
     "declare_constraint",
     "evaluate_constraint",
     "get_constraint_spec",
+    "register_algorithm",
 ]

@@ -43,21 +43,38 @@ def saved_algo(data: dict[str, Any]) -> str | None:
     """
     if "constraint_net_spec_" in data:
         trainer = data.get("trainer_class")
-        if not isinstance(trainer, type):
-            return None
-        mro = trainer.__mro__
-        candidates = []
-        for name in ICRL_ALGOS:
-            algo_class = ALGOS[name]
-            default = getattr(algo_class, "default_trainer_class", None)
-            if isinstance(default, type) and default in mro:
-                candidates.append((mro.index(default), name))
-        return min(candidates)[1] if candidates else None
+        return _icrl_algo_of_trainer(trainer) if isinstance(trainer, type) else None
     if "lagrange_multiplier" in data:
         return "ppolag"
     if "policy_class" in data:
         return "ppo"
     return None
+
+
+def _icrl_algo_of_trainer(trainer: type) -> str | None:
+    """The ICRL algorithm whose default trainer is the closest base of ``trainer``; on a tie, the first registered (a
+    user's method that keeps its base's trainer saves what its base saves)."""
+    mro = trainer.__mro__
+    candidates = []
+    for order, name in enumerate(ICRL_ALGOS):
+        default = getattr(ALGOS[name], "default_trainer_class", None)
+        if isinstance(default, type) and default in mro:
+            candidates.append((mro.index(default), order, name))
+    return min(candidates)[2] if candidates else None
+
+
+def saved_as(algo: str) -> str | None:
+    """
+    :param algo: A registered command-line name
+    :return: What :func:`saved_algo` tells the models of ``algo`` by: ``algo`` itself for ours, the name of its base for
+        a user's method derived from one of ours, ``"ppo"`` for other algorithms (they save neither a constraint nor
+        a multiplier)
+    """
+    algo_class = ALGOS[algo]
+    trainer = getattr(algo_class, "default_trainer_class", None)
+    if isinstance(trainer, type):
+        return _icrl_algo_of_trainer(trainer)
+    return "ppolag" if issubclass(algo_class, ALGOS["ppolag"]) else "ppo"
 
 
 def check_trained_agent(path: str, algo: str) -> None:
@@ -81,8 +98,59 @@ def check_trained_agent(path: str, algo: str) -> None:
     found = saved_algo(data)
     if found is None:
         raise TrainedAgentError(f"Cannot tell which algorithm saved {path!r}; expected a {algo} model.")
-    if found != algo:
+    if found not in (algo, saved_as(algo)):
         raise TrainedAgentError(f"{path!r} holds a {found} model, not a {algo} one: use --algo {found}.")
+
+
+def get_latest_run_id(log_path: str, name: str) -> int:
+    """Highest ``N`` of the ``<name>_<N>`` folders in ``log_path`` (0 when none), as rl-zoo."""
+    run_id = 0
+    if os.path.isdir(log_path):
+        for entry in os.listdir(log_path):
+            stem, _, suffix = entry.rpartition("_")
+            if stem == name and suffix.isdigit():
+                run_id = max(run_id, int(suffix))
+    return run_id
+
+
+def model_path(run: str, name: str, load_best: bool, checkpoint: int | None, last_checkpoint: bool) -> str:
+    """
+    The zip to load from ``run``: the final model, ``best_model.zip`` or a checkpoint.
+
+    :param run: The run folder
+    :param name: The env's folder name (the final model is ``<name>.zip``)
+    :param load_best: ``best_model.zip``
+    :param checkpoint: The checkpoint of this many steps
+    :param last_checkpoint: The checkpoint of the most steps
+    :return: The path
+    :raises FileNotFoundError: When it does not exist (the message lists the run's models)
+    """
+    saved = {}
+    for entry in os.listdir(run):
+        match = CHECKPOINT_PATTERN.match(entry)
+        if match and match["prefix"] == "rl_model":
+            saved[int(match["steps"])] = entry
+    if load_best:
+        filename = "best_model.zip"
+    elif checkpoint is not None:
+        filename = f"rl_model_{checkpoint}_steps.zip"
+    elif last_checkpoint:
+        if not saved:
+            raise FileNotFoundError(f"No checkpoint in {run} (train with --save-freq).")
+        filename = saved[max(saved)]
+    else:
+        filename = f"{name}.zip"
+        reason = failure(run)
+        if reason is not None:
+            raise FileNotFoundError(
+                f"{run} failed ({reason}), so it has no final model: evaluate its best model (--load-best) or a checkpoint "
+                "(--load-last-checkpoint), or finish it with train.py --exp-id N --resume."
+            )
+    path = os.path.join(run, filename)
+    if not os.path.isfile(path):
+        available = sorted(entry for entry in os.listdir(run) if entry.endswith(".zip"))
+        raise FileNotFoundError(f"No {filename} in {run}; models there: {', '.join(available) or 'none'}.")
+    return path
 
 
 #: The ``VecNormalize`` statistics saved with ``best_model.zip``, as they were when it was chosen

@@ -49,6 +49,7 @@ from sb3_icrl.common.statistics import (
 from sb3_icrl.common.utils import atomic_write_bytes, atomic_write_json
 from sb3_icrl.envs import heldout_env_kwargs
 from sb3_icrl.registry import ICRL_ALGOS, env_name
+from sb3_icrl.run_evaluation import OUTCOME_TITLES, RunResult, evaluate_run, format_outcome_rate, summarise
 from sb3_icrl.run_folder import (
     LAST_TRAINING_EPISODES,
     find_vecnormalize,
@@ -57,7 +58,6 @@ from sb3_icrl.run_folder import (
     last_training_episodes,
     run_wall_time,
 )
-from sb3_icrl.zoo.compare import OUTCOME_TITLES, RunResult, evaluate_run, format_outcome_rate, summarise
 
 #: Held-out evaluation cached in each run folder
 HELDOUT_FILE = "heldout.json"

@@ -28,6 +28,7 @@ from sb3_icrl.run_folder import (
     run_vecnormalize,
     run_wall_time,
     saved_algo,
+    saved_as,
     trim_monitors,
 )
 
@@ -56,5 +57,6 @@ __all__ = [
     "run_vecnormalize",
     "run_wall_time",
     "saved_algo",
+    "saved_as",
     "trim_monitors",
 ]
