@@ -43,8 +43,8 @@ class RecordedEpisode:
 class LearnedCostRecorder(VecEnvWrapper):
     """
     Records each finished episode's raw observations, actions and rewards while ``recording`` is on, so that the
-    evaluation can price them with the learned cost (:func:`learned_episode_stats`), now and after later constraint
-    updates. Goes below any ``VecNormalize``: it sees raw observations.
+    evaluation can price them with the learned cost (:func:`~sb3_icrl.zoo.callbacks.learned_episode_stats`), now and
+    after later constraint updates. Goes below any ``VecNormalize``: it sees raw observations.
 
     :param venv: The evaluation env
     """

@@ -15,8 +15,10 @@ import sb3_icrl
 from sb3_icrl import registry
 from sb3_icrl.bc2l import BC2L
 from sb3_icrl.registry import ALGOS, ICRL_ALGOS, RegistrationError, register_algorithm
+from sb3_icrl.run_folder import saved_as
 from sb3_icrl.zoo import hyperparams as zoo_hyperparams
 from sb3_icrl.zoo import runs as zoo_runs
+from sb3_icrl.zoo.enjoy import main as enjoy_main
 from sb3_icrl.zoo.train import main as train_main
 
 PACKAGE = pathlib.Path(sb3_icrl.__file__).parent
@@ -191,6 +193,10 @@ def test_a_user_method_trains_by_name_and_runs_in_a_suite(user_method, tmp_path,
     run = logs / "renamedbc2l" / "GridWorldWall-v0_1"
     assert (run / "finished.json").is_file()
     assert type(ALGOS["renamedbc2l"].load(run / "GridWorldWall-v0.zip")).__name__ == "RenamedBC2L"
+    # Its models save what BC2L's save: enjoy takes them for --algo renamedbc2l, and BC2L's own stay BC2L's
+    assert saved_as("renamedbc2l") == "bc2l" and saved_as("bc2l") == "bc2l"
+    enjoy_argv = ["--algo", "renamedbc2l", "--env", "GridWorldWall-v0", "--gym-packages", user_method, "-f", str(logs)]
+    assert enjoy_main([*enjoy_argv, "--no-render", "-n", "50", "--verbose", "0"]) == 0
 
     suite = tmp_path / "mine.yml"
     suite.write_text(

@@ -132,7 +132,6 @@ def regeneration_command(args: argparse.Namespace, argv: Sequence[str]) -> str:
     :param argv: The command line as given
     :return: The command, for the sidecar
     """
-
     import_gym_packages(args.gym_packages)
     if args.run is not None:
         if args.expert is not None or args.vecnormalize is not None:

@@ -673,7 +673,6 @@ def find_unconstrained_run(run_folder: str | os.PathLike) -> pathlib.Path | None
     :param run_folder: The ICRL run folder ``<folder>/<algo>/<EnvName>_<N>``
     :return: The run folder, or ``None`` when there is none
     """
-
     run = pathlib.Path(run_folder).resolve()
     name = run.name.rpartition("_")[0]
     patterns = [run.parent.parent / "ppo"]
@@ -705,11 +704,11 @@ def read_icrl_run(run_folder: str | os.PathLike) -> tuple[pathlib.Path, dict[str
     :raises FileNotFoundError: When it is not a run folder
     :raises ValueError: When the run is not an ICRL run
     """
-
     run = pathlib.Path(run_folder)
     if not run.is_dir():
         raise FileNotFoundError(f"No run folder {run}.")
     args = _read_args(run)
+    import_gym_packages(args.get("gym_packages"))  # a user's method registers itself on import
     if args.get("algo") not in ICRL_ALGOS:
         raise ValueError(f"{run} is a {args.get('algo')} run: only ICRL runs ({', '.join(ICRL_ALGOS)}) learn a constraint.")
     return run, args
@@ -722,14 +721,12 @@ def run_model_path(run: pathlib.Path, args: dict[str, Any], which: str = "final"
     :param which: ``"final"``, ``"best"`` or a path
     :return: The file of that model
     """
-
     candidates = {"final": run / f"{env_name(resolve_env_id(args['env']))}.zip", "best": run / "best_model.zip"}
     return candidates.get(which, pathlib.Path(which))
 
 
 def _load_run_policy(run: pathlib.Path, which: str = "final") -> tuple[Any, dict[str, Any], str | None]:
     """The model saved in a run folder, its arguments and its VecNormalize statistics."""
-
     args = _read_args(run)
     import_gym_packages(args.get("gym_packages"))
     name = env_name(resolve_env_id(args["env"]))

@@ -162,7 +162,7 @@ def train_learner(
     :param env_id: The task's env
     :param env_kwargs: Its keyword arguments
     :param transition_noise: Its transition noise
-    :param params: Preprocessed PPO-Lagrangian hyper-parameters (:func:`~sb3_icrl.zoo.hyperparams.preprocess_hyperparams`)
+    :param params: Preprocessed PPO-Lagrangian hyper-parameters (:func:`~sb3_icrl.hyperparams.preprocess_hyperparams`)
     :param n_timesteps: Training steps
     :param seed: Seed
     :param cost_fn: The frozen learned cost (``learned`` only)

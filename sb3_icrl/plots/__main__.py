@@ -97,7 +97,6 @@ def plot_methods(args: argparse.Namespace) -> pathlib.Path:
 
 def plot_curves(args: argparse.Namespace) -> pathlib.Path:
     """The ``curves`` command; returns the image written."""
-
     import_gym_packages(args.gym_packages)
     try:
         with warnings.catch_warnings(record=True) as skipped:
@@ -202,7 +201,7 @@ def policy_observations(
     :param env_id: Registered env id
     :param env_kwargs: The run's env keyword arguments
     :param stats_path: The model's ``VecNormalize`` statistics (``None``: the run did not normalise; see
-        :func:`~sb3_icrl.zoo.runs.run_vecnormalize`)
+        :func:`~sb3_icrl.run_folder.run_vecnormalize`)
     :param run_args: The run's ``args.yml`` (its transition noise)
     :param n_episodes: Episodes to run
     :param seed: Seed of the env

@@ -572,7 +572,6 @@ def find_runs(log_folder: str | os.PathLike, algo: str, env: str) -> list[pathli
     :return: The run folders (at least one)
     :raises FileNotFoundError: When there is none (the message lists what the folder holds)
     """
-
     algo_folder = pathlib.Path(log_folder) / algo
     name = env_name(env)  # the folder name train.py gives the env
     if not algo_folder.is_dir():

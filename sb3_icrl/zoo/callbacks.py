@@ -428,7 +428,7 @@ def save_training_state(
     :param evaluation: The run's evaluation callback, if any
     :param wall_time_s: The run's wall time so far (:class:`WallClock`), for the resumed run to count on from
     :param monitor_rows: Episodes in each Monitor file of the run so far
-        (:func:`~sb3_icrl.zoo.runs.monitor_row_counts`), for the resumed run to drop those recorded after this point
+        (:func:`~sb3_icrl.run_folder.monitor_row_counts`), for the resumed run to drop those recorded after this point
     """
     trainer = getattr(model, "icrl_trainer", None)
     state = {

@@ -558,7 +558,7 @@ def _setup(
 
 
 def _resume_statistics(trained_agent: str, env_id: str, params: dict[str, Any]) -> str | None:
-    """The ``VecNormalize`` statistics to resume with (see :func:`~sb3_icrl.zoo.runs.find_vecnormalize`)."""
+    """The ``VecNormalize`` statistics to resume with (see :func:`~sb3_icrl.run_folder.find_vecnormalize`)."""
     stats_path = find_vecnormalize(trained_agent, env_name(env_id))
     if params["normalize"] and stats_path is None:
         warnings.warn(
