@@ -14,6 +14,7 @@ from stable_baselines3 import PPO
 import sb3_icrl
 from sb3_icrl import registry
 from sb3_icrl.bc2l import BC2L
+from sb3_icrl.common.saved import UNRECORDED_TRAINERS
 from sb3_icrl.registry import ALGOS, ICRL_ALGOS, RegistrationError, register_algorithm
 from sb3_icrl.run_folder import saved_as
 from sb3_icrl.zoo import hyperparams as zoo_hyperparams
@@ -22,6 +23,8 @@ from sb3_icrl.zoo.enjoy import main as enjoy_main
 from sb3_icrl.zoo.train import main as train_main
 
 PACKAGE = pathlib.Path(sb3_icrl.__file__).parent
+#: The ICRL algorithms of the library
+ICRL = (sb3_icrl.GACL, sb3_icrl.BC2L, sb3_icrl.MECL, sb3_icrl.VICRL)
 #: The command line: it may import everything, nothing in the library imports it
 COMMAND_LINE = ("sb3_icrl.zoo", "sb3_icrl.benchmark.cli", "sb3_icrl.benchmark.__main__")
 #: Every library package and the modules below the command line that the command line leans on
@@ -77,6 +80,56 @@ def test_nothing_below_the_command_line_imports_it():
         if _is_command_line(target)
     ]
     assert upward == []
+
+
+def _import_graph() -> dict[str, set[str]]:
+    """Module -> the ``sb3_icrl`` modules it imports; a name taken from a package's ``__init__`` counts as taken from
+    the module that defines it (``from sb3_icrl import BC2L`` imports :mod:`sb3_icrl.bc2l`)."""
+    paths = {_module_name(path): path for path in PACKAGE.rglob("*.py")}
+    facades = {}
+    for module, path in paths.items():
+        if path.name == "__init__.py":
+            body = ast.parse(path.read_text()).body
+            facades[module] = {
+                alias.asname or alias.name: node.module
+                for node in body
+                if isinstance(node, ast.ImportFrom) and node.module
+                for alias in node.names
+            }
+    graph: dict[str, set[str]] = {module: set() for module in paths}
+    for module, path in paths.items():
+        for target, _ in _imports(path):
+            package, _, name = target.rpartition(".")
+            if target not in paths:  # a name, not a module
+                target = facades.get(package, {}).get(name, package)
+            if target in paths and target != module:
+                graph[module].add(target)
+    return graph
+
+
+def test_the_import_graph_has_no_circle():
+    graph = _import_graph()
+    state: dict[str, int] = {}  # 1: on the path being walked, 2: done
+    circles = []
+
+    def walk(module: str, path: list[str]) -> None:
+        state[module] = 1
+        for target in sorted(graph[module]):
+            if state.get(target) == 1:
+                circles.append(" -> ".join([*path[path.index(target) :], target]))
+            elif target not in state:
+                walk(target, [*path, target])
+        state[module] = 2
+
+    for module in sorted(graph):
+        if module not in state:
+            walk(module, [module])
+    assert circles == []
+
+
+def test_zips_saved_before_they_named_their_algorithm_are_told_by_the_trainer():
+    expected = {f"{a.default_trainer_class.__module__}.{a.default_trainer_class.__qualname__}": a.__name__ for a in ICRL}
+    assert expected == UNRECORDED_TRAINERS
 
 
 def test_library_packages_import_without_the_command_line():

@@ -10,6 +10,7 @@ usual run folder (evaluations, checkpoints, the model whose policy acts as plann
 """
 
 import functools
+import inspect
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -307,8 +308,6 @@ def learn_with_planner(
     :param progress_bar: Display a progress bar
     :return: The planner on the final learned cost
     """
-    from sb3_icrl.bc2l import BC2LTrainer  # the trainers import this module's package
-
     if model.demonstrations is None or model.constraint_net is None or model.constraint_optimizer is None:
         raise ValueError(f"{type(model).__name__} needs its demonstrations and constraint model to learn.")
     env = model.get_env()
@@ -330,7 +329,7 @@ def learn_with_planner(
     absorbing = absorbing_states(planner)
     trainer_kwargs = {key: value for key, value in model.trainer_kwargs.items() if key != "budget_from_expert"}
     if loop.get("label_trajectories", False):
-        if not issubclass(model.trainer_class, BC2LTrainer):
+        if not _takes_episode_lengths(model.trainer_class):
             raise ValueError(f"label_trajectories is for BC2L and GACL, not {model.trainer_class.__name__}.")
         trainer_kwargs["expert_episode_lengths"] = [len(trajectory) for trajectory in model.demonstrations]
     n_nominal = model.n_nominal_trajectories or len(model.demonstrations)
@@ -427,6 +426,15 @@ def _set_multiplier(model: Any, value: float) -> None:
             parameter.fill_(float(value))
     elif hasattr(multiplier, "_value"):
         multiplier._value = np.full_like(multiplier._value, float(value))
+
+
+def _takes_episode_lengths(trainer_class: type) -> bool:
+    """Whether a trainer labels whole trajectories when given the expert's episode lengths (BC2L's and GACL's do)."""
+    return any(
+        "expert_episode_lengths" in inspect.signature(vars(klass)["__init__"]).parameters
+        for klass in trainer_class.__mro__
+        if "__init__" in vars(klass)
+    )
 
 
 def learn_function(model: Any, solver: str, planner_kwargs: dict[str, Any] | None = None) -> Callable[..., Any]:
