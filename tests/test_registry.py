@@ -60,15 +60,19 @@ def _is_command_line(module: str) -> bool:
     return any(module == name or module.startswith(f"{name}.") for name in COMMAND_LINE)
 
 
-def _imports(path: pathlib.Path) -> list[tuple[str, int]]:
-    """Every ``sb3_icrl`` module ``path`` imports, at module level or inside a function, with its line."""
+def _imports_in(tree: ast.AST) -> list[tuple[str, int]]:
+    """Every ``sb3_icrl`` module or name imported in ``tree``, at its top or inside a function, with its line."""
     found = []
-    for node in ast.walk(ast.parse(path.read_text())):
+    for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             found += [(alias.name, node.lineno) for alias in node.names if alias.name.startswith("sb3_icrl")]
         elif isinstance(node, ast.ImportFrom) and (node.module or "").startswith("sb3_icrl"):
             found += [(f"{node.module}.{alias.name}", node.lineno) for alias in node.names]
     return found
+
+
+def _imports(path: pathlib.Path) -> list[tuple[str, int]]:
+    return _imports_in(ast.parse(path.read_text()))
 
 
 def test_nothing_below_the_command_line_imports_it():
@@ -80,6 +84,18 @@ def test_nothing_below_the_command_line_imports_it():
         if _is_command_line(target)
     ]
     assert upward == []
+
+
+def test_the_library_imports_its_modules_at_module_top():
+    inside_functions = [
+        f"{_module_name(path)}:{line} imports {target}"
+        for path in sorted(PACKAGE.rglob("*.py"))
+        if not _is_command_line(_module_name(path))
+        for function in ast.walk(ast.parse(path.read_text()))
+        if isinstance(function, (ast.FunctionDef, ast.AsyncFunctionDef))
+        for target, line in _imports_in(function)
+    ]
+    assert inside_functions == []
 
 
 def _import_graph() -> dict[str, set[str]]:

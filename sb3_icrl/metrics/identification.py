@@ -32,6 +32,16 @@ import scipy.stats
 import torch as th
 
 from sb3_icrl.common.utils import atomic_write_json
+from sb3_icrl.data import load_demonstrations
+from sb3_icrl.envs.wrappers import TransitionNoiseWrapper
+from sb3_icrl.icrl.tabular import precision_recall
+from sb3_icrl.plots.figures import (
+    constraint_features,
+    default_feature_values,
+    grid_cost_map,
+    methods_partial_dependence_figure,
+    unsafe_side,
+)
 from sb3_icrl.registry import ALGOS, ICRL_ALGOS, env_name, import_gym_packages, resolve_env_id
 from sb3_icrl.run_folder import find_vecnormalize, is_finished
 
@@ -181,8 +191,6 @@ def learned_threshold(values: np.ndarray, curve: np.ndarray, level: float, side:
     :param side: ``"below"`` or ``"above"`` (or an op: ``"<="``, ``">"``...), the truly unsafe side
     :return: The crossing, or ``inf``/``nan`` with the reason there is none
     """
-    from sb3_icrl.plots.figures import unsafe_side
-
     grid, costs = np.asarray(values, dtype=float).reshape(-1), np.asarray(curve, dtype=float).reshape(-1)
     if grid.shape != costs.shape or grid.size < 2:
         raise ValueError(f"`values` and `curve` must be two arrays of the same length >= 2, got {grid.size} and {costs.size}.")
@@ -311,8 +319,6 @@ def feature_grid(visited: np.ndarray, threshold: float, n_values: int = 51, marg
     :param margin: Widening, as a share of the span
     :return: ``(n_values,)``
     """
-    from sb3_icrl.plots.figures import default_feature_values
-
     return default_feature_values(visited, threshold, n_values=n_values, margin=margin)
 
 
@@ -503,8 +509,6 @@ def grid_identification(
     :return: ``auroc``, ``ece``, ``n_probes``, ``levels`` and per level ``at_<level>`` with ``precision``, ``recall``
         (those of :func:`~sb3_icrl.icrl.tabular.precision_recall`) and ``iou``
     """
-    from sb3_icrl.icrl.tabular import precision_recall
-
     costs, unsafe = np.asarray(cost_map, dtype=float), np.asarray(unsafe_mask, dtype=bool)
     if costs.shape != unsafe.shape:
         raise ValueError(f"`cost_map` {costs.shape} and `unsafe_mask` {unsafe.shape} must have the same shape.")
@@ -573,8 +577,6 @@ def policy_pairs(
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from sb3_icrl.envs.wrappers import TransitionNoiseWrapper
-
     wrapper = (lambda env: TransitionNoiseWrapper(env, sigma=transition_noise)) if transition_noise > 0 else None
     venv: Any = make_vec_env(env_id, n_envs=1, seed=seed, env_kwargs=dict(env_kwargs or {}), wrapper_class=wrapper)
     if vecnormalize_path is not None:
@@ -627,11 +629,8 @@ def identify_model(
         budget = float(np.asarray(model.cost_budget).reshape(-1)[0])
     net = getattr(model, "constraint_net", model)
     if getattr(net, "discrete_obs", False):
-        from sb3_icrl.plots.figures import grid_cost_map
-
         grid = gym.make(env_id, **dict(env_kwargs or {})).unwrapped
         return grid_identification(grid_cost_map(net, grid), grid.unsafe_mask, budget)  # type: ignore[attr-defined]
-    from sb3_icrl.plots.figures import constraint_features
 
     constraints = constraint_features(env_id, env_kwargs)
     probes = build_probe_set(
@@ -776,8 +775,6 @@ def run_probes(
     :param seed: Seed of the episodes
     :return: The probes (:class:`RunProbes`)
     """
-    from sb3_icrl.data import load_demonstrations
-
     run, args = read_icrl_run(run_folder)
     learner, _, stats = _load_run_policy(run, model)
     env_id = resolve_env_id(args["env"])
@@ -900,8 +897,6 @@ def methods_figure(
     :param model: ``"final"`` or ``"best"``: whose learned constraint
     :return: The figure
     """
-    from sb3_icrl.plots.figures import methods_partial_dependence_figure
-
     if not run_folders:
         raise ValueError("No run folder given: pass the ICRL runs to compare.")
     curves: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}

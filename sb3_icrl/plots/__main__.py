@@ -21,6 +21,9 @@ import numpy as np
 import yaml
 
 from sb3_icrl.common.utils import plain_docstring
+from sb3_icrl.data import load_demonstrations
+from sb3_icrl.envs.wrappers import TransitionNoiseWrapper
+from sb3_icrl.metrics.identification import methods_figure
 from sb3_icrl.plots.figures import (
     CURVE_METRICS,
     TrueConstraint,
@@ -90,8 +93,6 @@ def get_parser() -> argparse.ArgumentParser:
 
 def plot_methods(args: argparse.Namespace) -> pathlib.Path:
     """The ``methods`` command (curves from each run's identification scores); returns the image written."""
-    from sb3_icrl.metrics.identification import methods_figure
-
     return save_figure(methods_figure(args.runs, args.feature, args.level, args.title), args.output)
 
 
@@ -210,8 +211,6 @@ def policy_observations(
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from sb3_icrl.envs.wrappers import TransitionNoiseWrapper
-
     noise = float(run_args.get("transition_noise") or 0.0)
     wrapper = (lambda env: TransitionNoiseWrapper(env, sigma=noise)) if noise > 0 else None
     venv: Any = make_vec_env(env_id, n_envs=1, seed=seed, env_kwargs=env_kwargs, wrapper_class=wrapper)
@@ -233,8 +232,6 @@ def policy_observations(
 def plot_constraint(args: argparse.Namespace) -> pathlib.Path:
     """The ``constraint`` command; returns the image written."""
     import gymnasium as gym
-
-    from sb3_icrl.data import load_demonstrations
 
     import_gym_packages(args.gym_packages)
     folder, run_args = read_run(args.run_folder)
