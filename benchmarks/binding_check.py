@@ -35,8 +35,8 @@ import sb3_icrl  # noqa: F401  (registers the envs)
 from sb3_icrl import PPOLagrangian
 from sb3_icrl.data.registry import expert_paths, load_demonstrations
 from sb3_icrl.envs import get_constraint_spec
+from sb3_icrl.registry import env_name, resolve_env_id
 from sb3_icrl.zoo.compare import describe_run
-from sb3_icrl.zoo.hyperparams import env_name, resolve_env_id
 
 #: PPO breaks the constraint in at least this share of held-out episodes: the constraint binds
 BINDS_AT = 0.8

@@ -27,9 +27,9 @@ from sb3_icrl.envs import CONSTRAINED_FEATURE
 from sb3_icrl.icrl.recorder import NominalData, NominalTrajectory
 from sb3_icrl.icrl.trainer import ICRLTrainer
 from sb3_icrl.mecl import MECLTrainer
+from sb3_icrl.registry import ALGOS
+from sb3_icrl.run_folder import find_vecnormalize
 from sb3_icrl.vicrl import VICRLTrainer
-from sb3_icrl.zoo.hyperparams import ALGOS
-from sb3_icrl.zoo.runs import find_vecnormalize
 
 
 def policy_episodes(spec: str, env_id: str, n_episodes: int, seed: int) -> list[Trajectory]:

@@ -45,8 +45,9 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
 from sb3_icrl import MECL, VICRL, PPOLagrangian
 from sb3_icrl.constraints.wrappers import LearnedCostVecEnvWrapper
 from sb3_icrl.data.registry import load_demonstrations
+from sb3_icrl.hyperparams import algo_kwargs, load_hyperparams, preprocess_hyperparams
 from sb3_icrl.icrl.recorder import TrajectoryRecorderVecEnvWrapper
-from sb3_icrl.zoo.hyperparams import algo_kwargs, load_hyperparams, preprocess_hyperparams, resolve_env_id
+from sb3_icrl.registry import resolve_env_id
 from sb3_icrl.zoo.train import StoreDict, create_env
 
 DEFAULT_ENV = "BlockedHalfCheetah-v0"

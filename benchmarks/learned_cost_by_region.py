@@ -27,8 +27,8 @@ from sb3_icrl.constraints import BetaFeasibilityNet
 from sb3_icrl.data import NormalizedExpert, Trajectory, load_demonstrations
 from sb3_icrl.data.generate import rollout_trajectory
 from sb3_icrl.envs import CONSTRAINED_FEATURE
-from sb3_icrl.zoo.hyperparams import ALGOS
-from sb3_icrl.zoo.runs import find_vecnormalize
+from sb3_icrl.registry import ALGOS
+from sb3_icrl.run_folder import find_vecnormalize
 
 DEFAULT_EDGES = (-10.0, -3.0, 0.0, 5.0, 20.0)
 

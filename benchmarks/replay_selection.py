@@ -20,9 +20,10 @@ import torch as th
 import yaml
 
 from sb3_icrl.common.evaluation import evaluate_constraint
+from sb3_icrl.hyperparams import preprocess_hyperparams
+from sb3_icrl.registry import ALGOS, env_name
 from sb3_icrl.zoo.callbacks import learned_episode_stats, learned_selection_score, rescore_episodes
 from sb3_icrl.zoo.compare import describe_run
-from sb3_icrl.zoo.hyperparams import ALGOS, env_name, preprocess_hyperparams
 from sb3_icrl.zoo.train import create_env
 
 STEPS = re.compile(r"rl_model_(\d+)_steps\.zip$")

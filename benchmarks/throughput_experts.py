@@ -28,9 +28,9 @@ import sb3_icrl  # noqa: F401  (registers the envs)
 from sb3_icrl import PPOLagrangian
 from sb3_icrl.common.evaluation import evaluate_constraint
 from sb3_icrl.data.registry import expert_paths
+from sb3_icrl.registry import env_name
+from sb3_icrl.run_folder import read_finished
 from sb3_icrl.zoo.compare import describe_run
-from sb3_icrl.zoo.hyperparams import env_name
-from sb3_icrl.zoo.runs import read_finished
 
 #: Training time of each shipped expert's recipe, in seconds (benchmarks/RESULTS.md, 2026-11-21; HalfCheetah: the
 #: 800k-step run's 29.8 min and 400k of the 15.7 min continuation that reached 1.41M steps)

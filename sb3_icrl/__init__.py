@@ -12,6 +12,7 @@ from sb3_icrl.irlplus import IRLPlus, IRLPlusPPO
 from sb3_icrl.mecl import MECL
 from sb3_icrl.pi_lagrangian import PILagrangian
 from sb3_icrl.ppo_lagrangian import PPOLagrangian
+from sb3_icrl.registry import register_algorithm
 from sb3_icrl.sac_lagrangian import SACLagrangian
 from sb3_icrl.vicrl import VICRL
 
@@ -37,4 +38,5 @@ __all__ = [
     "declare_constraint",
     "evaluate_constraint",
     "get_constraint_spec",
+    "register_algorithm",
 ]

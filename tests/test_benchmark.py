@@ -223,7 +223,7 @@ def test_constraint_figures_draw_the_scored_runs_of_each_env(tmp_path, monkeypat
     matplotlib.use("Agg")
     from matplotlib.figure import Figure
 
-    import sb3_icrl.metrics.identification as identification
+    import sb3_icrl.benchmark.report as report
     from sb3_icrl.benchmark.report import constraint_figures
 
     suite = load_suite(write(tmp_path, TINY_SUITE))
@@ -237,7 +237,7 @@ def test_constraint_figures_draw_the_scored_runs_of_each_env(tmp_path, monkeypat
         drawn.append((list(runs), title))
         return Figure()
 
-    monkeypatch.setattr(identification, "methods_figure", fake_methods_figure)
+    monkeypatch.setattr(report, "methods_figure", fake_methods_figure)
     root, output = str(tmp_path / "logs"), str(tmp_path / "report")
     written = constraint_figures(summary, suite, root, output)
     assert written == [os.path.join(output, "constraint_GridWorldWall-v0_base.png")] and os.path.isfile(written[0])
@@ -249,7 +249,7 @@ def test_constraint_figures_draw_the_scored_runs_of_each_env(tmp_path, monkeypat
     def no_feature(runs, title=None, **kwargs):
         raise ValueError("the env's constraint is not a threshold on a feature")
 
-    monkeypatch.setattr(identification, "methods_figure", no_feature)
+    monkeypatch.setattr(report, "methods_figure", no_feature)
     assert constraint_figures(summary, suite, root, str(tmp_path / "none")) == []
 
 
@@ -260,7 +260,7 @@ def test_figures_follow_the_cells_the_report_keeps(tmp_path, monkeypatch):
     matplotlib.use("Agg")
     from matplotlib.figure import Figure
 
-    import sb3_icrl.plots.figures as figures
+    import sb3_icrl.benchmark.report as report
     from sb3_icrl.benchmark.report import write_figures
 
     text = TINY_SUITE.replace("envs: [GridWorldWall-v0]", "envs: [GridWorldWall-v0, GridWorldSquare-v0]")
@@ -268,8 +268,8 @@ def test_figures_follow_the_cells_the_report_keeps(tmp_path, monkeypatch):
     kept = [run for run in suite.runs() if run.env_id.endswith("GridWorldWall-v0")]
     summary = summarise_suite(suite, kept, [(run, _result(run.algo, run.seed, 1.0, 0.0)) for run in kept])
     loaded = []
-    monkeypatch.setattr(figures, "load_runs", lambda folder, algos, env_id, skip_missing: loaded.append(env_id) or [])
-    monkeypatch.setattr(figures, "training_curves_figure", lambda runs, title: Figure())
+    monkeypatch.setattr(report, "load_runs", lambda folder, algos, env_id, skip_missing: loaded.append(env_id) or [])
+    monkeypatch.setattr(report, "training_curves_figure", lambda runs, title: Figure())
     written = write_figures(summary, suite, str(tmp_path / "logs"), str(tmp_path / "report"))
     assert loaded == ["sb3_icrl/GridWorldWall-v0"]
     assert [os.path.basename(path) for path in written] == ["curves_GridWorldWall-v0_base.png"]
@@ -282,16 +282,16 @@ def test_an_updated_report_draws_the_rerun_methods_and_says_so(tmp_path, monkeyp
     matplotlib.use("Agg")
     from matplotlib.figure import Figure
 
-    import sb3_icrl.plots.figures as figures
+    import sb3_icrl.benchmark.report as report
     from sb3_icrl.benchmark.report import write_figures
 
     text = TINY_SUITE.replace("envs: [GridWorldWall-v0]", "envs: [GridWorldWall-v0, GridWorldSquare-v0]")
     suite = load_suite(write(tmp_path, text))
     summary = summarise_suite(suite, suite.runs(), [(run, _result(run.algo, run.seed, 1.0, 0.0)) for run in suite.runs()])
     drawn = []
-    monkeypatch.setattr(figures, "load_runs", lambda folder, algos, env_id, skip_missing: drawn.append((env_id, algos)) or [])
+    monkeypatch.setattr(report, "load_runs", lambda folder, algos, env_id, skip_missing: drawn.append((env_id, algos)) or [])
     titles = []
-    monkeypatch.setattr(figures, "training_curves_figure", lambda runs, title: titles.append(title) or Figure())
+    monkeypatch.setattr(report, "training_curves_figure", lambda runs, title: titles.append(title) or Figure())
     rerun = [run for run in suite.runs() if run.env_id.endswith("GridWorldWall-v0") and run.algo == suite.algos[0]]
     written = write_figures(summary, suite, str(tmp_path / "logs"), str(tmp_path / "report"), runs_drawn=rerun)
     assert drawn == [("sb3_icrl/GridWorldWall-v0", [suite.algos[0]])]

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import yaml
 
+from sb3_icrl import run_evaluation
 from sb3_icrl.zoo import enjoy
 from sb3_icrl.zoo import main as train_main
 from sb3_icrl.zoo.compare import (
@@ -163,8 +164,8 @@ def test_evaluate_run_loads_the_model_of_the_folder_it_is_given(tmp_path, monkey
     for exp_id in ("0", "1"):
         assert train_main([*base, "--seed", exp_id, "--exp-id", exp_id]) == 0
     loaded = []
-    original = enjoy.check_trained_agent
-    monkeypatch.setattr(enjoy, "check_trained_agent", lambda path, algo: (loaded.append(path), original(path, algo)))
+    original = run_evaluation.check_trained_agent
+    monkeypatch.setattr(run_evaluation, "check_trained_agent", lambda path, algo: (loaded.append(path), original(path, algo)))
     for exp_id in ("0", "1"):
         run = str(tmp_path / "ppo" / f"ConstrainedCorridor-v0_{exp_id}")
         result = evaluate_run(run, 40, eval_seed=100)

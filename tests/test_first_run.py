@@ -11,7 +11,9 @@ import numpy as np
 import pytest
 import yaml
 
-from sb3_icrl.icrl.tabular import distill_planner, forward_solver, learned_planning_costs
+from sb3_icrl.hyperparams import forward_solver
+from sb3_icrl.icrl.tabular import distill_planner, learned_planning_costs
+from sb3_icrl.run_evaluation import run_episodes
 from sb3_icrl.zoo import enjoy as enjoy_module
 from sb3_icrl.zoo.recording import FrameWriter, configure_headless_rendering, has_display
 from sb3_icrl.zoo.summary import evaluation_line, feature_constraint_summary, grid_constraint_report
@@ -219,7 +221,7 @@ class _FakeModel:
 def test_record_streams_frames_one_file_per_episode(tmp_path: pathlib.Path) -> None:
     folder = tmp_path / "videos"
     writer = FrameWriter("matplotlib", str(folder), "run", fps=10)
-    enjoy_module._run(_FakeModel(), _FakeVecEnv(folder), 7, True, 0, writer)  # type: ignore[arg-type]
+    run_episodes(_FakeModel(), _FakeVecEnv(folder), 7, True, 0, writer)  # type: ignore[arg-type]
     paths = writer.close()
     # 8 frames (reset + 7 steps) over episodes of 3 steps: 3 + 3 + 2, each episode in its own folder
     assert [len(list(pathlib.Path(path).glob("frame_*.png"))) for path in paths] == [3, 3, 2]

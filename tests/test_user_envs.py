@@ -93,8 +93,8 @@ TINY = ["--eval-freq", "64", "--eval-episodes", "1", "--seed", "0", "--verbose",
 @pytest.fixture(scope="module")
 def declared_runs(tmp_path_factory):
     """An expert, its demonstrations and a MECL run on a user env, trained in this process through the CLI functions."""
+    from sb3_icrl import hyperparams
     from sb3_icrl.data.__main__ import main as data_main
-    from sb3_icrl.zoo import hyperparams
 
     root = tmp_path_factory.mktemp("declared")
     module = f"declared_envs_{os.getpid()}"
@@ -125,7 +125,7 @@ def test_env_name_is_the_one_folder_name_of_namespaced_ids(tmp_path):
 
 
 def test_unknown_env_icrl_defaults_and_json_or_yml_overrides(tmp_path, monkeypatch):
-    from sb3_icrl.zoo import hyperparams
+    from sb3_icrl import hyperparams
     from sb3_icrl.zoo.hyperparams import UNKNOWN_ENV_ICRL_DEFAULTS, load_hyperparams, preprocess_hyperparams
     from sb3_icrl.zoo.train import get_parser
 

@@ -37,8 +37,8 @@ from sb3_icrl.benchmark.runner import BACKENDS, RunOutcome, load_runtime_env, ma
 from sb3_icrl.benchmark.status import status_lines, suite_status
 from sb3_icrl.benchmark.suite import SUITES_DIR, RunSpec, Suite, SuiteError, load_suite
 from sb3_icrl.common.utils import plain_docstring
-from sb3_icrl.zoo.compare import RunResult
-from sb3_icrl.zoo.hyperparams import import_gym_packages
+from sb3_icrl.registry import import_gym_packages
+from sb3_icrl.run_evaluation import RunResult
 
 
 def _only(values: list[str] | None) -> dict[str, list[str]]:

@@ -47,11 +47,15 @@ from sb3_icrl.common.statistics import (
     wilson_interval,
 )
 from sb3_icrl.common.utils import atomic_write_bytes, atomic_write_json
+from sb3_icrl.data import load_demonstrations
 from sb3_icrl.envs import heldout_env_kwargs
 from sb3_icrl.envs.constraint_spec import get_constraint_spec
-from sb3_icrl.zoo.compare import OUTCOME_TITLES, RunResult, evaluate_run, format_outcome_rate, summarise
-from sb3_icrl.zoo.hyperparams import env_name
-from sb3_icrl.zoo.runs import (
+from sb3_icrl.metrics.identification import headline, identification_file, identify_run, methods_figure
+from sb3_icrl.metrics.transfer import read_transfers
+from sb3_icrl.plots.figures import load_runs, new_figure, save_figure, training_curves_figure
+from sb3_icrl.registry import ICRL_ALGOS, env_name
+from sb3_icrl.run_evaluation import OUTCOME_TITLES, RunResult, evaluate_run, format_outcome_rate, summarise
+from sb3_icrl.run_folder import (
     LAST_TRAINING_EPISODES,
     find_vecnormalize,
     is_finished,
@@ -203,10 +207,6 @@ def constraint_metrics(
         are added to the final model's report only
     :return: ``{result.run: {column: value}}``
     """
-    from sb3_icrl.metrics.identification import headline, identification_file, identify_run
-    from sb3_icrl.metrics.transfer import read_transfers
-    from sb3_icrl.zoo.hyperparams import ICRL_ALGOS
-
     metrics = run_facts(results, root)
     for run, result in results:
         folder = os.path.join(root, result.run)
@@ -419,8 +419,6 @@ def expert_return(name: str, violating_fraction: float | None = None) -> float |
     :param violating_fraction: The imperfect-expert variant of a shipped dataset
     :return: The mean return; ``None`` when there is no such dataset or it is empty
     """
-    from sb3_icrl.data import load_demonstrations
-
     try:
         demonstrations = load_demonstrations(name, violating_fraction=violating_fraction)
     except (OSError, ValueError):  # DemonstrationError is a ValueError: no dataset for this env
@@ -1227,9 +1225,6 @@ def constraint_figures(
         figure it has
     :return: The paths written
     """
-    from sb3_icrl.metrics.identification import methods_figure
-    from sb3_icrl.plots.figures import save_figure
-
     names = None if runs_drawn is None else {run.name for run in runs_drawn}
     folders: dict[tuple[str, str], list[str]] = {}
     for cell in summary["cells"]:
@@ -1273,8 +1268,6 @@ def write_figures(
         other envs' figures
     :return: The paths written
     """
-    from sb3_icrl.plots.figures import load_runs, new_figure, save_figure, training_curves_figure
-
     written = []
     reported = {(cell["env"], cell["variant"]) for cell in summary["cells"]}  # the report's cells (its --only filter)
     drawn_cells = None if runs_drawn is None else {run.cell for run in runs_drawn}
@@ -1349,8 +1342,6 @@ def performance_profile_figure(summary: dict[str, Any]) -> Any:
     rliable's performance profile of the normalised scores: per algorithm, the share of runs scoring above each
     threshold (each env weighing the same), with its stratified-bootstrap 95% band; ``None`` without normalised scores.
     """
-    from sb3_icrl.plots.figures import new_figure
-
     scores = normalised_scores_by_algo(summary)
     if not scores:
         return None

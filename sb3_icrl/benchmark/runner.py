@@ -21,7 +21,8 @@ from typing import Any
 import yaml
 
 from sb3_icrl.benchmark.suite import RunSpec, run_complete
-from sb3_icrl.zoo.runs import FINISHED_FILE, is_finished
+from sb3_icrl.common.versions import versions
+from sb3_icrl.run_folder import FINISHED_FILE, is_finished
 
 #: Attempts per run before it is listed as failed
 MAX_ATTEMPTS = 2
@@ -148,8 +149,6 @@ def code_identity() -> dict[str, str]:
     :return: ``{"sb3_icrl": version, "git_revision": revision}`` (revision ``unknown`` outside a git checkout, with
         ``-dirty`` when the checkout has changes)
     """
-    from sb3_icrl.zoo.train import versions  # (imported here: the training module imports much the engine does not need)
-
     found = versions()
     return {"sb3_icrl": found["sb3_icrl"], "git_revision": found["git_revision"]}
 

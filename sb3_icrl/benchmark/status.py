@@ -12,8 +12,9 @@ from typing import Any
 import yaml
 
 from sb3_icrl.benchmark.suite import RunSpec
-from sb3_icrl.zoo.hyperparams import REFERENCE_ALGOS, env_name, load_hyperparams
-from sb3_icrl.zoo.runs import checkpoints, failure, finished_wall_time, is_finished, read_finished
+from sb3_icrl.hyperparams import load_hyperparams
+from sb3_icrl.registry import REFERENCE_ALGOS, env_name
+from sb3_icrl.run_folder import checkpoints, failure, finished_wall_time, is_finished, read_finished
 
 #: The states of a run, in the order the summary line counts them
 STATES = ("finished", "running", "interrupted", "failed", "not started")

@@ -19,8 +19,15 @@ from sb3_icrl.envs import REWARD_TRANSFER_TASKS
 from sb3_icrl.envs.wrappers import TRANSITION_NOISE_MODELS
 from sb3_icrl.metrics.transfer import TASKS as TRANSFER_TASKS
 from sb3_icrl.metrics.transfer import transfer_file
-from sb3_icrl.zoo.hyperparams import ALGOS, ICRL_ALGOS, REFERENCE_ALGOS, env_name, import_gym_packages, resolve_env_id
-from sb3_icrl.zoo.runs import is_finished
+from sb3_icrl.registry import (
+    ALGOS,
+    ICRL_ALGOS,
+    REFERENCE_ALGOS,
+    env_name,
+    import_gym_packages,
+    resolve_env_id,
+)
+from sb3_icrl.run_folder import is_finished
 
 #: Where the shipped suites live
 SUITES_DIR = pathlib.Path(__file__).resolve().parent / "suites"
@@ -384,7 +391,7 @@ class _SuiteReader:
         algos = [str(algo) for algo in self.content["algos"]]
         for index, algo in enumerate(algos):
             if algo not in ALGOS:
-                raise self.error(("algos", index), f"unknown algorithm {algo!r}: use one of {', '.join(ALGOS)}.")
+                raise self.error(("algos", index), _unknown_algo(algo))
         seeds = []
         for index, seed in enumerate(self.content["seeds"]):
             if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
@@ -502,7 +509,7 @@ class _SuiteReader:
                 raise self.error((*where, env), f"{what} numbers map algo -> [feasible reward, violation rate].")
             for algo, pair in entries.items():
                 if algo not in ALGOS:
-                    raise self.error((*where, env, algo), f"unknown algorithm {algo!r}: use one of {', '.join(ALGOS)}.")
+                    raise self.error((*where, env, algo), _unknown_algo(algo))
                 if not (
                     isinstance(pair, list)
                     and len(pair) == 2
@@ -595,6 +602,13 @@ class _SuiteReader:
                 raise self.error(("others", source), "'paper' is the `paper` key's own column: give this source another name.")
             others[source] = self.numbers(numbers, ("others", source), f"source {source!r}")
         return others
+
+
+def _unknown_algo(algo: str) -> str:
+    return (
+        f"unknown algorithm {algo!r}: use one of {', '.join(ALGOS)}, or register yours with sb3_icrl.register_algorithm "
+        "in a module that the suite names in `gym_packages`."
+    )
 
 
 def load_suite(name_or_path: str | os.PathLike) -> Suite:

@@ -19,6 +19,14 @@ _SHARED_BASES = ("ICRLAlgorithmMixin", "LagrangianICRL")
 _ADAPTER_MODULES = ("sb3_icrl.zoo.rl_zoo3",)
 #: Prefix of the rl_zoo3 adapters' names, which zips they saved recorded before they were told apart
 _ADAPTER_PREFIX = "Zoo"
+#: The default trainer of each ICRL algorithm that saved zips before they recorded :data:`SAVED_ALGORITHM_KEY`, by
+#: qualified name: such a zip is told by the closest of them in its trainer's bases (zips saved since name themselves)
+UNRECORDED_TRAINERS = {
+    "sb3_icrl.gacl.gacl.GACLTrainer": "GACL",
+    "sb3_icrl.bc2l.bc2l.BC2LTrainer": "BC2L",
+    "sb3_icrl.mecl.mecl.MECLTrainer": "MECL",
+    "sb3_icrl.vicrl.vicrl.VICRLTrainer": "VICRL",
+}
 
 
 def library_algorithm(algorithm_class: type) -> str:
@@ -48,17 +56,11 @@ def saved_algorithm(data: dict[str, Any]) -> str | None:
     if isinstance(recorded, str):
         return recorded.removeprefix(_ADAPTER_PREFIX)
     if "constraint_net_spec_" in data:
-        from sb3_icrl import BC2L, GACL, MECL, VICRL  # here: the algorithms import this module
-
         trainer = data.get("trainer_class")
         if not isinstance(trainer, type):
             return None
-        candidates = [
-            (trainer.__mro__.index(algorithm.default_trainer_class), algorithm.__name__)
-            for algorithm in (GACL, BC2L, MECL, VICRL)
-            if algorithm.default_trainer_class in trainer.__mro__
-        ]
-        return min(candidates)[1] if candidates else None
+        bases = (f"{base.__module__}.{base.__qualname__}" for base in trainer.__mro__)
+        return next((UNRECORDED_TRAINERS[name] for name in bases if name in UNRECORDED_TRAINERS), None)
     if "lagrange_multiplier" in data:
         return "PPOLagrangian"
     return None

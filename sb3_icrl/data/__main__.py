@@ -30,6 +30,8 @@ from sb3_icrl.data.registry import (
     regenerate_shipped,
 )
 from sb3_icrl.data.serialize import DemonstrationError
+from sb3_icrl.registry import env_name, import_gym_packages
+from sb3_icrl.run_folder import failure, run_vecnormalize
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -90,9 +92,6 @@ def expert_of_run(run: str, model: str = "final") -> dict[str, Any]:
     """
     import yaml
 
-    from sb3_icrl.zoo.hyperparams import env_name, import_gym_packages, resolve_env_id
-    from sb3_icrl.zoo.runs import failure, run_vecnormalize
-
     if not os.path.isdir(run):
         raise FileNotFoundError(f"No run folder {run}.")
     found = sorted(glob.glob(os.path.join(run, "*", "args.yml")))
@@ -133,8 +132,6 @@ def regeneration_command(args: argparse.Namespace, argv: Sequence[str]) -> str:
     :param argv: The command line as given
     :return: The command, for the sidecar
     """
-    from sb3_icrl.zoo.hyperparams import import_gym_packages
-
     import_gym_packages(args.gym_packages)
     if args.run is not None:
         if args.expert is not None or args.vecnormalize is not None:

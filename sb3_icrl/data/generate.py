@@ -20,6 +20,7 @@ from stable_baselines3 import PPO, SAC, TD3
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 
+from sb3_icrl.common import env_ids
 from sb3_icrl.data.serialize import save
 from sb3_icrl.data.types import Demonstrations, Trajectory
 from sb3_icrl.envs import NAMESPACE
@@ -311,9 +312,7 @@ def resolve_env_id(name: str) -> str:
     :return: The registered id
     """
     if ":" in name:
-        from sb3_icrl.zoo.hyperparams import resolve_env_id as resolve_zoo_env_id
-
-        return resolve_zoo_env_id(name)
+        return env_ids.resolve_env_id(name)
     if name in gym.registry:
         return name
     namespaced = f"{NAMESPACE}/{name}"

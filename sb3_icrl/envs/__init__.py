@@ -15,6 +15,7 @@ from typing import Any
 import gymnasium
 from gymnasium.envs.registration import load_env_creator
 
+from sb3_icrl.common.env_ids import NAMESPACE
 from sb3_icrl.envs.binding_envs import BINDING_ENV_SPECS, BINDING_VARIANTS
 from sb3_icrl.envs.blocked_mujoco import (
     CONSTRAINED_FEATURE,
@@ -29,8 +30,6 @@ from sb3_icrl.envs.constraint_spec import ConstraintSpec, FeatureConstraint, dec
 from sb3_icrl.envs.grid_world import MAPS, GridWorldEnv
 from sb3_icrl.envs.transfer_envs import REWARD_TRANSFER_TASKS, TRANSFER_ENV_SPECS
 from sb3_icrl.envs.wrappers import TransitionNoiseWrapper
-
-NAMESPACE = "sb3_icrl"
 
 #: ``name -> (entry point, max_episode_steps, kwargs)`` of every registered environment
 ENV_SPECS: dict[str, tuple[str, int, dict]] = {

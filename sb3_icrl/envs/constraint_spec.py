@@ -30,6 +30,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from sb3_icrl.common.env_ids import resolve_env_id
+
 #: Comparisons of :class:`FeatureConstraint`: the constraint is broken when ``obs[obs_index] <op> threshold``
 OPERATORS: dict[str, Callable[[np.ndarray, float], np.ndarray]] = {
     "<=": np.less_equal,
@@ -223,8 +225,6 @@ def get_constraint_spec(env_or_id: Any, env_kwargs: Mapping[str, Any] | None = N
         return _from_env(env_or_id)
     env_id = env_or_id
     if ":" in env_id:  # gymnasium's MODULE:EnvId
-        from sb3_icrl.zoo.hyperparams import resolve_env_id
-
         env_id = resolve_env_id(env_id)
     if env_id not in gym.registry and f"sb3_icrl/{env_id}" in gym.registry:
         env_id = f"sb3_icrl/{env_id}"

@@ -308,8 +308,6 @@ def learn_with_planner(
     :param progress_bar: Display a progress bar
     :return: The planner on the final learned cost
     """
-    from sb3_icrl.bc2l import BC2LTrainer  # the trainers import this module's package
-
     if model.demonstrations is None or model.constraint_net is None or model.constraint_optimizer is None:
         raise ValueError(f"{type(model).__name__} needs its demonstrations and constraint model to learn.")
     env = model.get_env()
@@ -331,7 +329,7 @@ def learn_with_planner(
     absorbing = absorbing_states(planner)
     trainer_kwargs = {key: value for key, value in model.trainer_kwargs.items() if key != "budget_from_expert"}
     if loop.get("label_trajectories", False):
-        if not issubclass(model.trainer_class, BC2LTrainer):
+        if not _takes_episode_lengths(model.trainer_class):
             raise ValueError(f"label_trajectories is for BC2L and GACL, not {model.trainer_class.__name__}.")
         trainer_kwargs["expert_episode_lengths"] = [len(trajectory) for trajectory in model.demonstrations]
     n_nominal = model.n_nominal_trajectories or len(model.demonstrations)
@@ -430,50 +428,13 @@ def _set_multiplier(model: Any, value: float) -> None:
         multiplier._value = np.full_like(multiplier._value, float(value))
 
 
-def forward_solver(algo: str, params: dict[str, Any], env_id: str) -> str:
-    """
-    The forward solver a zoo run asks for (``forward_solver`` in its hyper-parameters; default ``"policy_gradient"``),
-    checked: ``"pi_lagrangian"`` needs an ICRL algorithm and a tabular env (one that exposes ``P``, ``R``, ``C`` and
-    ``start_state``, as :class:`~sb3_icrl.envs.GridWorldEnv`).
-
-    :param algo: Command-line algorithm name
-    :param params: The run's hyper-parameters
-    :param env_id: The registered env id
-    :return: One of :data:`FORWARD_SOLVERS`
-    :raises ValueError: For an unknown solver, or a planner asked for where it cannot plan
-    """
-    from sb3_icrl.zoo.hyperparams import ICRL_ALGOS
-
-    solver = params.get("forward_solver", "policy_gradient")
-    if solver not in FORWARD_SOLVERS:
-        raise ValueError(f"forward_solver must be one of {', '.join(FORWARD_SOLVERS)}, got {solver!r}.")
-    if solver == "policy_gradient":
-        return solver  # a recipe's planner_kwargs stay unused (-params forward_solver:policy_gradient on a grid entry)
-    if algo not in ICRL_ALGOS:
-        raise ValueError(
-            f"forward_solver: pi_lagrangian is the forward solver of the ICRL algorithms ({', '.join(ICRL_ALGOS)}); "
-            f"{algo} trains its own policy (use sb3_icrl.PILagrangian directly to plan on the true cost)."
-        )
-    unwrapped = gym.make(env_id).unwrapped
-    missing = [name for name in ("P", "R", "C", "start_state") if not hasattr(unwrapped, name)]
-    if missing:
-        raise ValueError(
-            f"forward_solver: pi_lagrangian plans on tables, and {env_id} has no {', '.join(missing)} (tabular envs such as "
-            "the grid worlds have them): pass -params forward_solver:policy_gradient."
-        )
-    planner_kwargs = params.get("planner_kwargs") or {}
-    if not isinstance(planner_kwargs, dict):
-        raise ValueError(f'planner_kwargs must be a dict, e.g. "dict(nominal_buffer_size=500)", got {planner_kwargs!r}.')
-    accepted = set(inspect.signature(PILagrangian).parameters) - {"env", "cost_table", "seed", "verbose"}
-    unknown = sorted(set(planner_kwargs) - accepted - set(PLANNER_LOOP_KEYS))
-    if unknown:
-        raise ValueError(
-            f"planner_kwargs: unknown {', '.join(unknown)}. PILagrangian takes {', '.join(sorted(accepted))}; the ICRL loop "
-            f"takes {', '.join(PLANNER_LOOP_KEYS)}."
-        )
-    if int(planner_kwargs.get("nominal_buffer_size", 0)) < 0:
-        raise ValueError(f"nominal_buffer_size must be >= 0 (0: no buffer), got {planner_kwargs['nominal_buffer_size']}.")
-    return solver
+def _takes_episode_lengths(trainer_class: type) -> bool:
+    """Whether a trainer labels whole trajectories when given the expert's episode lengths (BC2L's and GACL's do)."""
+    return any(
+        "expert_episode_lengths" in inspect.signature(vars(klass)["__init__"]).parameters
+        for klass in trainer_class.__mro__
+        if "__init__" in vars(klass)
+    )
 
 
 def learn_function(model: Any, solver: str, planner_kwargs: dict[str, Any] | None = None) -> Callable[..., Any]:

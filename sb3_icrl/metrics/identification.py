@@ -32,6 +32,18 @@ import scipy.stats
 import torch as th
 
 from sb3_icrl.common.utils import atomic_write_json
+from sb3_icrl.data import load_demonstrations
+from sb3_icrl.envs.wrappers import recorded_transition_noise, transition_noise_wrapper
+from sb3_icrl.icrl.tabular import precision_recall
+from sb3_icrl.plots.figures import (
+    constraint_features,
+    default_feature_values,
+    grid_cost_map,
+    methods_partial_dependence_figure,
+    unsafe_side,
+)
+from sb3_icrl.registry import ALGOS, ICRL_ALGOS, env_name, import_gym_packages, resolve_env_id
+from sb3_icrl.run_folder import find_vecnormalize, is_finished
 
 #: Identification results cached in each run folder (keyed by their settings)
 IDENTIFICATION_FILE = "identification.json"
@@ -179,8 +191,6 @@ def learned_threshold(values: np.ndarray, curve: np.ndarray, level: float, side:
     :param side: ``"below"`` or ``"above"`` (or an op: ``"<="``, ``">"``...), the truly unsafe side
     :return: The crossing, or ``inf``/``nan`` with the reason there is none
     """
-    from sb3_icrl.plots.figures import unsafe_side
-
     grid, costs = np.asarray(values, dtype=float).reshape(-1), np.asarray(curve, dtype=float).reshape(-1)
     if grid.shape != costs.shape or grid.size < 2:
         raise ValueError(f"`values` and `curve` must be two arrays of the same length >= 2, got {grid.size} and {costs.size}.")
@@ -309,8 +319,6 @@ def feature_grid(visited: np.ndarray, threshold: float, n_values: int = 51, marg
     :param margin: Widening, as a share of the span
     :return: ``(n_values,)``
     """
-    from sb3_icrl.plots.figures import default_feature_values
-
     return default_feature_values(visited, threshold, n_values=n_values, margin=margin)
 
 
@@ -501,8 +509,6 @@ def grid_identification(
     :return: ``auroc``, ``ece``, ``n_probes``, ``levels`` and per level ``at_<level>`` with ``precision``, ``recall``
         (those of :func:`~sb3_icrl.icrl.tabular.precision_recall`) and ``iou``
     """
-    from sb3_icrl.icrl.tabular import precision_recall
-
     costs, unsafe = np.asarray(cost_map, dtype=float), np.asarray(unsafe_mask, dtype=bool)
     if costs.shape != unsafe.shape:
         raise ValueError(f"`cost_map` {costs.shape} and `unsafe_mask` {unsafe.shape} must have the same shape.")
@@ -573,8 +579,6 @@ def policy_pairs(
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from sb3_icrl.envs.wrappers import transition_noise_wrapper
-
     wrapper = transition_noise_wrapper(transition_noise, transition_noise_model)
     venv: Any = make_vec_env(env_id, n_envs=1, seed=seed, env_kwargs=dict(env_kwargs or {}), wrapper_class=wrapper)
     if vecnormalize_path is not None:
@@ -627,11 +631,8 @@ def identify_model(
         budget = float(np.asarray(model.cost_budget).reshape(-1)[0])
     net = getattr(model, "constraint_net", model)
     if getattr(net, "discrete_obs", False):
-        from sb3_icrl.plots.figures import grid_cost_map
-
         grid = gym.make(env_id, **dict(env_kwargs or {})).unwrapped
         return grid_identification(grid_cost_map(net, grid), grid.unsafe_mask, budget)  # type: ignore[attr-defined]
-    from sb3_icrl.plots.figures import constraint_features
 
     constraints = constraint_features(env_id, env_kwargs)
     probes = build_probe_set(
@@ -673,8 +674,6 @@ def find_unconstrained_run(run_folder: str | os.PathLike) -> pathlib.Path | None
     :param run_folder: The ICRL run folder ``<folder>/<algo>/<EnvName>_<N>``
     :return: The run folder, or ``None`` when there is none
     """
-    from sb3_icrl.zoo.runs import is_finished
-
     run = pathlib.Path(run_folder).resolve()
     name = run.name.rpartition("_")[0]
     patterns = [run.parent.parent / "ppo"]
@@ -706,12 +705,11 @@ def read_icrl_run(run_folder: str | os.PathLike) -> tuple[pathlib.Path, dict[str
     :raises FileNotFoundError: When it is not a run folder
     :raises ValueError: When the run is not an ICRL run
     """
-    from sb3_icrl.zoo.hyperparams import ICRL_ALGOS
-
     run = pathlib.Path(run_folder)
     if not run.is_dir():
         raise FileNotFoundError(f"No run folder {run}.")
     args = _read_args(run)
+    import_gym_packages(args.get("gym_packages"))  # a user's method registers itself on import
     if args.get("algo") not in ICRL_ALGOS:
         raise ValueError(f"{run} is a {args.get('algo')} run: only ICRL runs ({', '.join(ICRL_ALGOS)}) learn a constraint.")
     return run, args
@@ -724,17 +722,12 @@ def run_model_path(run: pathlib.Path, args: dict[str, Any], which: str = "final"
     :param which: ``"final"``, ``"best"`` or a path
     :return: The file of that model
     """
-    from sb3_icrl.zoo.hyperparams import env_name, resolve_env_id
-
     candidates = {"final": run / f"{env_name(resolve_env_id(args['env']))}.zip", "best": run / "best_model.zip"}
     return candidates.get(which, pathlib.Path(which))
 
 
 def _load_run_policy(run: pathlib.Path, which: str = "final") -> tuple[Any, dict[str, Any], str | None]:
     """The model saved in a run folder, its arguments and its VecNormalize statistics."""
-    from sb3_icrl.zoo.hyperparams import ALGOS, env_name, import_gym_packages, resolve_env_id
-    from sb3_icrl.zoo.runs import find_vecnormalize
-
     args = _read_args(run)
     import_gym_packages(args.get("gym_packages"))
     name = env_name(resolve_env_id(args["env"]))
@@ -784,10 +777,6 @@ def run_probes(
     :param seed: Seed of the episodes
     :return: The probes (:class:`RunProbes`)
     """
-    from sb3_icrl.data import load_demonstrations
-    from sb3_icrl.envs.wrappers import recorded_transition_noise
-    from sb3_icrl.zoo.hyperparams import resolve_env_id
-
     run, args = read_icrl_run(run_folder)
     learner, _, stats = _load_run_policy(run, model)
     env_id = resolve_env_id(args["env"])
@@ -914,8 +903,6 @@ def methods_figure(
     :param model: ``"final"`` or ``"best"``: whose learned constraint
     :return: The figure
     """
-    from sb3_icrl.plots.figures import methods_partial_dependence_figure
-
     if not run_folders:
         raise ValueError("No run folder given: pass the ICRL runs to compare.")
     curves: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}

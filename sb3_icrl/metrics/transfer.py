@@ -38,8 +38,16 @@ import numpy as np
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
 
+from sb3_icrl import __version__
+from sb3_icrl.common.evaluation import evaluate_constraint
 from sb3_icrl.common.utils import atomic_write_json, plain_docstring
-from sb3_icrl.zoo.hyperparams import import_gym_packages
+from sb3_icrl.constraints.wrappers import LearnedCostVecEnvWrapper
+from sb3_icrl.envs import NAMESPACE, REWARD_TRANSFER_TASKS
+from sb3_icrl.envs.wrappers import COMPONENT_NOISE, TransitionNoiseWrapper, recorded_transition_noise
+from sb3_icrl.hyperparams import algo_kwargs, load_hyperparams, preprocess_hyperparams
+from sb3_icrl.metrics.identification import _load_run_policy, read_icrl_run, run_model_path
+from sb3_icrl.ppo_lagrangian import PPOLagrangian
+from sb3_icrl.registry import import_gym_packages, resolve_env_id
 
 #: The transfer tasks
 TASKS = ("same", "reward", "dynamics")
@@ -70,8 +78,6 @@ def transfer_env(env_id: str, task: str, transition_noise: float = 0.0) -> tuple
     :param transition_noise: The noise the constraint was learned with (kept by ``same``)
     :return: ``(env id, transition noise)``
     """
-    from sb3_icrl.envs import NAMESPACE, REWARD_TRANSFER_TASKS
-
     if task not in TASKS:
         raise ValueError(f"Unknown transfer task {task!r}: choose one of {', '.join(TASKS)}.")
     if task == "same":
@@ -89,8 +95,6 @@ def transfer_env(env_id: str, task: str, transition_noise: float = 0.0) -> tuple
 
 def _wrapper_class(params: dict[str, Any], transition_noise: float, noise_model: str) -> Any:
     """The yml's env wrappers under the task's transition noise, as ``train.py`` wraps its envs."""
-    from sb3_icrl.envs.wrappers import TransitionNoiseWrapper
-
     wrappers = list(params.get("env_wrapper") or [])
     if not wrappers and transition_noise <= 0:
         return None
@@ -162,7 +166,7 @@ def train_learner(
     :param env_id: The task's env
     :param env_kwargs: Its keyword arguments
     :param transition_noise: Its transition noise
-    :param params: Preprocessed PPO-Lagrangian hyper-parameters (:func:`~sb3_icrl.zoo.hyperparams.preprocess_hyperparams`)
+    :param params: Preprocessed PPO-Lagrangian hyper-parameters (:func:`~sb3_icrl.hyperparams.preprocess_hyperparams`)
     :param n_timesteps: Training steps
     :param seed: Seed
     :param cost_fn: The frozen learned cost (``learned`` only)
@@ -176,10 +180,6 @@ def train_learner(
     from stable_baselines3 import PPO
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
-
-    from sb3_icrl import PPOLagrangian
-    from sb3_icrl.constraints.wrappers import LearnedCostVecEnvWrapper
-    from sb3_icrl.zoo.hyperparams import algo_kwargs
 
     if learner not in LEARNERS:
         raise ValueError(f"Unknown learner {learner!r}: choose one of {', '.join(LEARNERS)}.")
@@ -228,8 +228,6 @@ def evaluate_learner(
     """
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
-
-    from sb3_icrl.common.evaluation import evaluate_constraint
 
     venv: Any = make_vec_env(
         env_id,
@@ -282,8 +280,6 @@ def _as_json(value: dict[str, Any]) -> dict[str, Any]:
 
 def _cached_reference(path: pathlib.Path, settings: dict[str, Any], log: Any) -> dict[str, float] | None:
     """A reference's saved result when it was made with exactly ``settings``, else ``None``."""
-    from sb3_icrl import __version__
-
     if not path.is_file():
         return None
     with open(path) as file:
@@ -326,11 +322,6 @@ def run_transfer(
     :param retrain_references: Train the references even when a saved result with the same settings exists
     :return: The JSON written
     """
-    from sb3_icrl import __version__ as sb3_icrl_version
-    from sb3_icrl.envs.wrappers import COMPONENT_NOISE, recorded_transition_noise
-    from sb3_icrl.metrics.identification import _load_run_policy, read_icrl_run, run_model_path
-    from sb3_icrl.zoo.hyperparams import load_hyperparams, preprocess_hyperparams, resolve_env_id
-
     run, args = read_icrl_run(run_folder)
     if n_timesteps is not None and n_timesteps < 1:
         raise ValueError(f"-n/--n-timesteps must be >= 1, got {n_timesteps}.")
@@ -423,7 +414,7 @@ def run_transfer(
         train_env.close()
         if cache is not None:
             cache.parent.mkdir(parents=True, exist_ok=True)
-            saved = {"settings": reference_settings, "result": results[learner], "sb3_icrl_version": sb3_icrl_version}
+            saved = {"settings": reference_settings, "result": results[learner], "sb3_icrl_version": __version__}
             atomic_write_json(cache, saved, indent=2)
     summary: dict[str, Any] = {
         "settings": {**settings, "reference_files": reference_files},

@@ -21,6 +21,9 @@ import numpy as np
 import yaml
 
 from sb3_icrl.common.utils import plain_docstring
+from sb3_icrl.data import load_demonstrations
+from sb3_icrl.envs.wrappers import recorded_transition_noise, transition_noise_wrapper
+from sb3_icrl.metrics.identification import methods_figure
 from sb3_icrl.plots.figures import (
     CURVE_METRICS,
     TrueConstraint,
@@ -32,6 +35,8 @@ from sb3_icrl.plots.figures import (
     save_figure,
     training_curves_figure,
 )
+from sb3_icrl.registry import ALGOS, ICRL_ALGOS, env_name, import_gym_packages, resolve_env_id
+from sb3_icrl.run_folder import run_vecnormalize
 
 
 def get_parser() -> argparse.ArgumentParser:
@@ -88,15 +93,11 @@ def get_parser() -> argparse.ArgumentParser:
 
 def plot_methods(args: argparse.Namespace) -> pathlib.Path:
     """The ``methods`` command (curves from each run's identification scores); returns the image written."""
-    from sb3_icrl.metrics.identification import methods_figure
-
     return save_figure(methods_figure(args.runs, args.feature, args.level, args.title), args.output)
 
 
 def plot_curves(args: argparse.Namespace) -> pathlib.Path:
     """The ``curves`` command; returns the image written."""
-    from sb3_icrl.zoo.hyperparams import env_name, import_gym_packages
-
     import_gym_packages(args.gym_packages)
     try:
         with warnings.catch_warnings(record=True) as skipped:
@@ -201,7 +202,7 @@ def policy_observations(
     :param env_id: Registered env id
     :param env_kwargs: The run's env keyword arguments
     :param stats_path: The model's ``VecNormalize`` statistics (``None``: the run did not normalise; see
-        :func:`~sb3_icrl.zoo.runs.run_vecnormalize`)
+        :func:`~sb3_icrl.run_folder.run_vecnormalize`)
     :param run_args: The run's ``args.yml`` (its transition noise)
     :param n_episodes: Episodes to run
     :param seed: Seed of the env
@@ -209,8 +210,6 @@ def policy_observations(
     """
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import VecNormalize
-
-    from sb3_icrl.envs.wrappers import recorded_transition_noise, transition_noise_wrapper
 
     wrapper = transition_noise_wrapper(*recorded_transition_noise(run_args))
     venv: Any = make_vec_env(env_id, n_envs=1, seed=seed, env_kwargs=env_kwargs, wrapper_class=wrapper)
@@ -232,10 +231,6 @@ def policy_observations(
 def plot_constraint(args: argparse.Namespace) -> pathlib.Path:
     """The ``constraint`` command; returns the image written."""
     import gymnasium as gym
-
-    from sb3_icrl.data import load_demonstrations
-    from sb3_icrl.zoo.hyperparams import ALGOS, ICRL_ALGOS, env_name, import_gym_packages, resolve_env_id
-    from sb3_icrl.zoo.runs import run_vecnormalize
 
     import_gym_packages(args.gym_packages)
     folder, run_args = read_run(args.run_folder)

@@ -23,8 +23,12 @@ from matplotlib.colors import ListedColormap
 from matplotlib.figure import Figure
 from matplotlib.ticker import EngFormatter, MaxNLocator
 
+from sb3_icrl.common.env_ids import env_name
 from sb3_icrl.common.utils import atomic_write_bytes
 from sb3_icrl.constraints.networks import BetaFeasibilityNet, _ConstraintNet
+from sb3_icrl.envs.constraint_spec import get_constraint_spec
+from sb3_icrl.envs.grid_world import GridWorldEnv
+from sb3_icrl.icrl.tabular import cost_table
 
 #: Metrics of :func:`training_curves_figure`: name -> (key in ``evaluations.npz``, axis label)
 CURVE_METRICS: dict[str, tuple[str, str]] = {
@@ -85,8 +89,6 @@ def constraint_features(env_id: str, env_kwargs: Mapping[str, Any] | None = None
     :raises ValueError: For the grid worlds (their constraint is a set of cells: see :func:`grid_cost_map`) and
         envs that declare no feature constraint
     """
-    from sb3_icrl.envs.constraint_spec import get_constraint_spec
-
     spec = get_constraint_spec(env_id, env_kwargs)
     name = _short_env_name(env_id)
     if spec is not None and spec.features:
@@ -169,9 +171,6 @@ def grid_cost_map(constraint_net: _ConstraintNet, grid_env: Any) -> np.ndarray:
     :param grid_env: A :class:`~sb3_icrl.envs.GridWorldEnv` (or a wrapper of one)
     :return: Costs, shape ``(n_rows, n_cols)``
     """
-    from sb3_icrl.envs.grid_world import GridWorldEnv
-    from sb3_icrl.icrl.tabular import cost_table
-
     grid = getattr(grid_env, "unwrapped", grid_env)
     if not isinstance(grid, GridWorldEnv):
         raise TypeError(f"grid_cost_map needs a GridWorldEnv, got {type(grid).__name__}.")
@@ -571,8 +570,6 @@ def find_runs(log_folder: str | os.PathLike, algo: str, env: str) -> list[pathli
     :return: The run folders (at least one)
     :raises FileNotFoundError: When there is none (the message lists what the folder holds)
     """
-    from sb3_icrl.zoo.hyperparams import env_name
-
     algo_folder = pathlib.Path(log_folder) / algo
     name = env_name(env)  # the folder name train.py gives the env
     if not algo_folder.is_dir():

@@ -1,6 +1,7 @@
 """rl-baselines3-zoo style training entry point: ``python train.py --algo mecl --env BlockedHalfCheetah-v0``."""
 
-from sb3_icrl.zoo.hyperparams import ALGOS, ICRL_ALGOS, load_hyperparams, resolve_env_id
+from sb3_icrl.hyperparams import load_hyperparams
+from sb3_icrl.registry import ALGOS, ICRL_ALGOS, resolve_env_id
 from sb3_icrl.zoo.train import get_parser, main, train
 
 

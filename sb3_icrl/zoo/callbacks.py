@@ -6,34 +6,17 @@ import time
 import warnings
 from collections.abc import Callable, Sequence
 from copy import deepcopy
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from gymnasium import spaces
 from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
-from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, unwrap_vec_normalize
-from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
+from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 
 from sb3_icrl.common.evaluation import evaluate_constraint
 from sb3_icrl.common.utils import atomic_save_model, atomic_save_npz, atomic_save_pickle
-from sb3_icrl.zoo.runs import BEST_VECNORMALIZE_FILE, CHECKPOINT_PATTERN, monitor_row_counts
+from sb3_icrl.run_env import LearnedCostRecorder, RecordedEpisode
+from sb3_icrl.run_folder import BEST_VECNORMALIZE_FILE, CHECKPOINT_PATTERN, monitor_row_counts
 from sb3_icrl.zoo.summary import evaluation_line, model_multiplier
-
-
-@dataclass
-class RecordedEpisode:
-    """
-    One evaluation episode as the constraint sees it, kept so that it can be priced again by a later constraint.
-
-    :param observations: Raw observations, one per step, ``(T, *obs_shape)``
-    :param actions: Actions as the env applied them (clipped to a Box), ``(T, *action_shape)``
-    :param rewards: Per-step rewards, ``(T,)``
-    """
-
-    observations: np.ndarray
-    actions: np.ndarray
-    rewards: np.ndarray
 
 
 def learned_episode_stats(
@@ -102,70 +85,6 @@ def rescore_episodes(
     if not episodes:
         return None
     return learned_selection_score(model, learned_episode_stats(episodes, cost_fn))
-
-
-class LearnedCostRecorder(VecEnvWrapper):
-    """
-    Records each finished episode's raw observations, actions and rewards while ``recording`` is on, so that the
-    evaluation can price them with the learned cost (:func:`learned_episode_stats`), now and after later constraint
-    updates. Goes below any ``VecNormalize``: it sees raw observations.
-
-    :param venv: The evaluation env
-    """
-
-    def __init__(self, venv: VecEnv):
-        super().__init__(venv)
-        self.recording = False
-        self.episodes: list[RecordedEpisode] = []
-        #: The sub-env of each recorded episode
-        self.episode_envs: list[int] = []
-        self._obs: Any = None  # VecEnvObs
-        self._actions: np.ndarray | None = None
-        self._steps: list[list[tuple[Any, np.ndarray, float]]] = [[] for _ in range(self.num_envs)]
-
-    def reset(self) -> Any:
-        self._obs = self.venv.reset()
-        self._steps = [[] for _ in range(self.num_envs)]
-        return self._obs
-
-    def step_async(self, actions: np.ndarray) -> None:
-        self._actions = actions
-        self.venv.step_async(actions)
-
-    def step_wait(self) -> VecEnvStepReturn:
-        obs, rewards, dones, infos = self.venv.step_wait()
-        if self.recording and self._obs is not None and self._actions is not None:
-            actions = np.asarray(self._actions)
-            if isinstance(self.action_space, spaces.Box):
-                actions = np.clip(actions, self.action_space.low, self.action_space.high)
-            for idx in range(self.num_envs):
-                self._steps[idx].append((np.array(self._obs[idx]), np.array(actions[idx]), float(rewards[idx])))
-                if dones[idx]:
-                    steps = self._steps[idx]
-                    observations, episode_actions, episode_rewards = (np.array(part) for part in zip(*steps, strict=True))
-                    self.episodes.append(RecordedEpisode(observations, episode_actions, episode_rewards))
-                    self.episode_envs.append(idx)
-                    self._steps[idx] = []
-        self._obs = obs
-        return obs, rewards, dones, infos
-
-    def clear(self) -> None:
-        """Forget the recorded episodes (before an evaluation)."""
-        self.episodes, self.episode_envs = [], []
-
-    def counted_episodes(self, n_episodes: int) -> list[RecordedEpisode]:
-        """
-        The episodes an evaluation of ``n_episodes`` counted: on each sub-env, its first ones, as many as
-        :func:`~sb3_icrl.common.evaluation.evaluate_constraint` fixes for it upfront (sub-envs that finish their share go
-        on stepping, and the episodes they finish then are not counted).
-        """
-        taken = [0] * self.num_envs
-        counted = []
-        for episode, idx in zip(self.episodes, self.episode_envs, strict=True):
-            if taken[idx] < (n_episodes + idx) // self.num_envs:
-                counted.append(episode)
-                taken[idx] += 1
-        return counted
 
 
 #: The file beside ``evaluations.npz`` with the model selection's values, one per evaluation
@@ -510,7 +429,7 @@ def save_training_state(
     :param evaluation: The run's evaluation callback, if any
     :param wall_time_s: The run's wall time so far (:class:`WallClock`), for the resumed run to count on from
     :param monitor_rows: Episodes in each Monitor file of the run so far
-        (:func:`~sb3_icrl.zoo.runs.monitor_row_counts`), for the resumed run to drop those recorded after this point
+        (:func:`~sb3_icrl.run_folder.monitor_row_counts`), for the resumed run to drop those recorded after this point
     """
     trainer = getattr(model, "icrl_trainer", None)
     state = {

@@ -19,230 +19,29 @@ when the same seed comes twice: each is labelled by the part of its folder that 
 """
 
 import argparse
-import csv
-import json
 import os
 import sys
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from typing import Any
 
-import numpy as np
-from stable_baselines3.common.save_util import load_from_zip_file
-
 from sb3_icrl.common.evaluation import OUTCOME_KEYS, OUTCOME_RATE_KEYS
-from sb3_icrl.common.statistics import MIN_PAIRS_FOR_WILCOXON, sample_std, wilcoxon_p
+from sb3_icrl.common.statistics import MIN_PAIRS_FOR_WILCOXON
 from sb3_icrl.common.utils import atomic_write_json, plain_docstring
-from sb3_icrl.zoo import enjoy
-from sb3_icrl.zoo.hyperparams import ALGOS, env_name, import_gym_packages
-from sb3_icrl.zoo.runs import (
-    FINISHED_FILE,
-    failure,
-    is_finished,
-    load_run_yaml,
-    made_by_rl_zoo3,
-    rl_zoo3_env_name,
-    run_env_name,
-    run_wall_time,
+from sb3_icrl.registry import import_gym_packages
+from sb3_icrl.run_evaluation import (
+    OUTCOME_TITLES,
+    RunFolderError,
+    RunResult,
+    describe_run,
+    evaluate_run,
+    format_outcome_rate,
+    outcome_rate_means,
+    same_seed_error,
+    summarise,
+    training_wall_time,
 )
-from sb3_icrl.zoo.train import non_negative_int, positive_int
-
-
-class RunFolderError(ValueError):
-    """A path that is not a finished ``train.py`` run folder, or runs that cannot be compared as asked."""
-
-
-@dataclass
-class RunResult:
-    """
-    One run's held-out evaluation.
-
-    :param run: The run folder
-    :param algo: Command-line algorithm name
-    :param env: Env id the run trained on
-    :param seed: Training seed
-    :param timesteps: Steps the evaluated model had trained
-    :param wall_time_min: Training wall time in minutes (the training monitor's last episode end), ``nan`` if unknown
-    :param violation_rate: Share of held-out episodes with a true violation
-    :param feasible_reward: Mean reward summed until the first true violation
-    :param reward: Mean episode reward
-    :param n_episodes: Held-out episodes run
-    :param label: Row label when it is not the algorithm (a variant: see :func:`run_labels`)
-    :param episode_length: Mean length of the held-out episodes (a learner that ends its episodes early shows here);
-        ``nan`` when unknown (results saved before it was recorded)
-    :param outcome_rates: For envs that flag how an episode ended (driving): ``{"collision_rate": share of held-out
-        episodes, ...}`` for each of :data:`~sb3_icrl.common.evaluation.OUTCOME_KEYS`; empty for the other envs
-    :param constraint_violation_rates: For envs that report each constraint's cost apart (several constraints):
-        ``{"violation_rate_<name>": share of held-out episodes that broke it}``; empty for the other envs
-    """
-
-    run: str
-    algo: str
-    env: str
-    seed: int
-    timesteps: int
-    wall_time_min: float
-    violation_rate: float
-    feasible_reward: float
-    reward: float
-    n_episodes: int
-    label: str = ""
-    episode_length: float = float("nan")
-    outcome_rates: dict[str, float] = field(default_factory=dict)
-    constraint_violation_rates: dict[str, float] = field(default_factory=dict)
-
-    @property
-    def name(self) -> str:
-        """The row label: :attr:`label`, else the algorithm."""
-        return self.label or self.algo
-
-
-def describe_run(run: str) -> tuple[str, str, int, str]:
-    """
-    Algorithm, env id, training seed and exp id of a run folder ``<folder>/<algo>/<EnvName>_<N>``.
-
-    :param run: The run folder
-    :return: ``(algo, env_id, seed, folder)`` where ``folder`` is train.py's ``-f``
-    """
-    run = os.path.normpath(run)
-    base, exp = os.path.split(run)
-    folder, algo = os.path.split(base)
-    name, _, exp_id = exp.rpartition("_")
-    args_path = os.path.join(run, name, "args.yml")
-    if algo not in ALGOS or not exp_id.isdigit() or not os.path.isfile(args_path):
-        raise RunFolderError(
-            f"{run} is not a train.py run folder: expected <folder>/<algo>/<EnvName>_<N> with <EnvName>/args.yml inside "
-            f"(algo one of {sorted(ALGOS)}; rl_zoo3's run folders have the same layout)."
-        )
-    args = load_run_yaml(args_path)
-    import_gym_packages(args.get("gym_packages"))  # a user's env registers itself on import
-    if name not in (env_name(args["env"]), rl_zoo3_env_name(args["env"])):
-        raise RunFolderError(f"{run}: args.yml names env {args['env']!r}, but the folder is named after {name!r}.")
-    if args.get("seed") is None:
-        raise RunFolderError(f"{run} trained without a fixed --seed: it cannot be paired or reported per seed.")
-    return algo, args["env"], int(args["seed"]), folder
-
-
-def training_wall_time(run: str) -> float:
-    """
-    Minutes of training: the run's own record in ``finished.json`` (:func:`~sb3_icrl.zoo.runs.run_wall_time`, the
-    time spent training, whole across resumes), else the training monitor's time from its start to its last finished
-    episode (which also counts the time a resumed run was stopped), ``nan`` with neither.
-    """
-    seconds = run_wall_time(run)
-    if seconds is not None:
-        return seconds / 60.0
-    path = os.path.join(run, "0.monitor.csv")
-    if not os.path.isfile(path):
-        return float("nan")
-    with open(path) as file:
-        rows = list(csv.DictReader(line for line in file if not line.startswith("#")))
-    return float(rows[-1]["t"]) / 60.0 if rows else float("nan")
-
-
-def evaluate_run(
-    run: str, n_timesteps: int, eval_seed: int, load_best: bool = False, env_kwargs: dict[str, Any] | None = None
-) -> RunResult:
-    """
-    Run a run's final (or best) model on held-out env seeds, as ``enjoy.py --no-render --verbose 0`` does.
-
-    :param run: The run folder
-    :param n_timesteps: Evaluation steps (episodes = steps / episode length)
-    :param eval_seed: Seed of the evaluation env and policy (pick one the run did not train on)
-    :param load_best: Evaluate ``best_model.zip`` instead of the final model
-    :param env_kwargs: Env keyword arguments over the run's own (e.g. the driving envs' test recordings,
-        :func:`sb3_icrl.envs.heldout_env_kwargs`)
-    """
-    algo, env_id, seed, _ = describe_run(run)
-    # The folder itself: with --exp-id, a run numbered 0 (a benchmark suite's seed 0) would mean "the latest run"
-    argv = ["--algo", algo, "--env", env_id, "--run", run, "-n", str(n_timesteps)]
-    argv += ["--no-render", "--seed", str(eval_seed), "--verbose", "0", *(["--load-best"] if load_best else [])]
-    if env_kwargs:
-        argv += ["--env-kwargs", json.dumps(env_kwargs)]
-    args = enjoy.get_parser().parse_args(argv)
-    evaluation = enjoy.enjoy(args)
-    if len(evaluation.violations) == 0:
-        raise RunFolderError(f"No evaluation episode of {run} finished in {n_timesteps} steps: raise -n.")
-    model_path = enjoy.model_path(run, run_env_name(run, env_id), load_best, None, False)
-    data, _, _ = load_from_zip_file(model_path, load_data=True, device="cpu")
-    return RunResult(
-        run=run,
-        algo=algo,
-        env=env_id,
-        seed=seed,
-        timesteps=int((data or {}).get("num_timesteps", 0)),
-        wall_time_min=training_wall_time(run),
-        violation_rate=evaluation.violation_rate,
-        feasible_reward=evaluation.mean_feasible_reward,
-        reward=evaluation.mean_reward,
-        n_episodes=len(evaluation.violations),
-        episode_length=float(np.mean(evaluation.episode_lengths)),
-        outcome_rates=evaluation.outcome_rates,
-        constraint_violation_rates=evaluation.constraint_violation_rates,
-    )
-
-
-def summarise(results: list[RunResult], reference: str | None = None) -> dict[str, dict[str, Any]]:
-    """
-    Per algorithm: the seeds, mean and sample std (``ddof=1``; ``nan`` for one seed) of violation rate and feasible
-    reward over its runs, and the Wilcoxon signed-rank test of its per-seed feasible rewards against ``reference`` on the
-    seeds both ran (see :func:`wilcoxon_warnings` for what too few pairs mean).
-
-    :param results: One entry per run; at most one run per (algorithm, seed)
-    :param reference: Algorithm to test the others against (``None``: no test)
-    """
-    by_algo: dict[str, dict[int, RunResult]] = {}
-    for result in results:
-        runs = by_algo.setdefault(result.name, {})
-        if result.seed in runs:
-            raise _same_seed_error(result.name, result.seed, runs[result.seed].run, result.run)
-        runs[result.seed] = result
-    if reference is not None and reference not in by_algo:
-        raise RunFolderError(f"--reference {reference!r} has no run among the runs given ({sorted(by_algo)}).")
-    summary: dict[str, dict[str, Any]] = {}
-    for algo, runs in by_algo.items():
-        violations = np.array([run.violation_rate for run in runs.values()])
-        feasible = np.array([run.feasible_reward for run in runs.values()])
-        entry: dict[str, Any] = {
-            "seeds": sorted(runs),
-            "violation_rate_mean": float(violations.mean()),
-            "violation_rate_std": sample_std(violations),
-            "feasible_reward_mean": float(feasible.mean()),
-            "feasible_reward_std": sample_std(feasible),
-        }
-        outcomes = outcome_rate_means(list(runs.values()))
-        if outcomes:
-            entry["outcome_rates_mean"] = outcomes
-        per_constraint = rate_means([run.constraint_violation_rates for run in runs.values()])
-        if per_constraint:
-            entry["constraint_violation_rates_mean"] = per_constraint
-        if reference is not None and algo != reference:
-            paired = sorted(set(runs) & set(by_algo[reference]))
-            differences = [runs[s].feasible_reward - by_algo[reference][s].feasible_reward for s in paired]
-            entry["wilcoxon_pairs"] = len(paired)
-            entry["wilcoxon_p"] = wilcoxon_p(differences)
-        summary[algo] = entry
-    return summary
-
-
-def outcome_rate_means(results: list[RunResult]) -> dict[str, float]:
-    """
-    The mean over runs of each driving outcome rate that every run has (empty when some run has none).
-
-    :param results: Runs of one algorithm
-    :return: ``{"collision_rate": mean, ...}`` in :data:`~sb3_icrl.common.evaluation.OUTCOME_KEYS` order
-    """
-    means = rate_means([result.outcome_rates for result in results])
-    return {key: means[key] for key in OUTCOME_RATE_KEYS.values() if key in means}
-
-
-def rate_means(rates: list[dict[str, float]]) -> dict[str, float]:
-    """
-    :param rates: One ``{key: rate}`` per run
-    :return: The mean over runs of each key that every run has, in the first run's order (empty without runs)
-    """
-    if not rates:
-        return {}
-    return {key: float(np.mean([run[key] for run in rates])) for key in rates[0] if all(key in run for run in rates)}
+from sb3_icrl.run_folder import FINISHED_FILE, failure, is_finished, load_run_yaml, made_by_rl_zoo3, run_env_name
+from sb3_icrl.zoo.arguments import non_negative_int, positive_int
 
 
 def check_runs(runs: list[str]) -> None:
@@ -260,7 +59,7 @@ def check_runs(runs: list[str]) -> None:
     for run, _, _, seed in described:
         label = labels[run]
         if (label, seed) in seen:
-            raise _same_seed_error(label, seed, seen[label, seed], run)
+            raise same_seed_error(label, seed, seen[label, seed], run)
         seen[label, seed] = run
         reason = failure(run)
         if reason is not None:
@@ -314,13 +113,6 @@ def wilcoxon_warnings(summary: dict[str, dict[str, Any]], reference: str | None)
                 "train more seeds before reading the p-value."
             )
     return messages
-
-
-def _same_seed_error(algo: str, seed: int, first: str, second: str) -> RunFolderError:
-    return RunFolderError(
-        f"Two {algo} runs trained with seed {seed} ({first} and {second}): pass one per algorithm and seed, or variants "
-        "from different folders (train.py -f), which are labelled by folder."
-    )
 
 
 def _distinct_parts(paths: list[str]) -> list[str]:
@@ -409,15 +201,6 @@ def format_table(results: list[RunResult], summary: dict[str, dict[str, Any]], r
         lines.append(row)
     lines += outcome_table(results)
     return "\n".join(lines)
-
-
-#: Column titles of the driving outcome rates
-OUTCOME_TITLES = {"collision": "collision", "off_road": "off road", "time_out": "time out", "goal_reached": "goal reached"}
-
-
-def format_outcome_rate(rate: float | None) -> str:
-    """An outcome rate in whole percents, ``-`` where a run has none."""
-    return "-" if rate is None else f"{100 * rate:.0f}%"
 
 
 def outcome_table(results: list[RunResult]) -> list[str]:
@@ -514,3 +297,27 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
 
 if __name__ == "__main__":
     sys.exit(main())
+
+
+# The run evaluation lives in sb3_icrl.run_evaluation (the benchmark engine uses it too); its names stay importable here
+__all__ = [
+    "OUTCOME_TITLES",
+    "WILCOXON_MIN_PAIRS",
+    "RunFolderError",
+    "RunResult",
+    "check_reference",
+    "check_runs",
+    "describe_run",
+    "evaluate_run",
+    "format_outcome_rate",
+    "format_table",
+    "get_parser",
+    "main",
+    "outcome_rate_means",
+    "outcome_table",
+    "recipe_differences",
+    "run_labels",
+    "summarise",
+    "training_wall_time",
+    "wilcoxon_warnings",
+]

@@ -19,35 +19,32 @@ import sys
 from typing import Any
 
 import gymnasium as gym
-import numpy as np
 import torch as th
 from gymnasium.envs.registration import load_env_creator
-from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
-from sb3_icrl.common.evaluation import ConstraintEvaluation, EpisodeAccumulator
+from sb3_icrl.common.evaluation import ConstraintEvaluation
 from sb3_icrl.common.utils import plain_docstring
-from sb3_icrl.envs.wrappers import recorded_transition_noise
-from sb3_icrl.zoo.hyperparams import (
-    ALGOS,
-    ICRL_ALGOS,
-    HyperparameterError,
-    env_name,
-    import_gym_packages,
-    preprocess_hyperparams,
-    resolve_env_id,
-)
-from sb3_icrl.zoo.recording import FrameWriter, configure_headless_rendering, has_display, recording_backend
-from sb3_icrl.zoo.runs import (
-    CHECKPOINT_PATTERN,
+from sb3_icrl.hyperparams import HyperparameterError
+from sb3_icrl.registry import env_name, import_gym_packages, resolve_env_id
+from sb3_icrl.run_env import create_env
+from sb3_icrl.run_evaluation import load_run_model, run_episodes, saved_settings
+from sb3_icrl.run_folder import (
     TrainedAgentError,
     check_trained_agent,
-    failure,
-    find_vecnormalize,
-    load_run_yaml,
+    get_latest_run_id,
+    model_path,
     rl_zoo3_env_name,
     run_env_name,
 )
-from sb3_icrl.zoo.train import StoreDict, create_env, get_latest_run_id, non_negative_int, positive_int
+from sb3_icrl.zoo.arguments import (
+    StoreDict,
+    algo_help,
+    non_negative_int,
+    parse_after_packages,
+    positive_int,
+    registered_algo,
+)
+from sb3_icrl.zoo.recording import FrameWriter, configure_headless_rendering, has_display, recording_backend
 
 
 class RecordingError(RuntimeError):
@@ -63,7 +60,7 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog=prog, description=plain_docstring(__doc__), formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--algo", type=str, required=True, choices=list(ALGOS), help="Algorithm")
+    parser.add_argument("--algo", type=registered_algo, required=True, metavar="ALGO", help=algo_help())
     parser.add_argument(
         "--env", type=str, required=True, help="Env id, with or without the sb3_icrl/ prefix (or MODULE:EnvId)"
     )
@@ -123,40 +120,6 @@ def _run_folder_ours_or_rl_zoo3(folder: str, algo: str, env_id: str, exp_id: int
             raise error from None  # (the message of train.py's name: rl_zoo3's is the exception)
 
 
-def model_path(run: str, name: str, load_best: bool, checkpoint: int | None, last_checkpoint: bool) -> str:
-    """
-    The zip to load from ``run``: the final model, ``best_model.zip`` or a checkpoint.
-
-    :raises FileNotFoundError: When it does not exist (the message lists the run's models)
-    """
-    checkpoints = {}
-    for entry in os.listdir(run):
-        match = CHECKPOINT_PATTERN.match(entry)
-        if match and match["prefix"] == "rl_model":
-            checkpoints[int(match["steps"])] = entry
-    if load_best:
-        filename = "best_model.zip"
-    elif checkpoint is not None:
-        filename = f"rl_model_{checkpoint}_steps.zip"
-    elif last_checkpoint:
-        if not checkpoints:
-            raise FileNotFoundError(f"No checkpoint in {run} (train with --save-freq).")
-        filename = checkpoints[max(checkpoints)]
-    else:
-        filename = f"{name}.zip"
-        reason = failure(run)
-        if reason is not None:
-            raise FileNotFoundError(
-                f"{run} failed ({reason}), so it has no final model: evaluate its best model (--load-best) or a checkpoint "
-                "(--load-last-checkpoint), or finish it with train.py --exp-id N --resume."
-            )
-    path = os.path.join(run, filename)
-    if not os.path.isfile(path):
-        available = sorted(entry for entry in os.listdir(run) if entry.endswith(".zip"))
-        raise FileNotFoundError(f"No {filename} in {run}; models there: {', '.join(available) or 'none'}.")
-    return path
-
-
 def _metadata(env_id: str) -> dict[str, Any]:
     entry_point = gym.spec(env_id).entry_point
     # Registered as "module:Class" or as the class (or function) itself
@@ -190,16 +153,7 @@ def enjoy(args: argparse.Namespace) -> ConstraintEvaluation:
     name = run_env_name(run, env_id)  # (rl_zoo3 names its files after the whole id)
     path = model_path(run, name, args.load_best, args.load_checkpoint, args.load_last_checkpoint)
     check_trained_agent(path, args.algo)
-
-    params_path = os.path.join(run, name)
-    params = preprocess_hyperparams(load_run_yaml(os.path.join(params_path, "config.yml")))
-    saved_args: dict[str, Any] = {}
-    if os.path.isfile(os.path.join(params_path, "args.yml")):
-        saved_args = load_run_yaml(os.path.join(params_path, "args.yml"))
-    env_kwargs = {**(saved_args.get("env_kwargs") or {}), **(args.env_kwargs or {})}
-    stats_path = find_vecnormalize(path, name) if params["normalize"] else None
-    if params["normalize"] and stats_path is None:
-        raise FileNotFoundError(f"{run} was trained with VecNormalize, but its statistics (vecnormalize.pkl) are missing.")
+    params, env_kwargs, stats_path, transition_noise, noise_model = saved_settings(run, name, path, args.env_kwargs)
 
     modes = render_modes(env_id)
     backend = None
@@ -221,7 +175,6 @@ def enjoy(args: argparse.Namespace) -> ConstraintEvaluation:
         else:
             print(f"{name} has no on-screen rendering (render modes: {modes or 'none'}): use --record or --no-render.")
 
-    transition_noise, noise_model = recorded_transition_noise(saved_args)
     env, _ = create_env(
         env_id,
         params,
@@ -234,10 +187,7 @@ def enjoy(args: argparse.Namespace) -> ConstraintEvaluation:
         stats_path=stats_path,
         transition_noise_model=noise_model,
     )
-    # No env: an ICRL model would wrap it with its learned cost; no demonstrations: they only serve training
-    extra: dict[str, Any] = {"demonstrations_source": None} if args.algo in ICRL_ALGOS else {}
-    model = ALGOS[args.algo].load(path, device=args.device, **extra)
-    model.set_random_seed(args.seed)
+    model = load_run_model(args.algo, path, args.device, args.seed)
     if args.verbose:
         print(f"Loaded {path}" + (f" with {stats_path}" if stats_path else ""))
     writer = None
@@ -246,7 +196,7 @@ def enjoy(args: argparse.Namespace) -> ConstraintEvaluation:
         fps = float(_metadata(env_id).get("render_fps") or 30)
         writer = FrameWriter(backend, os.path.join(run, "videos"), stem, fps)
     try:
-        evaluation = _run(model, env, args.n_timesteps, args.deterministic, args.verbose, writer)
+        evaluation = run_episodes(model, env, args.n_timesteps, args.deterministic, args.verbose, writer)
     finally:
         env.close()
         written = writer.close() if writer is not None else []
@@ -268,47 +218,6 @@ def _headless_rendering() -> None:
         print(f"No display: MuJoCo renders off screen with MUJOCO_GL={backend} (set MUJOCO_GL to choose another)")
 
 
-def _run(
-    model: Any, env: VecEnv, n_timesteps: int, deterministic: bool, verbose: int, writer: FrameWriter | None
-) -> ConstraintEvaluation:
-    """
-    Step the single env ``n_timesteps`` times; per episode the same metrics as :func:`evaluate_constraint`. With a
-    ``writer``, each rendered frame is written as it comes, one file per episode.
-    """
-    normalize = env if isinstance(env, VecNormalize) else None
-    episodes = EpisodeAccumulator(1)
-    obs = env.reset()
-    if writer is not None:
-        writer.append(env.render())  # type: ignore[arg-type]
-    state, episode_start = None, np.ones(1, dtype=bool)
-    for _ in range(n_timesteps):
-        action, state = model.predict(obs, state=state, episode_start=episode_start, deterministic=deterministic)
-        obs, rewards, dones, infos = env.step(action)
-        if writer is not None:
-            if dones[0]:
-                writer.end_episode()  # the env has reset itself: this frame starts the next episode
-            writer.append(env.render())  # type: ignore[arg-type]
-        episodes.add(0, float((normalize.get_original_reward() if normalize is not None else rewards)[0]), infos[0])
-        if dones[0]:
-            reward, cost, feasible, violated, length = episodes.end_episode(0, infos[0])
-            if verbose:
-                print(
-                    f"Episode {len(episodes.results['violations'])}: reward {reward:.2f}, true cost {cost:.2f}, "
-                    f"violated {'yes' if violated else 'no'}, feasible reward {feasible:.2f} ({int(length)} steps)"
-                )
-        episode_start = dones
-    evaluation = episodes.evaluation()
-    n_episodes = len(evaluation.violations)
-    if n_episodes:
-        print(
-            f"{n_episodes} episodes: violation rate {evaluation.violation_rate:.2f}, feasible reward "
-            f"{evaluation.mean_feasible_reward:.2f}, reward {evaluation.mean_reward:.2f}, true cost {evaluation.mean_cost:.2f}"
-        )
-    else:
-        print(f"No episode finished in {n_timesteps} steps (use more -n).")
-    return evaluation
-
-
 def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     """
     Command-line entry point (``enjoy.py`` and ``sb3-icrl enjoy``).
@@ -317,7 +226,10 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     :param prog: Program name in the usage line
     :return: Exit status: 0, or 2 after a clear error
     """
-    args = get_parser(prog).parse_args(list(sys.argv[1:] if argv is None else argv))
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = parse_after_packages(get_parser, argv, prog)
+    if args is None:
+        return 2
     try:
         enjoy(args)
     except (FileNotFoundError, RecordingError, TrainedAgentError, HyperparameterError, ValueError) as error:

@@ -42,9 +42,13 @@ from stable_baselines3.common.callbacks import BaseCallback, CallbackList, EvalC
 from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 
 from sb3_icrl import BC2L, GACL, MECL, VICRL, IRLPlus, PPOLagrangian
+from sb3_icrl.common.utils import atomic_write_bytes
 from sb3_icrl.data.checks import env_id_of
+from sb3_icrl.data.registry import available_demonstrations, env_name
+from sb3_icrl.hyperparams import EVAL_KEYS, _eval_string, forward_solver
+from sb3_icrl.icrl.tabular import learn_function
+from sb3_icrl.registry import DEFAULT_HYPERPARAMS_DIR, NAMESPACE
 from sb3_icrl.zoo.callbacks import ConstraintEvalCallback
-from sb3_icrl.zoo.hyperparams import DEFAULT_HYPERPARAMS_DIR, EVAL_KEYS, NAMESPACE, _eval_string
 
 #: The dict-valued arguments our yml files write as strings, evaluated by the registered classes (rl_zoo3 evaluates
 #: ``policy_kwargs`` itself)
@@ -66,8 +70,6 @@ def shipped_demonstrations_for(env: VecEnv | Any) -> str | None:
     :param env: The training env (rl_zoo3 gives a VecEnv)
     :return: The name of the shipped dataset for its env id (``"BlockedHalfCheetah-v0"``), ``None`` if there is none
     """
-    from sb3_icrl.data.registry import available_demonstrations, env_name
-
     env_id = env_id_of(env) if env is not None else None
     if env_id is None:
         return None
@@ -167,8 +169,6 @@ class _ICRLZooMixin(_EvalNormalizationMixin):
         parent = type(self).__mro__[type(self).__mro__.index(_ICRLZooMixin) + 1]
         demonstrations = _demonstrations_or_shipped(parent, env, demonstrations, kwargs)
         if solver != "policy_gradient" or planner_kwargs:
-            from sb3_icrl.icrl.tabular import forward_solver
-
             env_id = env_id_of(env) if env is not None else None
             params = {"forward_solver": solver, "planner_kwargs": planner_kwargs}
             solver = forward_solver(self.zoo_name, params, env_id) if env_id is not None else solver
@@ -179,7 +179,6 @@ class _ICRLZooMixin(_EvalNormalizationMixin):
     def _learn(self, total_timesteps: int, callback: Any = None, log_interval: int = 1, **kwargs: Any) -> Any:
         if getattr(self, "forward_solver", "policy_gradient") == "policy_gradient":
             return super().learn(total_timesteps, callback=callback, log_interval=log_interval, **kwargs)  # type: ignore[misc]
-        from sb3_icrl.icrl.tabular import learn_function
 
         learn_function(self, self.forward_solver, self.planner_kwargs)(total_timesteps, callback=callback, **kwargs)
         return self
@@ -282,8 +281,6 @@ def export_rl_zoo3_config(algo: str, path: str | os.PathLike, directory: str | o
     :param directory: Folder of our yml files
     :return: The path written
     """
-    from sb3_icrl.common.utils import atomic_write_bytes
-
     content = yaml.safe_dump(rl_zoo3_hyperparams(algo, directory), sort_keys=False)
     atomic_write_bytes(pathlib.Path(path), content.encode())
     return os.fspath(path)

@@ -11,7 +11,9 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from sb3_icrl.envs.grid_world import GridWorldEnv
 from sb3_icrl.icrl.tabular import precision_recall
+from sb3_icrl.plots.figures import constraint_features, grid_cost_map
 
 #: A cell whose learned cost exceeds this is recovered as unsafe (a feasibility ``phi`` below 1/2)
 UNSAFE_COST = 0.5
@@ -135,8 +137,6 @@ def feature_constraint_summary(
     :param expert_acts: Expert actions
     :return: The lines
     """
-    from sb3_icrl.plots.figures import constraint_features
-
     lines = []
     start_obs, start_act = np.asarray(expert_obs[:1], dtype=np.float64), np.asarray(expert_acts[:1])
     for feature in constraint_features(env_id, env_kwargs):
@@ -162,9 +162,6 @@ def recovered_constraint(model: Any, env_id: str, env_kwargs: Mapping[str, Any] 
     :param env_kwargs: The env's keyword arguments
     :return: The text
     """
-    from sb3_icrl.envs.grid_world import GridWorldEnv
-    from sb3_icrl.plots.figures import grid_cost_map
-
     if getattr(model, "constraint_net", None) is None or getattr(model, "demonstrations", None) is None:
         return None
     env = gym.make(env_id, **dict(env_kwargs or {}))

@@ -21,38 +21,33 @@ latest checkpoint for the steps it had left (skipped once ``finished.json`` is t
 """
 
 import argparse
-import difflib
 import inspect
 import json
 import os
-import platform
 import shlex
 import shutil
-import subprocess
 import sys
 import time
 import types
 import typing
 import warnings
-from collections.abc import Callable
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
-import stable_baselines3
 import torch as th
 import yaml
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.env_util import make_vec_env, unwrap_wrapper
+from stable_baselines3.common.env_util import unwrap_wrapper
 from stable_baselines3.common.logger import configure as configure_logger
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.utils import get_latest_run_id as sb3_latest_run_id
 from stable_baselines3.common.utils import set_random_seed
-from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecNormalize
+from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
-import sb3_icrl
+from sb3_icrl.benchmark import cli as benchmark_cli
 from sb3_icrl.common.utils import (
     atomic_save_model,
     atomic_save_pickle,
@@ -62,23 +57,49 @@ from sb3_icrl.common.utils import (
     plain_docstring,
     remove_temporaries,
 )
-from sb3_icrl.common.vec_env import ShallowCopyDummyVecEnv
+from sb3_icrl.common.versions import versions
 from sb3_icrl.data import load_demonstrations
-from sb3_icrl.envs.wrappers import (
-    COMPONENT_NOISE,
-    EPISODE_CONSTRAINT_KEYS,
-    TRANSITION_NOISE_MODELS,
-    DeclaredCostWrapper,
-    EpisodeConstraintWrapper,
-    TransitionNoiseWrapper,
-    recorded_transition_noise,
+from sb3_icrl.envs.wrappers import COMPONENT_NOISE, TRANSITION_NOISE_MODELS, recorded_transition_noise
+from sb3_icrl.hyperparams import (
+    ZOO_KEYS,
+    HyperparameterError,
+    algo_kwargs,
+    forward_solver,
+    load_hyperparams,
+    preprocess_hyperparams,
 )
-from sb3_icrl.icrl.tabular import forward_solver, learn_function
+from sb3_icrl.icrl.tabular import learn_function
+from sb3_icrl.metrics import transfer
 from sb3_icrl.plots import ConstraintFigureCallback
+from sb3_icrl.registry import ALGOS, ICRL_ALGOS, env_name, import_gym_packages, resolve_env_id
+from sb3_icrl.run_env import create_env
+from sb3_icrl.run_folder import (
+    CHECKPOINT_PATTERN,
+    FAILED_FILE,
+    FINISHED_FILE,
+    TrainedAgentError,
+    check_trained_agent,
+    find_vecnormalize,
+    get_latest_run_id,
+    is_finished,
+    latest_checkpoint,
+    trim_monitors,
+)
+from sb3_icrl.zoo import compare, enjoy
+from sb3_icrl.zoo.arguments import (
+    StoreDict,
+    algo_help,
+    did_you_mean,
+    fraction,
+    non_negative_float,
+    non_negative_int,
+    parse_after_packages,
+    positive_int,
+    registered_algo,
+)
 from sb3_icrl.zoo.callbacks import (
     AtomicCheckpointCallback,
     ConstraintEvalCallback,
-    LearnedCostRecorder,
     WallClock,
     load_training_state,
     save_training_state,
@@ -86,101 +107,7 @@ from sb3_icrl.zoo.callbacks import (
     training_state_path,
     training_state_wall_time,
 )
-from sb3_icrl.zoo.hyperparams import (
-    ALGOS,
-    EVAL_KEYS,
-    ICRL_ALGOS,
-    ZOO_KEYS,
-    HyperparameterError,
-    algo_kwargs,
-    env_name,
-    import_gym_packages,
-    is_mapping_argument,
-    load_hyperparams,
-    preprocess_hyperparams,
-    read_mapping,
-    resolve_env_id,
-)
-from sb3_icrl.zoo.runs import (
-    CHECKPOINT_PATTERN,
-    FAILED_FILE,
-    FINISHED_FILE,
-    TrainedAgentError,
-    check_trained_agent,
-    find_vecnormalize,
-    is_finished,
-    latest_checkpoint,
-    trim_monitors,
-)
 from sb3_icrl.zoo.summary import print_recovered_constraint, show_progress_bar
-
-
-class StoreDict(argparse.Action):
-    """
-    rl-zoo's ``-params k:v k2:v2``: each value is evaluated as a Python literal/expression, else kept as a string.
-    One JSON object (``-params '{"constraint_net_kwargs": {"hidden_sizes": [32]}}'``) or one yml/JSON file works too.
-    """
-
-    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any, option_string=None):
-        result: dict[str, Any] = {}
-        if is_mapping_argument(values):
-            try:
-                setattr(namespace, self.dest, read_mapping(values[0], str(option_string)))
-            except HyperparameterError as error:
-                parser.error(str(error))
-            return
-        for item in values:
-            key, sep, value = item.partition(":")
-            if not sep or not key:
-                parser.error(f"{option_string} expects key:value pairs, got {item!r}.")
-            if key in EVAL_KEYS:
-                result[key] = value  # evaluated with the yml's strings, so config.yml records it as written
-                continue
-            try:
-                result[key] = eval(value, {"nn": th.nn, "th": th, "dict": dict})  # rl-zoo convention: trusted config strings
-            except Exception:
-                result[key] = value  # plain strings such as lin_3e-4 or MlpPolicy
-        setattr(namespace, self.dest, result)
-
-
-def _number(text: str, kind: type, condition: str) -> Any:
-    try:
-        value = kind(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected {condition}, got {text!r}") from None
-    return value
-
-
-def positive_int(text: str) -> int:
-    """argparse type: an integer > 0."""
-    value = _number(text, int, "an integer > 0")
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"expected an integer > 0, got {text!r}")
-    return value
-
-
-def non_negative_int(text: str) -> int:
-    """argparse type: an integer >= 0 (seeds: gymnasium refuses negative ones)."""
-    value = _number(text, int, "an integer >= 0")
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
-    return value
-
-
-def non_negative_float(text: str) -> float:
-    """argparse type: a finite float >= 0."""
-    value = _number(text, float, "a finite number >= 0")
-    if not np.isfinite(value) or value < 0:
-        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
-    return value
-
-
-def fraction(text: str) -> float:
-    """argparse type: a share in [0, 1)."""
-    value = _number(text, float, "a fraction in [0, 1)")
-    if not 0 <= value < 1:
-        raise argparse.ArgumentTypeError(f"expected a fraction in [0, 1), got {text!r}")
-    return value
 
 
 def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
@@ -192,7 +119,7 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog=prog, description=plain_docstring(__doc__), formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--algo", type=str, required=True, choices=list(ALGOS), help="Algorithm")
+    parser.add_argument("--algo", type=registered_algo, required=True, metavar="ALGO", help=algo_help())
     parser.add_argument(
         "--env", type=str, required=True, help="Env id, with or without the sb3_icrl/ prefix (or MODULE:EnvId)"
     )
@@ -298,146 +225,6 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
         "own run folder; needed to branch from a checkpoint that later ones follow",
     )
     return parser
-
-
-def get_latest_run_id(log_path: str, name: str) -> int:
-    """Highest ``N`` of the ``<name>_<N>`` folders in ``log_path`` (0 when none), as rl-zoo."""
-    run_id = 0
-    if os.path.isdir(log_path):
-        for entry in os.listdir(log_path):
-            stem, _, suffix = entry.rpartition("_")
-            if stem == name and suffix.isdigit():
-                run_id = max(run_id, int(suffix))
-    return run_id
-
-
-def versions() -> dict[str, str]:
-    """Package versions and the git revision of the sb3-icrl checkout (``unknown`` outside a git checkout)."""
-    info = {
-        "python": platform.python_version(),
-        "sb3_icrl": sb3_icrl.__version__,
-        "stable_baselines3": stable_baselines3.__version__,
-        "gymnasium": gym.__version__,
-        "torch": str(th.__version__),
-        "numpy": np.__version__,
-        "platform": platform.platform(),
-    }
-    root = os.path.dirname(os.path.dirname(os.path.abspath(sb3_icrl.__file__)))
-    try:
-        revision = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, check=True)
-        status = subprocess.run(["git", "status", "--porcelain"], cwd=root, capture_output=True, text=True, check=True)
-        info["git_revision"] = revision.stdout.strip() + ("-dirty" if status.stdout.strip() else "")
-    except (OSError, subprocess.CalledProcessError):
-        info["git_revision"] = "unknown"
-    return info
-
-
-def _wrapper_class(wrappers: list[tuple[Any, dict[str, Any]]]) -> Any:
-    def wrap(env: gym.Env) -> gym.Env:
-        for wrapper, kwargs in wrappers:
-            env = wrapper(env, **kwargs)
-        return env
-
-    return wrap
-
-
-def _env_factory(env_id: str, transition_noise: float, noise_model: str, require_cost: bool) -> Callable[..., gym.Env]:
-    """
-    The env below ``Monitor``: gymnasium's (as ``make_vec_env`` makes it), the transition noise, the true cost of a
-    declared constraint, and each episode's constraint totals for the Monitor files (``EPISODE_CONSTRAINT_KEYS``).
-    """
-
-    def make(**env_kwargs: Any) -> gym.Env:
-        try:  # rgb_array unless asked otherwise, as make_vec_env does
-            env = gym.make(env_id, **{"render_mode": "rgb_array", **env_kwargs})
-        except TypeError:
-            env = gym.make(env_id, **env_kwargs)
-        if transition_noise > 0:
-            env = TransitionNoiseWrapper(env, sigma=transition_noise, model=noise_model)
-        # Outside the noise (the cost of the state the agent sees), inside the yml's wrappers (raw observations)
-        env = DeclaredCostWrapper(env, required=require_cost)
-        return EpisodeConstraintWrapper(env)
-
-    return make
-
-
-def _monitor_keywords(monitor_dir: str | None, append_monitor: bool) -> tuple[str, ...]:
-    """The Monitor's extra columns: the episode's constraint totals, unless a resumed run's files were written without."""
-    if append_monitor and monitor_dir is not None:
-        existing = os.path.join(monitor_dir, "0.monitor.csv")
-        if os.path.isfile(existing):
-            with open(existing) as file:
-                file.readline()  # the JSON line
-                if EPISODE_CONSTRAINT_KEYS[0] not in file.readline().strip().split(","):
-                    return ()
-    return EPISODE_CONSTRAINT_KEYS
-
-
-def create_env(
-    env_id: str,
-    params: dict[str, Any],
-    n_envs: int,
-    seed: int,
-    env_kwargs: dict[str, Any],
-    transition_noise: float,
-    monitor_dir: str | None,
-    eval_env: bool = False,
-    stats_path: str | None = None,
-    append_monitor: bool = False,
-    require_cost: bool | None = None,
-    transition_noise_model: str = COMPONENT_NOISE,
-) -> tuple[VecEnv, LearnedCostRecorder | None]:
-    """
-    Vectorised env (:class:`~sb3_icrl.common.vec_env.ShallowCopyDummyVecEnv`) with Monitor, transition noise, the true
-    cost of a declared constraint where the env reports none
-    (:class:`~sb3_icrl.envs.wrappers.DeclaredCostWrapper`), the yml's wrappers and VecNormalize (eval: frozen, raw
-    reward).
-
-    :param env_id: Registered env id
-    :param params: Preprocessed hyper-parameters (``normalize``, ``normalize_kwargs``, ``env_wrapper``)
-    :param n_envs: Number of sub-envs
-    :param seed: Seed of the first sub-env
-    :param env_kwargs: Keyword arguments of the env
-    :param transition_noise: Std of the next-state noise (0: none)
-    :param monitor_dir: Folder of the Monitor files (``None``: not written)
-    :param eval_env: Build an evaluation env: a :class:`LearnedCostRecorder` at its bottom, statistics frozen
-    :param stats_path: ``VecNormalize`` statistics to start from (``vecnormalize.pkl``), when normalising
-    :param append_monitor: Append to the Monitor files instead of replacing them (a resumed run)
-    :param require_cost: Fail at a step without ``info["cost"]`` when the env declares no constraint either;
-        ``None``: for evaluation envs only (learners other than PPO-Lagrangian do not read the true cost)
-    :param transition_noise_model: How the next-state noise is drawn (see
-        :class:`~sb3_icrl.envs.wrappers.TransitionNoiseWrapper`)
-    :return: The env and its recorder (eval envs only)
-    """
-    if require_cost is None:
-        require_cost = eval_env
-    monitor_kwargs: dict[str, Any] = {"info_keywords": _monitor_keywords(monitor_dir, append_monitor)}
-    if append_monitor:
-        monitor_kwargs["override_existing"] = False
-    venv = make_vec_env(
-        _env_factory(env_id, transition_noise, transition_noise_model, require_cost),
-        n_envs=n_envs,
-        seed=seed,
-        env_kwargs=env_kwargs,
-        monitor_dir=monitor_dir,
-        monitor_kwargs=monitor_kwargs,
-        wrapper_class=_wrapper_class(params["env_wrapper"]),
-        vec_env_cls=ShallowCopyDummyVecEnv,
-    )
-    recorder = None
-    if eval_env:
-        venv = recorder = LearnedCostRecorder(venv)
-    if params["normalize"]:
-        if stats_path is not None:
-            venv = VecNormalize.load(stats_path, venv)
-            if eval_env:
-                venv.training, venv.norm_reward = False, False
-        else:
-            kwargs = dict(params.get("normalize_kwargs") or {})
-            if eval_env:
-                kwargs.update(training=False, norm_reward=False)
-            venv = VecNormalize(venv, **kwargs)
-    return venv, recorder
 
 
 def _demonstrations(algo: str, env_id: str, args: argparse.Namespace, env: VecEnv) -> Any:
@@ -779,7 +566,7 @@ def _setup(
 
 
 def _resume_statistics(trained_agent: str, env_id: str, params: dict[str, Any]) -> str | None:
-    """The ``VecNormalize`` statistics to resume with (see :func:`~sb3_icrl.zoo.runs.find_vecnormalize`)."""
+    """The ``VecNormalize`` statistics to resume with (see :func:`~sb3_icrl.run_folder.find_vecnormalize`)."""
     stats_path = find_vecnormalize(trained_agent, env_name(env_id))
     if params["normalize"] and stats_path is None:
         warnings.warn(
@@ -1061,11 +848,6 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
     return save_path
 
 
-def _suggest(value: str, choices: list[str]) -> str:
-    close = difflib.get_close_matches(value, choices, n=1)
-    return f" Did you mean {close[0]!r}?" if close else ""
-
-
 def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     """
     Command-line entry point (``train.py`` and ``sb3-icrl train``).
@@ -1075,12 +857,14 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     :return: Exit status: 0, or 2 after a clear error
     """
     argv = list(sys.argv[1:] if argv is None else argv)
-    args = get_parser(prog).parse_args(argv)
+    args = parse_after_packages(get_parser, argv, prog)
+    if args is None:
+        return 2
     try:
         train(args, argv)
     except (ValueError, HyperparameterError) as error:
         ours = [key.split("/", 1)[1] for key in gym.registry if key.startswith("sb3_icrl/")]
-        hint = _suggest(args.env, ours) if "Unknown env" in str(error) else ""
+        hint = did_you_mean(args.env, ours) if "Unknown env" in str(error) else ""
         print(f"error: {error}{hint}", file=sys.stderr)
         return 2
     return 0
@@ -1099,20 +883,12 @@ def cli(argv: list[str] | None = None) -> int:
     if argv and argv[0] == "train":
         return main(argv[1:], prog="sb3-icrl train")
     if argv and argv[0] == "enjoy":
-        from sb3_icrl.zoo import enjoy  # imports this module
-
         return enjoy.main(argv[1:], prog="sb3-icrl enjoy")
     if argv and argv[0] == "compare":
-        from sb3_icrl.zoo import compare  # imports this module
-
         return compare.main(argv[1:], prog="sb3-icrl compare")
     if argv and argv[0] == "benchmark":
-        from sb3_icrl.benchmark import cli as benchmark_cli
-
         return benchmark_cli.main(argv[1:], prog="sb3-icrl benchmark")
     if argv and argv[0] == "transfer":
-        from sb3_icrl.metrics import transfer
-
         return transfer.main(argv[1:], prog="sb3-icrl transfer")
     print(
         "usage: sb3-icrl train --algo ALGO --env ENV [options] (see sb3-icrl train --help)\n"

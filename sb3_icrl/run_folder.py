@@ -1,0 +1,512 @@
+"""
+The layout of a run folder: which algorithm a zip holds, and the ``VecNormalize`` statistics that go with it.
+
+A run folder ``<folder>/<algo>/<EnvName>_<N>/`` holds ``<EnvName>.zip`` (final), ``best_model.zip``,
+``rl_model_<steps>_steps.zip`` checkpoints with their ``rl_model_vecnormalize_<steps>_steps.pkl`` statistics and
+``rl_model_training_state_<steps>_steps.pkl`` training state, and ``<EnvName>/vecnormalize.pkl`` and
+``<EnvName>/training_state.pkl`` (those of the final model).
+"""
+
+import json
+import math
+import os
+import pickle
+import re
+import warnings
+import zipfile
+from typing import Any
+
+import yaml
+from stable_baselines3.common.save_util import load_from_zip_file
+
+from sb3_icrl.common.utils import atomic_write_text
+from sb3_icrl.hyperparams import preprocess_hyperparams
+from sb3_icrl.registry import ALGOS, ICRL_ALGOS, env_name
+
+#: ``rl_model_<steps>_steps.zip``, as SB3's ``CheckpointCallback`` names its models
+CHECKPOINT_PATTERN = re.compile(r"^(?P<prefix>.+)_(?P<steps>\d+)_steps\.zip$")
+
+
+class TrainedAgentError(ValueError):
+    """A saved model that cannot be used as asked (missing, not a model zip, another algorithm's)."""
+
+
+def saved_algo(data: dict[str, Any]) -> str | None:
+    """
+    The command-line name of the algorithm that saved ``data`` (a zip's ``data``), told by what each class saves.
+
+    ICRL models save their constraint net and their trainer class (the algorithm whose default trainer is the
+    closest base of it), PPO-Lagrangian its multiplier; a plain PPO model neither.
+
+    :param data: The ``data`` part of an SB3 zip (``load_from_zip_file``)
+    :return: ``"ppo"``, ``"ppolag"``, an ICRL name, or ``None`` when it cannot be told
+    """
+    if "constraint_net_spec_" in data:
+        trainer = data.get("trainer_class")
+        return _icrl_algo_of_trainer(trainer) if isinstance(trainer, type) else None
+    if "lagrange_multiplier" in data:
+        return "ppolag"
+    if "policy_class" in data:
+        return "ppo"
+    return None
+
+
+def _icrl_algo_of_trainer(trainer: type) -> str | None:
+    """The ICRL algorithm whose default trainer is the closest base of ``trainer``; on a tie, the first registered (a
+    user's method that keeps its base's trainer saves what its base saves)."""
+    mro = trainer.__mro__
+    candidates = []
+    for order, name in enumerate(ICRL_ALGOS):
+        default = getattr(ALGOS[name], "default_trainer_class", None)
+        if isinstance(default, type) and default in mro:
+            candidates.append((mro.index(default), order, name))
+    return min(candidates)[2] if candidates else None
+
+
+def saved_as(algo: str) -> str | None:
+    """
+    :param algo: A registered command-line name
+    :return: What :func:`saved_algo` tells the models of ``algo`` by: ``algo`` itself for ours, the name of its base for
+        a user's method derived from one of ours, ``"ppo"`` for other algorithms (they save neither a constraint nor
+        a multiplier)
+    """
+    algo_class = ALGOS[algo]
+    trainer = getattr(algo_class, "default_trainer_class", None)
+    if isinstance(trainer, type):
+        return _icrl_algo_of_trainer(trainer)
+    return "ppolag" if issubclass(algo_class, ALGOS["ppolag"]) else "ppo"
+
+
+def check_trained_agent(path: str, algo: str) -> None:
+    """
+    Fail clearly unless ``path`` is an SB3 zip saved by ``algo``.
+
+    :param path: The ``-i/--trained-agent`` (or enjoy's) model path
+    :param algo: Command-line algorithm name
+    :raises TrainedAgentError: When the file is missing, not a zip, not an SB3 model or another algorithm's
+    """
+    if not os.path.isfile(path):
+        raise TrainedAgentError(f"The trained agent {path!r} does not exist.")
+    if not path.endswith(".zip") or not zipfile.is_zipfile(path):
+        raise TrainedAgentError(f"The trained agent {path!r} is not a .zip saved by stable-baselines3.")
+    try:
+        data, _, _ = load_from_zip_file(path, device="cpu")
+    except Exception as error:
+        raise TrainedAgentError(f"Cannot read the trained agent {path!r}: {error}") from error
+    if not data:
+        raise TrainedAgentError(f"The trained agent {path!r} holds no stable-baselines3 model data.")
+    found = saved_algo(data)
+    if found is None:
+        raise TrainedAgentError(f"Cannot tell which algorithm saved {path!r}; expected a {algo} model.")
+    if found not in (algo, saved_as(algo)):
+        raise TrainedAgentError(f"{path!r} holds a {found} model, not a {algo} one: use --algo {found}.")
+
+
+def get_latest_run_id(log_path: str, name: str) -> int:
+    """Highest ``N`` of the ``<name>_<N>`` folders in ``log_path`` (0 when none), as rl-zoo."""
+    run_id = 0
+    if os.path.isdir(log_path):
+        for entry in os.listdir(log_path):
+            stem, _, suffix = entry.rpartition("_")
+            if stem == name and suffix.isdigit():
+                run_id = max(run_id, int(suffix))
+    return run_id
+
+
+def model_path(run: str, name: str, load_best: bool, checkpoint: int | None, last_checkpoint: bool) -> str:
+    """
+    The zip to load from ``run``: the final model, ``best_model.zip`` or a checkpoint.
+
+    :param run: The run folder
+    :param name: The env's folder name (the final model is ``<name>.zip``)
+    :param load_best: ``best_model.zip``
+    :param checkpoint: The checkpoint of this many steps
+    :param last_checkpoint: The checkpoint of the most steps
+    :return: The path
+    :raises FileNotFoundError: When it does not exist (the message lists the run's models)
+    """
+    saved = {}
+    for entry in os.listdir(run):
+        match = CHECKPOINT_PATTERN.match(entry)
+        if match and match["prefix"] == "rl_model":
+            saved[int(match["steps"])] = entry
+    if load_best:
+        filename = "best_model.zip"
+    elif checkpoint is not None:
+        filename = f"rl_model_{checkpoint}_steps.zip"
+    elif last_checkpoint:
+        if not saved:
+            raise FileNotFoundError(f"No checkpoint in {run} (train with --save-freq).")
+        filename = saved[max(saved)]
+    else:
+        filename = f"{name}.zip"
+        reason = failure(run)
+        if reason is not None:
+            raise FileNotFoundError(
+                f"{run} failed ({reason}), so it has no final model: evaluate its best model (--load-best) or a checkpoint "
+                "(--load-last-checkpoint), or finish it with train.py --exp-id N --resume."
+            )
+    path = os.path.join(run, filename)
+    if not os.path.isfile(path):
+        available = sorted(entry for entry in os.listdir(run) if entry.endswith(".zip"))
+        raise FileNotFoundError(f"No {filename} in {run}; models there: {', '.join(available) or 'none'}.")
+    return path
+
+
+#: The ``VecNormalize`` statistics saved with ``best_model.zip``, as they were when it was chosen
+BEST_VECNORMALIZE_FILE = "best_model_vecnormalize.pkl"
+
+
+def find_vecnormalize(model_path: str, name: str, warn: bool = True) -> str | None:
+    """
+    The ``VecNormalize`` statistics saved with a model: a checkpoint's own (``<prefix>_vecnormalize_<steps>_steps.pkl``)
+    or the best model's own (:data:`BEST_VECNORMALIZE_FILE`), else the run's ``<EnvName>/vecnormalize.pkl`` (the final
+    model's; for a best model saved before its own were, with a warning), else a ``vecnormalize.pkl`` beside the zip.
+
+    :param model_path: The model zip
+    :param name: The env name (folder name of the run's parameters)
+    :param warn: Warn when a best model would run on the final model's statistics (callers that leave such a model
+        out check :func:`lacks_own_statistics` themselves)
+    :return: The path, or ``None`` when there is none
+    """
+    folder = os.path.dirname(os.path.abspath(model_path))
+    candidates = []
+    match = CHECKPOINT_PATTERN.match(os.path.basename(model_path))
+    if match:
+        candidates.append(os.path.join(folder, f"{match['prefix']}_vecnormalize_{match['steps']}_steps.pkl"))
+    best = os.path.basename(model_path) == "best_model.zip"
+    if best:
+        candidates.append(os.path.join(folder, BEST_VECNORMALIZE_FILE))
+    candidates += [os.path.join(folder, name, "vecnormalize.pkl"), os.path.join(folder, "vecnormalize.pkl")]
+    found = next((path for path in candidates if os.path.isfile(path)), None)
+    if best and warn and lacks_own_statistics(model_path, found):
+        warnings.warn(
+            f"{model_path} has no normalisation statistics of its own ({BEST_VECNORMALIZE_FILE}: runs save them with "
+            f"the best model since they were added); running it with {found}, the final model's.",
+            stacklevel=2,
+        )
+    return found
+
+
+def lacks_own_statistics(model_path: str, stats_path: str | None) -> bool:
+    """
+    Whether a best model would run on statistics that are not its own: :func:`find_vecnormalize` found some, but not
+    :data:`BEST_VECNORMALIZE_FILE` (a best model saved before runs saved its statistics with it). Such a model runs on
+    the final model's statistics, i.e. not as it was when it was chosen.
+
+    :param model_path: The best model's zip
+    :param stats_path: What :func:`find_vecnormalize` found for it
+    """
+    own = os.path.join(os.path.dirname(os.path.abspath(model_path)), BEST_VECNORMALIZE_FILE)
+    return stats_path is not None and os.path.abspath(stats_path) != own
+
+
+def run_vecnormalize(run: str, model_path: str, name: str) -> str | None:
+    """
+    The ``VecNormalize`` statistics that go with a model of a run folder, when the run normalised (its
+    ``<EnvName>/config.yml``): a model of a normalising run must never run without them.
+
+    :param run: The run folder ``<folder>/<algo>/<EnvName>_<N>``
+    :param model_path: The model zip (final, best or a checkpoint)
+    :param name: The env's folder name (:func:`~sb3_icrl.registry.env_name`)
+    :return: The statistics, or ``None`` when the run did not normalise
+    :raises FileNotFoundError: When the run normalised and the statistics are missing
+    """
+    stats_path = find_vecnormalize(model_path, name)
+    config = os.path.join(run, name, "config.yml")
+    if not os.path.isfile(config):
+        if stats_path is None:
+            warnings.warn(
+                f"No {config}: cannot tell whether {run} trained with VecNormalize; running its model without "
+                "normalisation statistics.",
+                stacklevel=2,
+            )
+        return stats_path
+    normalize = preprocess_hyperparams(load_run_yaml(config))["normalize"]
+    if not normalize:
+        return None
+    if stats_path is None:
+        raise FileNotFoundError(
+            f"{run} was trained with VecNormalize, but the statistics of {os.path.basename(model_path)} are missing "
+            f"(looked for a checkpoint's own, {os.path.join(name, 'vecnormalize.pkl')} and vecnormalize.pkl)."
+        )
+    return stats_path
+
+
+#: Written (atomically) into a run folder once its training has run to the end; a run folder without it is unfinished
+FINISHED_FILE = "finished.json"
+#: Keys of ``finished.json`` holding a run's training time in seconds, the first present wins: a resumed run's
+#: ``wall_time_s`` may cover only its last segment, ``wall_time_total_s`` the whole run
+WALL_TIME_KEYS = ("wall_time_total_s", "wall_time_s")
+
+
+#: Written (atomically) into a run folder whose training raised an error; such a run has no final model
+FAILED_FILE = "failed.json"
+
+
+def failure(run: str) -> str | None:
+    """
+    :param run: A run folder
+    :return: The error its training stopped on (``failed.json``), or ``None`` when it did not fail
+    """
+    path = os.path.join(run, FAILED_FILE)
+    if not os.path.isfile(path):
+        return None
+    try:
+        with open(path) as file:
+            return str(json.load(file).get("error", "unknown error"))
+    except (OSError, ValueError, AttributeError):
+        return "unknown error (unreadable failed.json)"
+
+
+def is_finished(run: str) -> bool:
+    """
+    :param run: A run folder ``<folder>/<algo>/<EnvName>_<N>``
+    :return: Whether its training ran to the end (``finished.json`` is there, a JSON mapping: a file cut short or
+        overwritten with something else does not count, so that the run is trained again from its last checkpoint)
+    """
+    return read_finished(run) is not None
+
+
+def read_finished(run: str | os.PathLike) -> dict[str, Any] | None:
+    """
+    :param run: A run folder
+    :return: Its ``finished.json`` (step count, wall times), or ``None`` when it is missing, unreadable or not a mapping
+    """
+    try:
+        with open(os.path.join(run, FINISHED_FILE)) as file:
+            finished = json.load(file)
+    except (OSError, ValueError):
+        return None
+    return finished if isinstance(finished, dict) else None
+
+
+def run_wall_time(folder: str | os.PathLike) -> float | None:
+    """
+    The training time of a finished run, from its ``finished.json`` (see :data:`WALL_TIME_KEYS`).
+
+    :param folder: The run folder
+    :return: Seconds; ``None`` when the run is not finished or its ``finished.json`` records no time
+    """
+    return finished_wall_time(read_finished(folder))
+
+
+def finished_wall_time(finished: dict[str, Any] | None) -> float | None:
+    """
+    :param finished: A run's ``finished.json`` (:func:`read_finished`)
+    :return: Its training time in seconds (see :data:`WALL_TIME_KEYS`), ``None`` when it records none
+    """
+    for key in WALL_TIME_KEYS:
+        value = finished.get(key) if finished is not None else None
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value >= 0:
+            return float(value)
+    return None
+
+
+def checkpoints(run: str) -> list[tuple[int, str]]:
+    """
+    :param run: A run folder
+    :return: ``(steps, path)`` of each ``rl_model_<steps>_steps.zip`` in it, the most steps first (unchecked: see
+        :func:`latest_checkpoint`); empty when the folder does not exist
+    """
+    if not os.path.isdir(run):
+        return []
+    found = []
+    for entry in os.listdir(run):
+        match = CHECKPOINT_PATTERN.match(entry)
+        if match and match["prefix"] == "rl_model":
+            found.append((int(match["steps"]), os.path.join(run, entry)))
+    return sorted(found, reverse=True)
+
+
+def latest_checkpoint(run: str) -> str | None:
+    """
+    The checkpoint to resume an unfinished run from: the ``rl_model_<steps>_steps.zip`` with the most steps that is a
+    readable zip (checkpoints are written atomically, but a folder may come from elsewhere).
+
+    :param run: A run folder
+    :return: The path, or ``None`` when the folder holds no usable checkpoint
+    """
+    for steps, path in checkpoints(run):
+        try:
+            with zipfile.ZipFile(path) as archive:
+                if archive.testzip() is not None or "data" not in archive.namelist():
+                    continue
+        except (zipfile.BadZipFile, OSError):
+            continue
+        broken = _broken_companion(run, steps)
+        if broken is not None:
+            warnings.warn(f"{broken} cannot be read: resuming from an earlier checkpoint than {os.path.basename(path)}.")
+            continue
+        return path
+    return None
+
+
+def _broken_companion(run: str, steps: int) -> str | None:
+    """The normalisation statistics or training state saved with a checkpoint, if one of them cannot be unpickled."""
+    for kind in ("vecnormalize", "training_state"):
+        path = os.path.join(run, f"rl_model_{kind}_{steps}_steps.pkl")
+        if not os.path.isfile(path):
+            continue
+        try:
+            with open(path, "rb") as file:
+                pickle.load(file)  # the run's own files, written by this library
+        except Exception:  # truncated, or not a pickle at all
+            return path
+    return None
+
+
+#: Suffix of SB3's Monitor files: ``<i>.monitor.csv`` in the run folder (training envs) and in ``eval/`` (evaluation)
+MONITOR_SUFFIX = ".monitor.csv"
+#: Lines at the top of a Monitor file that are not episodes: its JSON header and the column names
+MONITOR_HEADER_LINES = 2
+
+
+def monitor_files(run: str | os.PathLike) -> list[str]:
+    """The Monitor files of a run folder, relative to it (training envs' first, then the evaluation envs')."""
+    found = []
+    for folder in ("", "eval"):
+        directory = os.path.join(run, folder)
+        if os.path.isdir(directory):
+            found += sorted(os.path.join(folder, entry) for entry in os.listdir(directory) if entry.endswith(MONITOR_SUFFIX))
+    return found
+
+
+#: Training episodes the paper's protocol averages over, at the end of a run
+LAST_TRAINING_EPISODES = 100
+
+
+def last_training_episodes(run: str | os.PathLike, n_episodes: int = LAST_TRAINING_EPISODES) -> dict[str, float] | None:
+    """
+    The paper's way of reporting a run: over its last ``n_episodes`` training episodes (the stochastic policy, as it
+    trained), the share that broke the true constraint and the mean feasible reward, read from the training envs'
+    Monitor files (their ``true_violation`` and ``true_feasible_reward`` columns). The envs step together, so an
+    episode's end is ordered by the steps its env had taken; a resumed run's files hold no replayed episode (they are
+    trimmed to the checkpoint on resume).
+
+    :param run: The run folder
+    :param n_episodes: How many of the last episodes
+    :return: ``{"violation_rate", "feasible_reward", "n_episodes"}``, or ``None`` when the files lack the columns
+        (runs trained before they were written) or hold no episode
+    """
+    ends = []  # (env steps at the episode's end, env index, violated, feasible reward)
+    for name in monitor_files(run):
+        if os.path.dirname(name):  # the evaluation envs' files
+            continue
+        with open(os.path.join(run, name)) as file:
+            lines = [line for line in file.read().splitlines() if line.strip()][1:]
+        if not lines:
+            continue
+        header = lines[0].split(",")
+        if "true_violation" not in header or "true_feasible_reward" not in header:
+            return None
+        length, violated, feasible = header.index("l"), header.index("true_violation"), header.index("true_feasible_reward")
+        env_index = int(os.path.basename(name).split(".")[0]) if os.path.basename(name).split(".")[0].isdigit() else 0
+        steps = 0
+        for line in lines[1:]:
+            fields = line.split(",")
+            steps += int(float(fields[length]))
+            ends.append((steps, env_index, float(fields[violated]), float(fields[feasible])))
+    if not ends:
+        return None
+    last = sorted(ends)[-n_episodes:]
+    return {
+        "violation_rate": float(sum(row[2] for row in last) / len(last)),
+        "feasible_reward": float(sum(row[3] for row in last) / len(last)),
+        "n_episodes": float(len(last)),
+    }
+
+
+def monitor_row_counts(run: str | os.PathLike) -> dict[str, int]:
+    """
+    The episodes each Monitor file of a run holds now (its lines less the header), by path relative to the run: what
+    a checkpoint records, so that a run resumed from it can drop the episodes recorded after it.
+
+    :param run: The run folder
+    """
+    counts = {}
+    for name in monitor_files(run):
+        with open(os.path.join(run, name), "rb") as file:
+            lines = sum(1 for line in file if line.strip())
+        counts[name] = max(lines - MONITOR_HEADER_LINES, 0)
+    return counts
+
+
+def trim_monitors(run: str | os.PathLike, counts: dict[str, int]) -> dict[str, int]:
+    """
+    Cut every Monitor file of a run back to the episodes it held at a checkpoint (``counts``, from
+    :func:`monitor_row_counts`); a file the checkpoint did not know keeps its header only. Each file is rewritten
+    atomically. A resumed run replays the steps after its checkpoint: without this, the episodes of those steps would
+    be counted twice.
+
+    :param run: The run folder
+    :param counts: Episodes per Monitor file at the checkpoint
+    :return: Episodes dropped per file (files that lost none are left out)
+    """
+    dropped = {}
+    for name in monitor_files(run):
+        path = os.path.join(run, name)
+        with open(path) as file:
+            lines = [line for line in file.read().splitlines() if line.strip()]
+        keep = MONITOR_HEADER_LINES + counts.get(name, 0)
+        if len(lines) > keep:
+            dropped[name] = len(lines) - keep
+            atomic_write_text(path, "\n".join(lines[:keep]) + "\n")
+    return dropped
+
+
+#: The tag PyYAML writes for an ``OrderedDict``, as rl_zoo3 saves its run's ``args.yml`` and ``config.yml``
+ORDERED_DICT_TAG = "tag:yaml.org,2002:python/object/apply:collections.OrderedDict"
+
+
+class RunYamlLoader(yaml.SafeLoader):
+    """A safe YAML loader that also reads the ``OrderedDict`` tag of rl_zoo3's run files (as a plain dict)."""
+
+
+def _ordered_dict(loader: yaml.SafeLoader, node: yaml.Node) -> dict[Any, Any]:
+    # Written as OrderedDict(pairs): a sequence holding one argument, the list of [key, value] pairs
+    arguments = loader.construct_sequence(node, deep=True)  # type: ignore[arg-type]
+    return dict(arguments[0]) if arguments else {}
+
+
+RunYamlLoader.add_constructor(ORDERED_DICT_TAG, _ordered_dict)
+
+
+def load_run_yaml(path: str | os.PathLike) -> dict[str, Any]:
+    """
+    A run's ``args.yml`` or ``config.yml``, written by ``train.py`` or by rl_zoo3 (whose ``OrderedDict`` tags a plain
+    ``yaml.safe_load`` refuses); nothing else that a YAML file could ask to build is built.
+
+    :param path: The file
+    :return: Its mapping (empty for an empty file)
+    """
+    with open(path) as file:
+        content = yaml.load(file, Loader=RunYamlLoader)  # (a safe loader with one constructor added)
+    return content or {}
+
+
+def rl_zoo3_env_name(env_id: str) -> str:
+    """The folder name rl_zoo3 gives an env (its ``EnvironmentName``): the id with ``/`` turned into ``-``."""
+    return env_id.replace("/", "-")
+
+
+def run_env_name(run: str, env_id: str) -> str:
+    """
+    The name of a run's ``<EnvName>.zip`` and ``<EnvName>/`` folder: ours (:func:`~sb3_icrl.registry.env_name`,
+    ``GridWorldWall-v0``), or rl_zoo3's (:func:`rl_zoo3_env_name`, ``sb3_icrl-GridWorldWall-v0``) for a run it made.
+
+    :param run: The run folder
+    :param env_id: The env it trained on
+    """
+    ours = env_name(env_id)
+    theirs = rl_zoo3_env_name(env_id)
+    return theirs if not os.path.isdir(os.path.join(run, ours)) and os.path.isdir(os.path.join(run, theirs)) else ours
+
+
+def made_by_rl_zoo3(run: str, name: str) -> bool:
+    """Whether rl_zoo3 wrote the run folder (its ``args.yml`` is an ``OrderedDict``; ``train.py`` writes plain maps)."""
+    path = os.path.join(run, name, "args.yml")
+    if not os.path.isfile(path):
+        return False
+    with open(path) as file:
+        return file.readline().startswith("!!python/object/apply:collections.OrderedDict")
