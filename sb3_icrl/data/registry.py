@@ -64,13 +64,14 @@ SHIPPED_DATASETS: dict[str, ShippedDataset] = {
     "GridWorldZigzag-v0": ShippedDataset(50, IMPERFECT_FRACTIONS, "pilag"),
     "BlockedHalfCheetah-v0": ShippedDataset(20, IMPERFECT_FRACTIONS, random_action_prob=0.8),
     "BlockedAnt-v0": ShippedDataset(20),
-    "BiasedPendulum-v0": ShippedDataset(20),
+    "BiasedPendulum-v0": ShippedDataset(20, IMPERFECT_FRACTIONS),
     "BlockedWalker-v0": ShippedDataset(20),
-    "BlockedSwimmer-v0": ShippedDataset(20),
+    "BlockedSwimmer-v0": ShippedDataset(20, IMPERFECT_FRACTIONS),
     # The binding variants (sb3_icrl.envs.binding_envs)
-    "BiasedPendulumReach-v0": ShippedDataset(20),
+    "BiasedPendulumReach-v0": ShippedDataset(20, IMPERFECT_FRACTIONS),
     "BlockedHalfCheetahReach-v0": ShippedDataset(20),
-    "BlockedWalkerReach-v0": ShippedDataset(20),
+    # Its expert walks 0.24 m from the line: light perturbations take it across; heavy ones make it fall first
+    "BlockedWalkerReach-v0": ShippedDataset(20, IMPERFECT_FRACTIONS, random_action_prob=0.1),
     "HighwayVelocity-v0": ShippedDataset(100),
     "HighwayDistance-v0": ShippedDataset(100),
     "HighwayVelocityDistance-v0": ShippedDataset(100),
