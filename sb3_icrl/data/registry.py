@@ -63,13 +63,13 @@ SHIPPED_DATASETS: dict[str, ShippedDataset] = {
     "GridWorldBigSquare-v0": ShippedDataset(50, IMPERFECT_FRACTIONS, "pilag"),
     "GridWorldZigzag-v0": ShippedDataset(50, IMPERFECT_FRACTIONS, "pilag"),
     "BlockedHalfCheetah-v0": ShippedDataset(20, IMPERFECT_FRACTIONS, random_action_prob=0.8),
-    "BlockedAnt-v0": ShippedDataset(20),
+    "BlockedAnt-v0": ShippedDataset(20, IMPERFECT_FRACTIONS),
     "BiasedPendulum-v0": ShippedDataset(20, IMPERFECT_FRACTIONS),
     "BlockedWalker-v0": ShippedDataset(20),
     "BlockedSwimmer-v0": ShippedDataset(20, IMPERFECT_FRACTIONS),
     # The binding variants (sb3_icrl.envs.binding_envs)
     "BiasedPendulumReach-v0": ShippedDataset(20, IMPERFECT_FRACTIONS),
-    "BlockedHalfCheetahReach-v0": ShippedDataset(20),
+    "BlockedHalfCheetahReach-v0": ShippedDataset(20, IMPERFECT_FRACTIONS, random_action_prob=0.2),
     # Its expert walks 0.24 m from the line: light perturbations take it across; heavy ones make it fall first
     "BlockedWalkerReach-v0": ShippedDataset(20, IMPERFECT_FRACTIONS, random_action_prob=0.1),
     "HighwayVelocity-v0": ShippedDataset(100),
