@@ -18,7 +18,6 @@ its final one, with its VecNormalize statistics.
 """
 
 import argparse
-import json
 import os
 import platform
 from dataclasses import asdict, dataclass
@@ -33,6 +32,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 import sb3_icrl  # noqa: F401  (registers the envs)
 from sb3_icrl import PPOLagrangian
+from sb3_icrl.common.utils import atomic_write_json
 from sb3_icrl.data.registry import expert_paths, load_demonstrations
 from sb3_icrl.envs import get_constraint_spec
 from sb3_icrl.registry import env_name, resolve_env_id
@@ -179,8 +179,7 @@ def main() -> None:
         f"| {expert.mean_return:.2f} / {expert.violation_rate:.0%} | {expert.median_closest:.3g} | {demos_text} |"
     )
     if args.json:
-        with open(args.json, "w") as file:
-            json.dump(row, file, indent=2)
+        atomic_write_json(args.json, row, indent=2)
 
 
 if __name__ == "__main__":

@@ -15,7 +15,6 @@ its ``finished.json``.
 """
 
 import argparse
-import json
 import os
 import platform
 from typing import Any
@@ -27,6 +26,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 import sb3_icrl  # noqa: F401  (registers the envs)
 from sb3_icrl import PPOLagrangian
 from sb3_icrl.common.evaluation import evaluate_constraint
+from sb3_icrl.common.utils import atomic_write_json
 from sb3_icrl.data.registry import expert_paths
 from sb3_icrl.registry import env_name
 from sb3_icrl.run_folder import read_finished
@@ -124,8 +124,7 @@ def main() -> None:
             f"{cpu} ({row['shipped_seconds']:.0f}) | {'yes' if row['passes'] else 'no'} |"
         )
     if args.json:
-        with open(args.json, "w") as file:
-            json.dump(rows, file, indent=2)
+        atomic_write_json(args.json, rows, indent=2)
 
 
 if __name__ == "__main__":
