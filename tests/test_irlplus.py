@@ -379,3 +379,25 @@ def test_train_cli_runs_irlplus_on_blocked_half_cheetah(tmp_path) -> None:
     model = IRLPlus.load(run / "BlockedHalfCheetah-v0.zip", device="cpu")
     assert model.num_timesteps == 1200 and model.n_constraint_updates >= 1
     assert isinstance(model.constraint_net, CostNet) and model.warmup_timesteps == 0
+
+
+def test_irlplus_on_ppo_learns_with_costs_floored_at_zero() -> None:
+    """IRLPlusPPO on BlockedHalfCheetah: the cost net's LeakyReLU dips below 0, PPOLagrangian takes the costs floored."""
+    model = IRLPlusPPO(
+        "MlpPolicy",
+        "sb3_icrl/BlockedHalfCheetah-v0",
+        demonstrations="BlockedHalfCheetah-v0",
+        n_steps=256,
+        batch_size=64,
+        reset_every=512,
+        policy_kwargs=dict(net_arch=[16]),
+        constraint_net_kwargs=dict(hidden_sizes=[8], normalize_input=False),
+        seed=0,
+    )
+    model.learn(2048)  # HalfCheetah's episodes end at 1000 steps: the cost updates start once one has
+    assert model.n_constraint_updates >= 1 and model.l2_coef == 0.1
+    pairs = np.random.default_rng(0).normal(size=(64, model.observation_space.shape[0])), np.zeros((64, 6))
+    with th.no_grad():
+        model.constraint_net.network[-1].bias.fill_(-1.0)  # a net whose output sits below 0 ...
+    assert (model.constraint_net.cost(*pairs) < 0).all()
+    assert (model.constraint_cost(*pairs) == 0).all()  # ... gives the learner costs of 0

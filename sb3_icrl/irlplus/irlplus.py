@@ -260,6 +260,17 @@ class IRLPlusPPO(_IRLPlusOptions, LagrangianICRL):
         if _init_setup_model:
             self._setup_model()
 
+    def constraint_cost(self, observations: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """
+        The learned cost, floored at 0: PPO-Lagrangian takes costs that count violations (>= 0), while the cost net's
+        LeakyReLU output dips slightly below 0 (slope 0.01), where the cost update still gets gradients.
+
+        :param observations: ``(batch, obs_dim)``
+        :param actions: ``(batch, action_dim)``
+        :return: Costs, ``(batch,)``
+        """
+        return np.maximum(super().constraint_cost(observations, actions), 0.0)
+
     def reset_policy_layers(self) -> None:
         """Draw new weights for the actor's output layer and the cost critic's last layer, as SB3 initialises them."""
         policy: ActorCriticPolicy = self.policy
