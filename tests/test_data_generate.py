@@ -119,7 +119,8 @@ def test_cli_reports_errors(tmp_path, capsys):
     assert main(["generate", "--env", "GridWorldWall-v0", "--expert", "missing.zip", "--out", str(tmp_path / "x.npz")]) == 1
     assert "No expert file" in capsys.readouterr().err
     assert main(["info", "NoSuchEnv-v9"]) == 1
-    assert "Available: BiasedPendulum-v0 (violating_fraction 0, 0.2, 0.5, 0.8); BiasedPendulumReach-v0" in capsys.readouterr().err
+    available = "Available: BiasedPendulum-v0 (violating_fraction 0, 0.2, 0.5, 0.8); BiasedPendulumReach-v0"
+    assert available in capsys.readouterr().err
 
 
 def test_info_says_unknown_for_data_without_true_costs(tmp_path, capsys):
