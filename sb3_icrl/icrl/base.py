@@ -3,9 +3,7 @@ The shared base of the ICRL algorithms: an SB3 on-policy learner (PPO-Lagrangian
 the wrappers that feed it to the learner and record nominal data, and the :class:`ICRLTrainer` callback.
 """
 
-import io
 import os
-import pathlib
 import warnings
 from collections.abc import Sequence
 from typing import Any, ClassVar, TypeVar
@@ -18,7 +16,7 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
 from sb3_icrl.common.policies import CostActorCriticPolicy
-from sb3_icrl.common.saved import check_saved_algorithm, library_algorithm
+from sb3_icrl.common.saved import CheckedLoadMixin, library_algorithm
 from sb3_icrl.constraints.networks import FeasibilityNet, _ConstraintNet, _space_features
 from sb3_icrl.constraints.wrappers import GACLRewardWrapper, LearnedCostVecEnvWrapper
 from sb3_icrl.data.registry import load_demonstrations
@@ -36,7 +34,7 @@ SelfICRL = TypeVar("SelfICRL", bound="ICRLAlgorithmMixin")
 DemonstrationsLike = Demonstrations | Sequence[Trajectory] | str | os.PathLike
 
 
-class ICRLAlgorithmMixin:
+class ICRLAlgorithmMixin(CheckedLoadMixin):
     """
     Turns an SB3 algorithm, on-policy or off-policy, into an ICRL algorithm; listed first in the bases
     (``class BC2L(ICRLAlgorithmMixin, PPOLagrangian)``, ``class IRLPlus(ICRLAlgorithmMixin, SACLagrangian)``).
@@ -377,21 +375,6 @@ class ICRLAlgorithmMixin:
         return self.constraint_net.cost(observations, actions)
 
     # ------------------------------------------------------------------ saving
-
-    @classmethod
-    def load(  # type: ignore[no-untyped-def]
-        cls,
-        path: str | pathlib.Path | io.BufferedIOBase,
-        env: GymEnv | None = None,
-        device: th.device | str = "auto",
-        custom_objects: dict[str, Any] | None = None,
-        print_system_info: bool = False,
-        force_reset: bool = True,
-        **kwargs: Any,
-    ):
-        """SB3's ``load``, refusing a zip that another algorithm saved (with a message naming both)."""
-        check_saved_algorithm(cls, path, custom_objects)
-        return super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)  # type: ignore[misc]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()  # type: ignore[misc]
