@@ -118,6 +118,66 @@ class ICRLAlgorithmMixin(CheckedLoadMixin):
         self.icrl_trainer: ICRLTrainer | None = None
         self.true_constraint_logger: TrueConstraintLogger | None = None
 
+    def _init_icrl_learner(
+        self,
+        policy: Any,
+        env: Any,
+        demonstrations: DemonstrationsLike | None,
+        constraint_net: _ConstraintNet | None,
+        constraint_net_kwargs: dict[str, Any] | None,
+        constraint_learning_rate: float,
+        constraint_steps: int,
+        constraint_batch_size: int | None,
+        update_every: int | None,
+        n_nominal_trajectories: int | None,
+        trainer_class: type[ICRLTrainer] | None,
+        trainer_kwargs: dict[str, Any] | None,
+        allow_env_mismatch: bool,
+        learner_kwargs: dict[str, Any],
+        _init_setup_model: bool,
+    ) -> None:
+        """
+        The constructor of an ICRL algorithm whose learner takes a cost function (PPO-Lagrangian, SAC-Lagrangian):
+        refuse a ``cost_fn`` (the constraint model is the cost), keep the ICRL settings (:meth:`_init_icrl`), build
+        the learner, then set the model up.
+
+        :param policy: The learner's policy
+        :param env: The environment
+        :param demonstrations: See :meth:`_init_icrl` (so are the arguments up to ``allow_env_mismatch``)
+        :param constraint_net: A built constraint model, or ``None``
+        :param constraint_net_kwargs: Arguments of the default constraint model
+        :param constraint_learning_rate: Learning rate of the constraint model
+        :param constraint_steps: Passes over the nominal data per constraint update
+        :param constraint_batch_size: Nominal pairs per constraint minibatch
+        :param update_every: Policy timesteps between constraint updates
+        :param n_nominal_trajectories: Most recent learner trajectories per update
+        :param trainer_class: The trainer class, or ``None`` for the algorithm's
+        :param trainer_kwargs: Further arguments of the trainer
+        :param allow_env_mismatch: Accept demonstrations recorded on another env id
+        :param learner_kwargs: The learner's other constructor arguments (the user's, with ``cost_fn`` refused)
+        :param _init_setup_model: Set the model up now
+        """
+        if learner_kwargs.get("cost_fn") is not None:
+            raise ValueError(f"{type(self).__name__} learns its cost: do not pass `cost_fn`.")
+        learner_kwargs = {key: value for key, value in learner_kwargs.items() if key != "cost_fn"}
+        self._init_icrl(
+            demonstrations,
+            constraint_net,
+            constraint_net_kwargs,
+            constraint_learning_rate,
+            constraint_steps,
+            constraint_batch_size,
+            update_every,
+            n_nominal_trajectories,
+            trainer_class,
+            trainer_kwargs,
+            allow_env_mismatch,
+        )
+        # The learner's constructor: the class after this mixin in the algorithm's bases
+        super().__init__(policy, env, _init_setup_model=False, **learner_kwargs)  # type: ignore[call-arg]
+        if _init_setup_model:
+            self._setup_model()
+
     # ------------------------------------------------------------------ set-up
 
     def _setup_model(self) -> None:
@@ -450,9 +510,6 @@ class LagrangianICRL(ICRLAlgorithmMixin, PPOLagrangian):
         _init_setup_model: bool = True,
         **kwargs: Any,
     ):
-        if kwargs.get("cost_fn") is not None:
-            raise ValueError(f"{type(self).__name__} learns its cost: do not pass `cost_fn`.")
-        kwargs.pop("cost_fn", None)
         if isinstance(cost_budget, str):
             if cost_budget != "expert":
                 raise ValueError(f"`cost_budget` must be a float or 'expert', got {cost_budget!r}.")
@@ -462,7 +519,9 @@ class LagrangianICRL(ICRLAlgorithmMixin, PPOLagrangian):
                 )
             trainer_kwargs = {"budget_from_expert": True, **(trainer_kwargs or {})}
             cost_budget = 0.0  # until the first install sets the expert's cost
-        self._init_icrl(
+        self._init_icrl_learner(
+            policy,
+            env,
             demonstrations,
             constraint_net,
             constraint_net_kwargs,
@@ -474,18 +533,14 @@ class LagrangianICRL(ICRLAlgorithmMixin, PPOLagrangian):
             trainer_class,
             trainer_kwargs,
             allow_env_mismatch,
+            {
+                "cost_budget": cost_budget,
+                "budget_statistic": budget_statistic,
+                "lagrange_kwargs": dict(DEFAULT_LAGRANGE_KWARGS) if lagrange_kwargs is None else lagrange_kwargs,
+                **kwargs,
+            },
+            _init_setup_model,
         )
-        super().__init__(
-            policy,
-            env,
-            cost_budget=cost_budget,
-            budget_statistic=budget_statistic,
-            lagrange_kwargs=dict(DEFAULT_LAGRANGE_KWARGS) if lagrange_kwargs is None else lagrange_kwargs,
-            _init_setup_model=False,
-            **kwargs,
-        )
-        if _init_setup_model:
-            self._setup_model()
 
     def _setup_model(self) -> None:
         super()._setup_model()
