@@ -18,7 +18,6 @@ its final one, with its VecNormalize statistics.
 """
 
 import argparse
-import os
 import platform
 from dataclasses import asdict, dataclass
 from typing import Any
@@ -26,17 +25,16 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import torch as th
-from stable_baselines3 import PPO
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 import sb3_icrl  # noqa: F401  (registers the envs)
-from sb3_icrl import PPOLagrangian
 from sb3_icrl.common.utils import atomic_write_json
 from sb3_icrl.data.registry import expert_paths, load_demonstrations
 from sb3_icrl.envs import get_constraint_spec
 from sb3_icrl.registry import env_name, resolve_env_id
-from sb3_icrl.zoo.compare import describe_run
+from sb3_icrl.run_evaluation import describe_run, load_run_model
+from sb3_icrl.run_folder import find_vecnormalize, model_path
 
 #: PPO breaks the constraint in at least this share of held-out episodes: the constraint binds
 BINDS_AT = 0.8
@@ -63,13 +61,22 @@ def margin(values: np.ndarray, threshold: float, op: str) -> np.ndarray:
     return values - threshold if op == "<=" else threshold - values
 
 
-def load_model(path: str, statistics: str | None, env_id: str, algo: str) -> tuple[BaseAlgorithm, Any]:
+def load_model(path: str, statistics: str | None, env_id: str, algo: str, seed: int) -> tuple[BaseAlgorithm, Any]:
+    """
+    A saved model (``algo``: its registered name) on a single env with its frozen VecNormalize statistics.
+
+    :param path: The model zip
+    :param statistics: Its ``VecNormalize`` statistics, ``None`` without
+    :param env_id: The env
+    :param algo: ``"ppo"`` or ``"ppolag"``
+    :param seed: Seed of the policy (its actions are deterministic here)
+    :return: The model and the env
+    """
     venv: Any = DummyVecEnv([lambda: gym.make(env_id)])
     if statistics is not None:
         venv = VecNormalize.load(statistics, venv)
         venv.training, venv.norm_reward = False, False
-    cls = PPO if algo == "ppo" else PPOLagrangian
-    return cls.load(path, device="cpu"), venv
+    return load_run_model(algo, path, "cpu", seed), venv
 
 
 def run_policy(
@@ -112,11 +119,8 @@ def run_paths(run: str, model: str = "final") -> tuple[str, str | None, str]:
     """The model zip of a run folder (its final model, or ``best_model.zip``), its VecNormalize statistics and algo."""
     algo, env_id, _, _ = describe_run(run)
     name = env_name(env_id)
-    if model == "best":
-        zip_path, statistics = os.path.join(run, "best_model.zip"), os.path.join(run, "best_model_vecnormalize.pkl")
-    else:
-        zip_path, statistics = os.path.join(run, f"{name}.zip"), os.path.join(run, name, "vecnormalize.pkl")
-    return zip_path, statistics if os.path.isfile(statistics) else None, algo
+    zip_path = model_path(run, name, model == "best", None, False)
+    return zip_path, find_vecnormalize(zip_path, name), algo
 
 
 def demonstrations_closest(name: str, source: str, obs_index: int, threshold: float, op: str) -> list[float]:
@@ -147,14 +151,14 @@ def main() -> None:
     (feature,) = get_constraint_spec(gym.make(env_id)).features
     where = (feature.obs_index, feature.threshold, feature.op)
 
-    ppo_model, ppo_env = load_model(*run_paths(args.ppo)[:2], env_id, "ppo")
+    ppo_model, ppo_env = load_model(*run_paths(args.ppo)[:2], env_id, "ppo", args.eval_seed)
     ppo = run_policy(ppo_model, ppo_env, args.episodes, args.eval_seed, *where)
     if args.expert == "shipped":
         zip_path, statistics = expert_paths(name)
         expert_args = (str(zip_path), str(statistics) if statistics else None)
     else:
         expert_args = run_paths(args.expert, args.expert_model)[:2]
-    expert_model, expert_env = load_model(*expert_args, env_id, "ppolag")
+    expert_model, expert_env = load_model(*expert_args, env_id, "ppolag", args.eval_seed)
     expert = run_policy(expert_model, expert_env, args.episodes, args.eval_seed, *where)
     demos = demonstrations_closest(name, args.demos, *where) if args.demos else None
 

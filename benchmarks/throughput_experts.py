@@ -15,7 +15,6 @@ its ``finished.json``.
 """
 
 import argparse
-import os
 import platform
 from typing import Any
 
@@ -24,13 +23,12 @@ import torch as th
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 import sb3_icrl  # noqa: F401  (registers the envs)
-from sb3_icrl import PPOLagrangian
 from sb3_icrl.common.evaluation import evaluate_constraint
 from sb3_icrl.common.utils import atomic_write_json
 from sb3_icrl.data.registry import expert_paths
 from sb3_icrl.registry import env_name
-from sb3_icrl.run_folder import read_finished
-from sb3_icrl.zoo.compare import describe_run
+from sb3_icrl.run_evaluation import describe_run, load_run_model
+from sb3_icrl.run_folder import find_vecnormalize, model_path, read_finished
 
 #: Training time of each shipped expert's recipe, in seconds (benchmarks/RESULTS.md, 2026-11-21; HalfCheetah: the
 #: 800k-step run's 29.8 min and 400k of the 15.7 min continuation that reached 1.41M steps)
@@ -50,13 +48,13 @@ SHIPPED_EXPERT_SECONDS = {
 MAX_VIOLATION_RATE = 0.05
 
 
-def evaluate(env_id: str, model_path: str, statistics: str | None, episodes: int, seed: int) -> dict[str, float]:
+def evaluate(env_id: str, path: str, statistics: str | None, episodes: int, seed: int) -> dict[str, float]:
     """Held-out return, feasible reward and violation rate of a saved PPOLagrangian with its normalisation statistics."""
     venv: Any = DummyVecEnv([lambda: gym.make(env_id)])
     if statistics is not None:
         venv = VecNormalize.load(statistics, venv)
         venv.training, venv.norm_reward = False, False
-    model = PPOLagrangian.load(model_path, device="cpu")
+    model = load_run_model("ppolag", path, "cpu", seed)
     evaluation = evaluate_constraint(model, venv, n_eval_episodes=episodes, seed=seed)
     return {
         "return": evaluation.mean_reward,
@@ -71,10 +69,8 @@ def check_run(run: str, episodes: int, seed: int, bar: float) -> dict[str, Any]:
     name = env_name(env_id)
     expert_zip, expert_statistics = expert_paths(name)
     shipped = evaluate(env_id, str(expert_zip), str(expert_statistics) if expert_statistics else None, episodes, seed)
-    statistics = os.path.join(run, name, "vecnormalize.pkl")
-    trained = evaluate(
-        env_id, os.path.join(run, f"{name}.zip"), statistics if os.path.isfile(statistics) else None, episodes, seed
-    )
+    path = model_path(run, name, False, None, False)
+    trained = evaluate(env_id, path, find_vecnormalize(path, name), episodes, seed)
     finished = read_finished(run) or {}
     cpu = finished.get("cpu_time_s")
     budget = SHIPPED_EXPERT_SECONDS.get(name)

@@ -22,14 +22,15 @@ from gymnasium import spaces
 from stable_baselines3 import PPO
 from stable_baselines3.common.policies import ActorCriticPolicy
 
-from sb3_icrl import BC2L, GACL, MECL, VICRL, PILagrangian, PPOLagrangian
+from sb3_icrl import BC2L, GACL, MECL, VICRL, PILagrangian, PPOLagrangian, SACLagrangian
 from sb3_icrl.common.costs import CostError, as_cost_array, costs_from_infos
+from sb3_icrl.common.saved import CheckedLoadMixin, library_algorithm
 from sb3_icrl.constraints import FeasibilityNet
 from sb3_icrl.data import Demonstrations, Trajectory, load_demonstrations, save
 from sb3_icrl.data.generate import build_dataset
 from sb3_icrl.data.serialize import DemonstrationError, check_spaces, load
 from sb3_icrl.envs.wrappers import TransitionNoiseWrapper
-from sb3_icrl.icrl.base import LagrangianICRL
+from sb3_icrl.icrl.base import ICRLAlgorithmMixin, LagrangianICRL
 from sb3_icrl.zoo.compare import RunResult, summarise, wilcoxon_warnings
 from sb3_icrl.zoo.runs import FAILED_FILE, FINISHED_FILE
 
@@ -873,6 +874,15 @@ def test_load_accepts_a_users_subclass_and_a_file_object(saved_models: dict[str,
     with open(saved_models["PPOLagrangian"], "rb") as file:
         assert type(PPOLagrangian.load(file, device="cpu")) is PPOLagrangian
     assert issubclass(VICRL, LagrangianICRL)
+
+
+def test_one_checked_load_names_a_users_algorithm() -> None:
+    # The algorithms share CheckedLoadMixin's load; the mixin is never the algorithm a user's class is
+    class MyICRL(ICRLAlgorithmMixin, PPO):
+        pass
+
+    assert all(algorithm.load.__func__ is CheckedLoadMixin.load.__func__ for algorithm in (*ALGORITHMS, SACLagrangian))
+    assert library_algorithm(MyICRL) == "MyICRL"
 
 
 # -------------------------------------------------------------------- demonstrations of another env

@@ -7,14 +7,16 @@ import io
 import os
 import pathlib
 import zipfile
-from typing import Any
+from typing import Any, TypeVar
 
+import torch as th
 from stable_baselines3.common.save_util import json_to_data, open_path
+from stable_baselines3.common.type_aliases import GymEnv
 
 #: The key of a zip's ``data`` that names the sb3-icrl algorithm that saved it (older zips are told by their content)
 SAVED_ALGORITHM_KEY = "sb3_icrl_algorithm"
 # Bases shared by several algorithms: never the algorithm a model is
-_SHARED_BASES = ("ICRLAlgorithmMixin", "LagrangianICRL")
+_SHARED_BASES = ("CheckedLoadMixin", "ICRLAlgorithmMixin", "LagrangianICRL")
 # Modules of classes that fit an algorithm to another tool (rl_zoo3's ZooGACL...): the model is the algorithm's
 _ADAPTER_MODULES = ("sb3_icrl.zoo.rl_zoo3",)
 #: Prefix of the rl_zoo3 adapters' names, which zips they saved recorded before they were told apart
@@ -115,3 +117,28 @@ def check_saved_algorithm(
             f"{where} holds a {found} model, not a {expected} one: load it with {found}.load(...) instead of "
             f"{algorithm_class.__name__}.load(...)."
         )
+
+
+SelfCheckedLoad = TypeVar("SelfCheckedLoad", bound="CheckedLoadMixin")
+
+
+class CheckedLoadMixin:
+    """
+    SB3's ``load`` behind :func:`check_saved_algorithm`; listed before the SB3 algorithm in the bases
+    (``class PPOLagrangian(CheckedLoadMixin, PPO)``), so that its ``load`` runs first.
+    """
+
+    @classmethod
+    def load(
+        cls: type[SelfCheckedLoad],
+        path: str | pathlib.Path | io.BufferedIOBase,
+        env: GymEnv | None = None,
+        device: th.device | str = "auto",
+        custom_objects: dict[str, Any] | None = None,
+        print_system_info: bool = False,
+        force_reset: bool = True,
+        **kwargs: Any,
+    ) -> SelfCheckedLoad:
+        """SB3's ``load``, refusing a zip that another algorithm saved (with a message naming both)."""
+        check_saved_algorithm(cls, path, custom_objects)
+        return super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)  # type: ignore[misc]

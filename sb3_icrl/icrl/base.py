@@ -3,9 +3,7 @@ The shared base of the ICRL algorithms: an SB3 on-policy learner (PPO-Lagrangian
 the wrappers that feed it to the learner and record nominal data, and the :class:`ICRLTrainer` callback.
 """
 
-import io
 import os
-import pathlib
 import warnings
 from collections.abc import Sequence
 from typing import Any, ClassVar, TypeVar
@@ -18,7 +16,7 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
 from sb3_icrl.common.policies import CostActorCriticPolicy
-from sb3_icrl.common.saved import check_saved_algorithm, library_algorithm
+from sb3_icrl.common.saved import CheckedLoadMixin, library_algorithm
 from sb3_icrl.constraints.networks import FeasibilityNet, _ConstraintNet, _space_features
 from sb3_icrl.constraints.wrappers import GACLRewardWrapper, LearnedCostVecEnvWrapper
 from sb3_icrl.data.registry import load_demonstrations
@@ -36,7 +34,7 @@ SelfICRL = TypeVar("SelfICRL", bound="ICRLAlgorithmMixin")
 DemonstrationsLike = Demonstrations | Sequence[Trajectory] | str | os.PathLike
 
 
-class ICRLAlgorithmMixin:
+class ICRLAlgorithmMixin(CheckedLoadMixin):
     """
     Turns an SB3 algorithm, on-policy or off-policy, into an ICRL algorithm; listed first in the bases
     (``class BC2L(ICRLAlgorithmMixin, PPOLagrangian)``, ``class IRLPlus(ICRLAlgorithmMixin, SACLagrangian)``).
@@ -119,6 +117,66 @@ class ICRLAlgorithmMixin:
         self.constraint_wrapper: LearnedCostVecEnvWrapper | GACLRewardWrapper | None = None
         self.icrl_trainer: ICRLTrainer | None = None
         self.true_constraint_logger: TrueConstraintLogger | None = None
+
+    def _init_icrl_learner(
+        self,
+        policy: Any,
+        env: Any,
+        demonstrations: DemonstrationsLike | None,
+        constraint_net: _ConstraintNet | None,
+        constraint_net_kwargs: dict[str, Any] | None,
+        constraint_learning_rate: float,
+        constraint_steps: int,
+        constraint_batch_size: int | None,
+        update_every: int | None,
+        n_nominal_trajectories: int | None,
+        trainer_class: type[ICRLTrainer] | None,
+        trainer_kwargs: dict[str, Any] | None,
+        allow_env_mismatch: bool,
+        learner_kwargs: dict[str, Any],
+        _init_setup_model: bool,
+    ) -> None:
+        """
+        The constructor of an ICRL algorithm whose learner takes a cost function (PPO-Lagrangian, SAC-Lagrangian):
+        refuse a ``cost_fn`` (the constraint model is the cost), keep the ICRL settings (:meth:`_init_icrl`), build
+        the learner, then set the model up.
+
+        :param policy: The learner's policy
+        :param env: The environment
+        :param demonstrations: See :meth:`_init_icrl` (so are the arguments up to ``allow_env_mismatch``)
+        :param constraint_net: A built constraint model, or ``None``
+        :param constraint_net_kwargs: Arguments of the default constraint model
+        :param constraint_learning_rate: Learning rate of the constraint model
+        :param constraint_steps: Passes over the nominal data per constraint update
+        :param constraint_batch_size: Nominal pairs per constraint minibatch
+        :param update_every: Policy timesteps between constraint updates
+        :param n_nominal_trajectories: Most recent learner trajectories per update
+        :param trainer_class: The trainer class, or ``None`` for the algorithm's
+        :param trainer_kwargs: Further arguments of the trainer
+        :param allow_env_mismatch: Accept demonstrations recorded on another env id
+        :param learner_kwargs: The learner's other constructor arguments (the user's, with ``cost_fn`` refused)
+        :param _init_setup_model: Set the model up now
+        """
+        if learner_kwargs.get("cost_fn") is not None:
+            raise ValueError(f"{type(self).__name__} learns its cost: do not pass `cost_fn`.")
+        learner_kwargs = {key: value for key, value in learner_kwargs.items() if key != "cost_fn"}
+        self._init_icrl(
+            demonstrations,
+            constraint_net,
+            constraint_net_kwargs,
+            constraint_learning_rate,
+            constraint_steps,
+            constraint_batch_size,
+            update_every,
+            n_nominal_trajectories,
+            trainer_class,
+            trainer_kwargs,
+            allow_env_mismatch,
+        )
+        # The learner's constructor: the class after this mixin in the algorithm's bases
+        super().__init__(policy, env, _init_setup_model=False, **learner_kwargs)  # type: ignore[call-arg]
+        if _init_setup_model:
+            self._setup_model()
 
     # ------------------------------------------------------------------ set-up
 
@@ -378,21 +436,6 @@ class ICRLAlgorithmMixin:
 
     # ------------------------------------------------------------------ saving
 
-    @classmethod
-    def load(  # type: ignore[no-untyped-def]
-        cls,
-        path: str | pathlib.Path | io.BufferedIOBase,
-        env: GymEnv | None = None,
-        device: th.device | str = "auto",
-        custom_objects: dict[str, Any] | None = None,
-        print_system_info: bool = False,
-        force_reset: bool = True,
-        **kwargs: Any,
-    ):
-        """SB3's ``load``, refusing a zip that another algorithm saved (with a message naming both)."""
-        check_saved_algorithm(cls, path, custom_objects)
-        return super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)  # type: ignore[misc]
-
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()  # type: ignore[misc]
         return [*state_dicts, "constraint_net", "constraint_optimizer"], variables
@@ -467,9 +510,6 @@ class LagrangianICRL(ICRLAlgorithmMixin, PPOLagrangian):
         _init_setup_model: bool = True,
         **kwargs: Any,
     ):
-        if kwargs.get("cost_fn") is not None:
-            raise ValueError(f"{type(self).__name__} learns its cost: do not pass `cost_fn`.")
-        kwargs.pop("cost_fn", None)
         if isinstance(cost_budget, str):
             if cost_budget != "expert":
                 raise ValueError(f"`cost_budget` must be a float or 'expert', got {cost_budget!r}.")
@@ -479,7 +519,9 @@ class LagrangianICRL(ICRLAlgorithmMixin, PPOLagrangian):
                 )
             trainer_kwargs = {"budget_from_expert": True, **(trainer_kwargs or {})}
             cost_budget = 0.0  # until the first install sets the expert's cost
-        self._init_icrl(
+        self._init_icrl_learner(
+            policy,
+            env,
             demonstrations,
             constraint_net,
             constraint_net_kwargs,
@@ -491,18 +533,14 @@ class LagrangianICRL(ICRLAlgorithmMixin, PPOLagrangian):
             trainer_class,
             trainer_kwargs,
             allow_env_mismatch,
+            {
+                "cost_budget": cost_budget,
+                "budget_statistic": budget_statistic,
+                "lagrange_kwargs": dict(DEFAULT_LAGRANGE_KWARGS) if lagrange_kwargs is None else lagrange_kwargs,
+                **kwargs,
+            },
+            _init_setup_model,
         )
-        super().__init__(
-            policy,
-            env,
-            cost_budget=cost_budget,
-            budget_statistic=budget_statistic,
-            lagrange_kwargs=dict(DEFAULT_LAGRANGE_KWARGS) if lagrange_kwargs is None else lagrange_kwargs,
-            _init_setup_model=False,
-            **kwargs,
-        )
-        if _init_setup_model:
-            self._setup_model()
 
     def _setup_model(self) -> None:
         super()._setup_model()

@@ -64,15 +64,14 @@ class OffPolicyICRL(ICRLAlgorithmMixin, SACLagrangian):
         _init_setup_model: bool = True,
         **kwargs: Any,
     ):
-        if kwargs.get("cost_fn") is not None:
-            raise ValueError(f"{type(self).__name__} learns its cost: do not pass `cost_fn`.")
-        kwargs.pop("cost_fn", None)
         if budget_statistic != "critic":
             raise ValueError(
                 f"{type(self).__name__} knows its learned cost on sampled batches only: budget_statistic must be "
                 f"'critic', got {budget_statistic!r}."
             )
-        self._init_icrl(
+        self._init_icrl_learner(
+            policy,
+            env,
             demonstrations,
             constraint_net,
             constraint_net_kwargs,
@@ -84,18 +83,9 @@ class OffPolicyICRL(ICRLAlgorithmMixin, SACLagrangian):
             trainer_class,
             trainer_kwargs,
             allow_env_mismatch,
+            {"cost_budget": cost_budget, "budget_statistic": budget_statistic, "lagrange_kwargs": lagrange_kwargs, **kwargs},
+            _init_setup_model,
         )
-        super().__init__(
-            policy,
-            env,
-            cost_budget=cost_budget,
-            budget_statistic=budget_statistic,
-            lagrange_kwargs=lagrange_kwargs,
-            _init_setup_model=False,
-            **kwargs,
-        )
-        if _init_setup_model:
-            self._setup_model()
 
     def _setup_model(self) -> None:
         super()._setup_model()

@@ -81,14 +81,34 @@ class _IRLPlusOptions:
 
     def _init_irlplus(
         self,
+        policy: Any,
+        env: Any,
+        demonstrations: DemonstrationsLike | None,
         l2_coef: float,
         policy_resets: bool,
         reset_every: int | None,
         warmup_timesteps: int,
         trainer_kwargs: dict[str, Any] | None,
         lagrange_kwargs: dict[str, Any] | None,
-    ) -> dict[str, Any]:
-        """Check and keep the settings; return the ``trainer_kwargs`` and ``lagrange_kwargs`` for the learner."""
+        _init_setup_model: bool,
+        **kwargs: Any,
+    ) -> None:
+        """
+        Check and keep the settings, then build the ICRL algorithm these options are listed before in the bases with
+        IRL-Plus's trainer and multiplier arguments.
+
+        :param policy: The policy model
+        :param env: The environment
+        :param demonstrations: Expert demonstrations
+        :param l2_coef: Weight of the L2 penalty on the expert's costs
+        :param policy_resets: Reset the output layers every ``reset_every`` timesteps
+        :param reset_every: Timesteps between resets (``None``: the constraint update interval)
+        :param warmup_timesteps: Timesteps before the first cost update
+        :param trainer_kwargs: Further arguments of the trainer
+        :param lagrange_kwargs: Multiplier arguments (``None``: :data:`IRLPLUS_LAGRANGE_KWARGS`)
+        :param _init_setup_model: Set the model up now
+        :param kwargs: The ICRL algorithm's other arguments
+        """
         if reset_every is not None and (isinstance(reset_every, bool) or not isinstance(reset_every, int) or reset_every < 1):
             raise ValueError(
                 f"`reset_every` must be a number of timesteps >= 1 or None (once per constraint update), got {reset_every!r}."
@@ -98,10 +118,15 @@ class _IRLPlusOptions:
         self.reset_every = reset_every
         self.warmup_timesteps = int(warmup_timesteps)
         self._last_reset = 0
-        return {
-            "trainer_kwargs": {"l2_coef": l2_coef, "warmup_timesteps": warmup_timesteps, **(trainer_kwargs or {})},
-            "lagrange_kwargs": dict(IRLPLUS_LAGRANGE_KWARGS) if lagrange_kwargs is None else lagrange_kwargs,
-        }
+        super().__init__(  # type: ignore[call-arg]
+            policy,
+            env,
+            demonstrations=demonstrations,
+            trainer_kwargs={"l2_coef": l2_coef, "warmup_timesteps": warmup_timesteps, **(trainer_kwargs or {})},
+            lagrange_kwargs=dict(IRLPLUS_LAGRANGE_KWARGS) if lagrange_kwargs is None else lagrange_kwargs,
+            _init_setup_model=_init_setup_model,
+            **kwargs,
+        )
 
     def reset_policy_layers(self) -> None:
         raise NotImplementedError
@@ -174,19 +199,21 @@ class IRLPlus(_IRLPlusOptions, OffPolicyICRL):
         _init_setup_model: bool = True,
         **kwargs: Any,
     ):
-        options = self._init_irlplus(l2_coef, policy_resets, reset_every, warmup_timesteps, trainer_kwargs, lagrange_kwargs)
-        super().__init__(
+        self._init_irlplus(
             policy,
             env,
-            demonstrations=demonstrations,
+            demonstrations,
+            l2_coef,
+            policy_resets,
+            reset_every,
+            warmup_timesteps,
+            trainer_kwargs,
+            lagrange_kwargs,
+            _init_setup_model,
             constraint_learning_rate=constraint_learning_rate,
-            **options,
             separate_cost_critic=separate_critics,
-            _init_setup_model=False,
             **kwargs,
         )
-        if _init_setup_model:
-            self._setup_model()
 
     @property
     def separate_critics(self) -> bool:
@@ -247,18 +274,20 @@ class IRLPlusPPO(_IRLPlusOptions, LagrangianICRL):
         _init_setup_model: bool = True,
         **kwargs: Any,
     ):
-        options = self._init_irlplus(l2_coef, policy_resets, reset_every, warmup_timesteps, trainer_kwargs, lagrange_kwargs)
-        super().__init__(
+        self._init_irlplus(
             policy,
             env,
-            demonstrations=demonstrations,
+            demonstrations,
+            l2_coef,
+            policy_resets,
+            reset_every,
+            warmup_timesteps,
+            trainer_kwargs,
+            lagrange_kwargs,
+            _init_setup_model,
             constraint_steps=constraint_steps,
-            **options,
-            _init_setup_model=False,
             **kwargs,
         )
-        if _init_setup_model:
-            self._setup_model()
 
     def constraint_cost(self, observations: np.ndarray, actions: np.ndarray) -> np.ndarray:
         """

@@ -1,7 +1,5 @@
 """PPO-Lagrangian: PPO with a cost critic and one Lagrange multiplier per constraint."""
 
-import io
-import pathlib
 from collections import deque
 from collections.abc import Sequence
 from typing import Any, ClassVar, TypeVar
@@ -30,7 +28,7 @@ from sb3_icrl.common.policies import (
     no_distribution_validation,
     without_distribution_validation,
 )
-from sb3_icrl.common.saved import check_saved_algorithm, library_algorithm
+from sb3_icrl.common.saved import CheckedLoadMixin, library_algorithm
 from sb3_icrl.ppo_lagrangian.policies import CnnPolicy, MlpPolicy
 
 SelfPPOLagrangian = TypeVar("SelfPPOLagrangian", bound="PPOLagrangian")
@@ -41,7 +39,7 @@ TERMINATION_COSTS = ("zero", "bootstrap", "budget")
 VALUE_CHUNK = 4096
 
 
-class PPOLagrangian(PPO):
+class PPOLagrangian(CheckedLoadMixin, PPO):
     """
     PPO-Lagrangian (Ray et al. 2019; the forward solver of the ICRL papers): PPO whose policy maximises
     ``(A_r - sum_i lambda_i A_c,i) / (1 + sum_i lambda_i)``, with a cost critic, cost GAE, and multipliers
@@ -314,21 +312,6 @@ class PPOLagrangian(PPO):
         if not isinstance(params, dict):
             _, params, _ = load_from_zip_file(params, device=device, load_data=False)
         super().set_parameters(merge_cost_optimizer(params), exact_match=exact_match, device=device)  # type: ignore[arg-type]
-
-    @classmethod
-    def load(  # type: ignore[override]
-        cls: type[SelfPPOLagrangian],
-        path: str | pathlib.Path | io.BufferedIOBase,
-        env: GymEnv | None = None,
-        device: th.device | str = "auto",
-        custom_objects: dict[str, Any] | None = None,
-        print_system_info: bool = False,
-        force_reset: bool = True,
-        **kwargs: Any,
-    ) -> SelfPPOLagrangian:
-        """SB3's ``load``, refusing a zip that another algorithm saved (with a message naming both)."""
-        check_saved_algorithm(cls, path, custom_objects)
-        return super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
 
     def _excluded_save_params(self) -> list[str]:
         # The cost function may be an arbitrary closure (e.g. over a learned constraint net saved elsewhere)

@@ -1,9 +1,7 @@
 """SAC-Lagrangian: SAC with a cost critic and a Lagrange multiplier, the off-policy forward solver."""
 
-import io
-import pathlib
 from collections import deque
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar
 
 import numpy as np
 import torch as th
@@ -16,17 +14,15 @@ from torch.nn import functional as F
 
 from sb3_icrl.common.costs import CostFn, costs_from_infos
 from sb3_icrl.common.lagrange import LagrangeMultiplier, make_lagrange_multiplier
-from sb3_icrl.common.saved import check_saved_algorithm, library_algorithm
+from sb3_icrl.common.saved import CheckedLoadMixin, library_algorithm
 from sb3_icrl.sac_lagrangian.buffers import CostReplayBuffer, CostReplayBufferSamples
 from sb3_icrl.sac_lagrangian.policies import CostSACPolicy, MlpPolicy
-
-SelfSACLagrangian = TypeVar("SelfSACLagrangian", bound="SACLagrangian")
 
 #: What the multiplier is updated on (see :class:`SACLagrangian`)
 SAC_BUDGET_STATISTICS = ("episode", "critic")
 
 
-class SACLagrangian(SAC):
+class SACLagrangian(CheckedLoadMixin, SAC):
     """
     SAC-Lagrangian: SAC whose actor maximises ``Q_r(s, a) - lambda * Q_c(s, a)`` (plus the entropy term), with a cost
     critic ``Q_c`` trained by TD on the per-step cost (no entropy term in its target) and a multiplier
@@ -357,21 +353,6 @@ class SACLagrangian(SAC):
         return float(loss.item())
 
     # ------------------------------------------------------------------ saving
-
-    @classmethod
-    def load(  # type: ignore[override]
-        cls: type[SelfSACLagrangian],
-        path: str | pathlib.Path | io.BufferedIOBase,
-        env: GymEnv | None = None,
-        device: th.device | str = "auto",
-        custom_objects: dict[str, Any] | None = None,
-        print_system_info: bool = False,
-        force_reset: bool = True,
-        **kwargs: Any,
-    ) -> SelfSACLagrangian:
-        """SB3's ``load``, refusing a zip that another algorithm saved (with a message naming both)."""
-        check_saved_algorithm(cls, path, custom_objects)
-        return super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()
