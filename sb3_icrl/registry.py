@@ -18,7 +18,7 @@ from sb3_icrl.bc2l import BC2L
 from sb3_icrl.common.env_ids import NAMESPACE, env_name, import_gym_packages, resolve_env_id
 from sb3_icrl.gacl import GACL
 from sb3_icrl.icrl.base import ICRLAlgorithmMixin
-from sb3_icrl.irlplus import IRLPlus
+from sb3_icrl.irlplus import IRLPlus, IRLPlusPPO
 from sb3_icrl.mecl import MECL
 from sb3_icrl.ppo_lagrangian import PPOLagrangian
 from sb3_icrl.vicrl import VICRL
@@ -32,10 +32,11 @@ ALGOS: dict[str, type[BaseAlgorithm]] = {
     "mecl": MECL,
     "vicrl": VICRL,
     "irlplus": IRLPlus,
+    "irlplusppo": IRLPlusPPO,
 }
 #: Algorithms that learn a constraint from demonstrations (a list: :func:`register_algorithm` appends to it in place,
 #: so that every module that imported it sees a user's method)
-ICRL_ALGOS: list[str] = ["gacl", "bc2l", "mecl", "vicrl", "irlplus"]
+ICRL_ALGOS: list[str] = ["gacl", "bc2l", "mecl", "vicrl", "irlplus", "irlplusppo"]
 #: Algorithms that can learn on another algorithm's forward learner (``forward_recipe``): the reference rows of a
 #: benchmark, unconstrained PPO and PPO-Lagrangian on the true cost (the oracle)
 REFERENCE_ALGOS = ("ppo", "ppolag")

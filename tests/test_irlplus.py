@@ -401,3 +401,34 @@ def test_irlplus_on_ppo_learns_with_costs_floored_at_zero() -> None:
         model.constraint_net.network[-1].bias.fill_(-1.0)  # a net whose output sits below 0 ...
     assert (model.constraint_net.cost(*pairs) < 0).all()
     assert (model.constraint_cost(*pairs) == 0).all()  # ... gives the learner costs of 0
+
+
+def test_irlplusppo_recipes_learn_on_mecl_s_forward_learner() -> None:
+    """Each irlplusppo.yml entry has MECL's PPO settings for its env (equal footing) and the reference's cost side."""
+    import yaml
+
+    from sb3_icrl.registry import hyperparams_file
+
+    irlplusppo = yaml.safe_load(hyperparams_file("irlplusppo").read_text())
+    mecl = yaml.safe_load(hyperparams_file("mecl").read_text())
+    forward_keys = ("n_timesteps", "n_envs", "policy", "normalize", "n_steps", "batch_size", "n_epochs", "gamma")
+    forward_keys += ("gae_lambda", "learning_rate", "ent_coef", "clip_range", "max_grad_norm", "vf_coef", "policy_kwargs")
+    assert "BlockedHalfCheetah-v0" in irlplusppo and not any(env.startswith("GridWorld") for env in irlplusppo)
+    for env, entry in irlplusppo.items():
+        assert {key: entry.get(key) for key in forward_keys} == {key: mecl[env].get(key) for key in forward_keys}, env
+        assert entry["l2_coef"] == 0.1 and entry["constraint_steps"] == 1 and entry["n_nominal_trajectories"] == 5, env
+        assert entry["warmup_timesteps"] == int(float(entry["n_timesteps"])) // 20, env
+    assert irlplusppo["BlockedHalfCheetah-v0"]["constraint_learning_rate"] == 1e-4
+    assert irlplusppo["BlockedSwimmer-v0"]["constraint_learning_rate"] == 1e-3
+
+
+def test_train_cli_runs_irlplusppo_on_blocked_half_cheetah(tmp_path) -> None:
+    """``train.py --algo irlplusppo`` trains IRL-Plus on PPO-Lagrangian from its shipped recipe and demonstrations."""
+    from sb3_icrl.zoo import main
+
+    params = ["warmup_timesteps:0", "update_every:512", "n_steps:256", "n_envs:2", "policy_kwargs:dict(net_arch=[16])"]
+    args = ["--algo", "irlplusppo", "--env", "BlockedHalfCheetah-v0", "-n", "2048", "-params", *params]
+    assert main([*args, "--eval-freq", "2048", "--eval-episodes", "1", "-f", str(tmp_path), "--verbose", "0"]) == 0
+    model = IRLPlusPPO.load(tmp_path / "irlplusppo" / "BlockedHalfCheetah-v0_1" / "BlockedHalfCheetah-v0.zip", device="cpu")
+    assert model.num_timesteps == 2048 and model.n_constraint_updates >= 1 and model.l2_coef == 0.1
+    assert model.lagrange_multiplier.value == 1.0  # held at 1, as the reference
