@@ -21,6 +21,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 
 from sb3_icrl.common import env_ids
+from sb3_icrl.common.saved import model_damage
 from sb3_icrl.data.serialize import save
 from sb3_icrl.data.types import Demonstrations, Trajectory
 from sb3_icrl.envs import NAMESPACE
@@ -363,6 +364,9 @@ def load_expert(
         if not os.path.isfile(expert):
             raise FileNotFoundError(f"No expert file at {expert!r}: give a saved model (.zip, .npz) or 'pilag'.")
         source = {"path": portable_path(expert), "sha256": file_sha256(expert)}
+        damage = None if expert.endswith(".npz") else model_damage(expert)
+        if damage is not None:  # SB3's own error would name neither the file nor what is wrong with it
+            raise ValueError(f"The expert {expert} {damage}: train it again, or give another saved model.")
         if expert.endswith(".npz"):
             model = PILagrangian.load(expert)
         elif algo in EXPERT_ALGORITHMS:

@@ -79,6 +79,7 @@ from sb3_icrl.run_folder import (
     FINISHED_FILE,
     TrainedAgentError,
     check_trained_agent,
+    checkpoints,
     find_vecnormalize,
     get_latest_run_id,
     is_finished,
@@ -310,15 +311,21 @@ def check_same_noise(args_file: str, args: argparse.Namespace) -> None:
         )
 
 
-def _resume_checkpoint(args: argparse.Namespace, save_path: str) -> str | None:
+def _resume_checkpoint(args: argparse.Namespace, save_path: str, resume_from: str | None) -> str | None:
     """
-    With ``--resume``, the checkpoint an unfinished run goes on from (set as ``args.trained_agent``); without one, the
-    folder is cleared so the run starts afresh in it.
+    With ``--resume``, the checkpoint an unfinished run goes on from (:func:`latest_checkpoint`, set as
+    ``args.trained_agent``); without one, the folder is cleared so the run starts afresh in it.
     """
     if not args.resume:
         return None
-    resume_from = latest_checkpoint(save_path)
     if resume_from is None:
+        damaged = [os.path.basename(path) for _, path in checkpoints(save_path)]
+        if damaged:
+            # Each was named by latest_checkpoint's warning: say what becomes of them
+            warnings.warn(
+                f"No checkpoint of {save_path} can be loaded ({', '.join(damaged)}): the run starts afresh and its folder "
+                "is cleared."
+            )
         shutil.rmtree(save_path, ignore_errors=True)
         return None
     args.trained_agent = resume_from
@@ -767,7 +774,8 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
 
     save_path = _run_folder(args, name)
     recipe = {**raw_params, "n_timesteps": n_timesteps}  # what config.yml records
-    if args.resume and (is_finished(save_path) or latest_checkpoint(save_path) is not None):
+    latest = latest_checkpoint(save_path) if args.resume and not is_finished(save_path) else None
+    if args.resume and (is_finished(save_path) or latest is not None):
         # Before anything in the folder changes: a run made with another recipe is neither resumed nor passed as done
         check_same_recipe(os.path.join(save_path, name, "config.yml"), recipe)
         check_same_noise(os.path.join(save_path, name, "args.yml"), args)
@@ -775,7 +783,7 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
         if args.verbose:
             print(f"{save_path} has finished: nothing to do")
         return save_path
-    resume_from = _resume_checkpoint(args, save_path)
+    resume_from = _resume_checkpoint(args, save_path, latest)
     resuming = resume_from is not None or _continue_in_place(args, name, save_path)
     if resuming:
         remove_temporaries(save_path)  # of writes cut short when the run was killed
