@@ -4,8 +4,12 @@ checkpoints, output folders that cannot be written, ``MODULE:EnvId`` mistakes, p
 with NaNs, suite mistakes caught before any run.
 """
 
+import builtins
+import errno
 import importlib
+import io
 import json
+import os
 import pathlib
 import re
 import shutil
@@ -15,12 +19,17 @@ from typing import Any
 import pytest
 from test_bad_inputs import TRAIN_TINY, CLIError, run_cli
 
+from sb3_icrl.benchmark import load_suite, runner
+from sb3_icrl.benchmark.suite import SuiteError
+from sb3_icrl.common import utils
+from sb3_icrl.common.env_ids import resolve_env_id
 from sb3_icrl.run_folder import FINISHED_FILE, latest_checkpoint
 
 train_module = importlib.import_module("sb3_icrl.zoo.train")
 enjoy_module = importlib.import_module("sb3_icrl.zoo.enjoy")
 compare_module = importlib.import_module("sb3_icrl.zoo.compare")
 data_cli = importlib.import_module("sb3_icrl.data.__main__")
+benchmark_cli = importlib.import_module("sb3_icrl.benchmark.cli")
 
 ENV = "GridWorldWall-v0"
 #: How each damaged copy of a model zip is made, and the words the error uses for it
@@ -131,3 +140,103 @@ def test_resume_without_a_loadable_checkpoint_says_it_starts_afresh(run: pathlib
         for message in messages
     )
     assert json.loads((copy / FINISHED_FILE).read_text())["resumed_from"] is None
+
+
+# -------------------------------------------------------------------- output folders that cannot be written
+
+
+@pytest.fixture
+def full_disk(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every atomic write fails as on a full disk (where the data reaches it: ``fsync``)."""
+
+    def no_space(descriptor: int) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(utils.os, "fsync", no_space)
+
+
+def test_a_full_disk_ends_train_and_generate_with_one_line_naming_the_file(tmp_path: pathlib.Path, full_disk: None) -> None:
+    with pytest.raises(CLIError, match=r"cannot write .*config\.yml: No space left on device; free some space there"):
+        run_cli(train_module.main, ["--algo", "ppolag", "--env", ENV, "-n", "16", "-f", str(tmp_path), *TRAIN_TINY])
+    out = tmp_path / "demos.npz"
+    with pytest.raises(CLIError, match=f"cannot write {out}: No space left on device"):
+        run_cli(data_cli.main, ["generate", "--env", ENV, "--expert", "pilag", "--n", "1", "--out", str(out)])
+
+
+def test_a_full_disk_names_a_runs_log_in_the_suites_failures(tmp_path: pathlib.Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    class FullLog(io.RawIOBase):
+        def writable(self) -> bool:
+            return True
+
+        def write(self, data: Any) -> int:
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+    log = str(tmp_path / "logs" / "run.log")
+    opened = builtins.open
+    # The run's log only: its lock is opened too
+    monkeypatch.setattr(
+        runner,
+        "open",
+        lambda path, *args, **kwargs: FullLog() if path == log else opened(path, *args, **kwargs),
+        raising=False,
+    )
+    with pytest.raises(OSError, match=f"No space left on device: '{log}'"):
+        runner.execute_run(["--algo", "ppolag"], log, str(tmp_path / "run"))
+
+
+def test_a_read_only_folder_is_refused_before_anything_runs(
+    run: pathlib.Path, tmp_path: pathlib.Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    read_only = tmp_path / "read_only"
+    read_only.mkdir()
+    access = os.access
+    monkeypatch.setattr(os, "access", lambda path, mode: not str(path).startswith(str(read_only)) and access(path, mode))
+    suite = tmp_path / "suite.yml"
+    suite.write_text(f"envs: [{ENV}]\nalgos: [ppolag]\nseeds: [0]\nsteps: 16\n")
+    with pytest.raises(CLIError, match=f"-f/--log-folder '{read_only}' is not writable"):
+        run_cli(benchmark_cli.main, ["run", str(suite), "-f", str(read_only)])
+    with pytest.raises(CLIError, match=f"-o/--output '{read_only}/report' is not writable"):
+        run_cli(benchmark_cli.main, ["report", str(suite), "-f", str(tmp_path), "-o", str(read_only / "report")])
+    with pytest.raises(CLIError, match=f"--out '{read_only}/x.npz' cannot be written: {read_only} is not writable"):
+        run_cli(data_cli.main, ["generate", "--env", ENV, "--expert", "pilag", "--n", "1", "--out", str(read_only / "x.npz")])
+    with pytest.raises(CLIError, match=f"--json '{read_only}/x.json' cannot be written: {read_only} is not writable"):
+        run_cli(compare_module.main, [str(run), "--json", str(read_only / "x.json")])
+    with pytest.raises(CLIError, match=f"-f/--log-folder '{read_only}' is not writable"):
+        run_cli(train_module.main, ["--algo", "ppolag", "--env", ENV, "-n", "16", "-f", str(read_only)])
+
+
+# -------------------------------------------------------------------- MODULE:EnvId
+
+
+@pytest.mark.parametrize(
+    "env, message",
+    [
+        ("no_such_module_xyz:Env-v0", "Env 'no_such_module_xyz:Env-v0': cannot import its module 'no_such_module_xyz'"),
+        (":GridWorldWall-v0", "Env ':GridWorldWall-v0': write MODULE:EnvId, both parts given"),
+        ("sb3_icrl.envs:", "Env 'sb3_icrl.envs:': write MODULE:EnvId"),
+        ("sb3_icrl.envs:NoSuch-v0", "sb3_icrl.envs is imported, but no env 'NoSuch-v0' is registered: check the id"),
+        ("sb3_icrl.envs:GridWorldWal-v0", "Did you mean sb3_icrl.envs:sb3_icrl/GridWorldWall-v0?"),
+    ],
+)
+def test_module_colon_env_id_mistakes_name_the_module_and_the_id(tmp_path: pathlib.Path, env: str, message: str) -> None:
+    with pytest.raises(ValueError, match=re.escape(message)):
+        resolve_env_id(env)
+    with pytest.raises(CLIError, match=re.escape(message)):
+        run_cli(train_module.main, ["--algo", "ppolag", "--env", env, "-n", "16", "-f", str(tmp_path)])
+    suite = tmp_path / "suite.yml"
+    suite.write_text(f"envs: ['{env}']\nalgos: [ppolag]\nseeds: [0]\n")
+    with pytest.raises(SuiteError, match=f"line 1: .*{re.escape(message)}"):
+        load_suite(str(suite))
+
+
+def test_a_typo_in_a_users_env_id_lists_what_its_module_registered(
+    tmp_path: pathlib.Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    name = f"edges_envs_{tmp_path.name.replace('-', '_')}"
+    register = "gym.register('edges/Corridor-v0', entry_point='sb3_icrl.envs.grid_world:GridWorldEnv')"
+    (tmp_path / f"{name}.py").write_text(f"import gymnasium as gym\n{register}\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    with pytest.raises(ValueError) as raised:
+        resolve_env_id(f"{name}:edges/Coridor-v0")
+    assert "It registered: edges/Corridor-v0." in str(raised.value)
+    assert f"Did you mean {name}:edges/Corridor-v0?" in str(raised.value)

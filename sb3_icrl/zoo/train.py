@@ -21,6 +21,7 @@ latest checkpoint for the steps it had left (skipped once ``finished.json`` is t
 """
 
 import argparse
+import contextlib
 import inspect
 import json
 import os
@@ -54,8 +55,10 @@ from sb3_icrl.common.utils import (
     atomic_write_json,
     atomic_write_text,
     atomic_write_yaml,
+    check_writable_folder,
     plain_docstring,
     remove_temporaries,
+    write_error_message,
 )
 from sb3_icrl.common.versions import versions
 from sb3_icrl.data import load_demonstrations
@@ -664,23 +667,6 @@ def _evaluation(callbacks: list[BaseCallback]) -> ConstraintEvalCallback | None:
     return next((callback for callback in callbacks if isinstance(callback, ConstraintEvalCallback)), None)
 
 
-def check_writable_folder(path: str, option: str) -> None:
-    """
-    Fail clearly unless ``path`` is, or can be made, a folder this process can write to.
-
-    :param path: The folder
-    :param option: The command-line option that named it (for the message)
-    """
-    if os.path.exists(path) and not os.path.isdir(path):
-        raise ValueError(f"{option} {path!r} is a file, not a folder: pass a folder.")
-    try:
-        os.makedirs(path, exist_ok=True)
-    except OSError as error:
-        raise ValueError(f"{option} {path!r} cannot be created ({error.strerror or error}): pass a writable folder.") from None
-    if not os.access(path, os.W_OK | os.X_OK):
-        raise ValueError(f"{option} {path!r} is not writable: pass a writable folder.")
-
-
 def _accepts_text(annotation: Any) -> bool:
     """Whether a parameter annotated ``annotation`` may receive a string (unknown annotations: yes)."""
     if annotation is inspect.Parameter.empty or annotation is Any or annotation is str:
@@ -728,6 +714,15 @@ def _absolute_if_file(path: str | None) -> str | None:
     if path is not None and os.path.isfile(os.path.expanduser(path)):
         return os.path.abspath(os.path.expanduser(path))
     return path
+
+
+def _mark_failed(save_path: str, error: Exception, model: BaseAlgorithm) -> None:
+    """Write ``failed.json``, unless the disk that stopped the run takes no more (the error itself then says why)."""
+    with contextlib.suppress(OSError):
+        atomic_write_json(
+            os.path.join(save_path, FAILED_FILE),
+            {"error": f"{type(error).__name__}: {error}", "num_timesteps": int(model.num_timesteps)},
+        )
 
 
 def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
@@ -825,10 +820,7 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
         print("Interrupted: saving the model")
     except Exception as error:
         # No final model: enjoy and compare would take it for a trained one; the checkpoints stay for --resume
-        atomic_write_json(
-            os.path.join(save_path, FAILED_FILE),
-            {"error": f"{type(error).__name__}: {error}", "num_timesteps": int(model.num_timesteps)},
-        )
+        _mark_failed(save_path, error, model)
         raise
     final_model = os.path.join(save_path, f"{name}.zip")
     # Before the model it goes with
@@ -875,6 +867,12 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
         hint = did_you_mean(args.env, ours) if "Unknown env" in str(error) else ""
         print(f"error: {error}{hint}", file=sys.stderr)
         return 2
+    except OSError as error:
+        message = write_error_message(error)
+        if message is None:
+            raise
+        print(f"error: {message}", file=sys.stderr)  # a full disk or a folder turned read-only mid-run
+        return 1
     return 0
 
 
