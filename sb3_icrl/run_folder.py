@@ -290,6 +290,18 @@ def read_finished(run: str | os.PathLike) -> dict[str, Any] | None:
     return finished if isinstance(finished, dict) else None
 
 
+def unreadable_finished(run: str | os.PathLike) -> str | None:
+    """
+    :param run: A run folder
+    :return: Why its ``finished.json`` does not count (present, but cut short or not a JSON mapping), naming the file;
+        ``None`` when it is missing or reads
+    """
+    path = os.path.join(run, FINISHED_FILE)
+    if not os.path.isfile(path) or read_finished(run) is not None:
+        return None
+    return f"{path} is not a JSON mapping (cut short or overwritten), so the run counts as not finished"
+
+
 def run_wall_time(folder: str | os.PathLike) -> float | None:
     """
     The training time of a finished run, from its ``finished.json`` (see :data:`WALL_TIME_KEYS`).

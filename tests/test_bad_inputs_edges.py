@@ -23,6 +23,7 @@ from sb3_icrl.benchmark import load_suite, runner
 from sb3_icrl.benchmark.suite import SuiteError
 from sb3_icrl.common import utils
 from sb3_icrl.common.env_ids import resolve_env_id
+from sb3_icrl.plots.figures import load_evaluations, load_runs
 from sb3_icrl.run_folder import FINISHED_FILE, latest_checkpoint
 
 train_module = importlib.import_module("sb3_icrl.zoo.train")
@@ -70,10 +71,10 @@ def damage(source: pathlib.Path, target: pathlib.Path, how: str) -> None:
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory: pytest.TempPathFactory) -> pathlib.Path:
-    """A finished tiny PPO-Lagrangian run with checkpoints at 16 and 32 steps."""
+    """A finished tiny PPO-Lagrangian run with checkpoints and evaluations at 16 and 32 steps."""
     root = tmp_path_factory.mktemp("edges")
     argv = ["--algo", "ppolag", "--env", ENV, "-n", "32", "--seed", "0", "-f", str(root), "--save-freq", "16"]
-    run_cli(train_module.main, argv + TRAIN_TINY)
+    run_cli(train_module.main, [*argv, "--eval-freq", "16", "--eval-episodes", "1", *TRAIN_TINY[2:]])
     return root / "ppolag" / f"{ENV}_1"
 
 
@@ -240,3 +241,76 @@ def test_a_typo_in_a_users_env_id_lists_what_its_module_registered(
         resolve_env_id(f"{name}:edges/Coridor-v0")
     assert "It registered: edges/Corridor-v0." in str(raised.value)
     assert f"Did you mean {name}:edges/Corridor-v0?" in str(raised.value)
+
+
+# -------------------------------------------------------------------- partial run folders
+
+
+def test_a_damaged_evaluations_npz_is_named_and_skipped(run: pathlib.Path, tmp_path: pathlib.Path) -> None:
+    copy = _copy(run, tmp_path)
+    evaluations = copy / "evaluations.npz"
+    evaluations.write_bytes(evaluations.read_bytes()[:100])
+    message = f"{evaluations} cannot be read (BadZipFile"
+    with pytest.raises(ValueError, match=re.escape(message) + ".*delete the file to leave the run out of the curves"):
+        load_evaluations(copy)
+    with pytest.warns(UserWarning, match=re.escape(message) + ".* Skipped"), pytest.raises(FileNotFoundError):
+        load_runs(tmp_path, ["ppolag"], ENV, skip_missing=True)  # (the only run: none left to plot)
+    # Resumed, the run goes on with its evaluations afresh from the checkpoint, and says so
+    (copy / FINISHED_FILE).unlink()
+    argv = ["--algo", "ppolag", "--env", ENV, "-n", "32", "--seed", "0", "-f", str(tmp_path), "--exp-id", "1", "--resume"]
+    with pytest.warns(UserWarning, match=re.escape(message) + ".*evaluations start afresh at step 32"):
+        run_cli(train_module.main, [*argv, "--eval-freq", "16", "--eval-episodes", "1", *TRAIN_TINY[2:]])
+    assert load_evaluations(copy)["timesteps"].tolist() == [32]  # written anew: no evaluation of the lost file is kept
+
+
+@pytest.fixture(scope="module")
+def suite_runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[pathlib.Path, pathlib.Path]:
+    """A finished suite of two tiny PPO-Lagrangian runs: its file and its log root."""
+    root = tmp_path_factory.mktemp("suite")
+    path = root / "partial.yml"
+    path.write_text(
+        f"envs: [{ENV}]\nalgos: [ppolag]\nseeds: [0, 1]\nsteps: 32\neval_episodes: 1\n"
+        "train_args: {eval_freq: 16, eval_episodes: 1, save_freq: 16}\n"
+        "variants: {base: {hyperparams: {n_steps: 16, batch_size: 16, policy_kwargs: 'dict(net_arch=[4])'}}}\n"
+    )
+    run_cli(benchmark_cli.main, ["run", str(path), "-f", str(root / "logs"), "--jobs", "1", "--no-report"])
+    return path, root / "logs"
+
+
+@pytest.mark.parametrize(
+    "how, note",
+    [
+        ("finished.json cut short", "finished.json is not a JSON mapping (cut short or overwritten)"),
+        ("final model cut short", f"{ENV}.zip is cut short or damaged (it has no `data` entry): the report leaves it out"),
+        ("final model empty", f"{ENV}.zip is empty (0 bytes): the report leaves it out"),
+        ("final model missing", f"{ENV}.zip is missing: the report leaves it out"),
+    ],
+)
+def test_status_and_report_name_what_is_wrong_in_a_partial_run_folder(
+    suite_runs: tuple[pathlib.Path, pathlib.Path], tmp_path: pathlib.Path, capsys: pytest.CaptureFixture, how: str, note: str
+) -> None:
+    path, logs = suite_runs
+    root = tmp_path / "logs"
+    shutil.copytree(logs, root)
+    broken = load_suite(str(path)).runs()[1].run_folder(str(root))
+    if how == "finished.json cut short":
+        (pathlib.Path(broken) / FINISHED_FILE).write_text('{"num_timesteps": 3')
+    elif how == "final model missing":
+        (pathlib.Path(broken) / f"{ENV}.zip").unlink()
+    else:
+        damage(
+            pathlib.Path(broken) / f"{ENV}.zip",
+            pathlib.Path(broken) / f"{ENV}.zip",
+            how.split()[-1].replace("short", "truncated"),
+        )
+    capsys.readouterr()
+    assert benchmark_cli.main(["status", str(path), "-f", str(root)]) == 0
+    line = next(line for line in capsys.readouterr().out.splitlines() if "seed 1" in line)
+    assert note in line and broken in line
+    assert benchmark_cli.main(["report", str(path), "-f", str(root), "--no-figures"]) == 0
+    out = capsys.readouterr().out
+    if how == "finished.json cut short":
+        assert f"{broken}/finished.json is not a JSON mapping" in out and "trains it again from its last checkpoint" in out
+        assert "Not finished yet (1): base/ppolag/GridWorldWall-v0/seed 1" in out
+    else:
+        assert f"left out of the report, its model in {broken} could not be evaluated" in out

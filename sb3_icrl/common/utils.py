@@ -8,6 +8,7 @@ import pathlib
 import pickle
 import re
 import tempfile
+import zipfile
 from collections.abc import Callable, Mapping
 from typing import IO, Any
 
@@ -155,6 +156,23 @@ def atomic_write_yaml(path: str | pathlib.Path, data: Any) -> None:
     :param data: Plain data (dicts, lists, strings, numbers)
     """
     atomic_write_text(path, yaml.safe_dump(data))
+
+
+def read_npz(path: str | pathlib.Path) -> dict[str, np.ndarray]:
+    """
+    Every array of an ``.npz`` file (no pickles).
+
+    :param path: The file
+    :return: Its arrays, by name
+    :raises ValueError: When it is cut short or not an ``.npz`` at all (naming the file; numpy's own error does not)
+    """
+    try:
+        with np.load(path) as data:
+            return {key: np.asarray(data[key]) for key in data.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
+        if isinstance(error, FileNotFoundError):
+            raise
+        raise ValueError(f"{path} cannot be read ({type(error).__name__}: {error}): it is cut short or damaged.") from error
 
 
 def atomic_save_npz(path: str | pathlib.Path, arrays: Mapping[str, Any], compressed: bool = False) -> str:
