@@ -11,11 +11,13 @@ import io
 import json
 import os
 import pathlib
+import pickle
 import re
 import shutil
 import zipfile
 from typing import Any
 
+import numpy as np
 import pytest
 from test_bad_inputs import TRAIN_TINY, CLIError, run_cli
 
@@ -23,6 +25,9 @@ from sb3_icrl.benchmark import load_suite, runner
 from sb3_icrl.benchmark.suite import SuiteError
 from sb3_icrl.common import utils
 from sb3_icrl.common.env_ids import resolve_env_id
+from sb3_icrl.data import Trajectory, load_imitation_dataset, save_imitation_dataset
+from sb3_icrl.data.importers import from_arrays, from_liu_pickles, from_malik_rollouts
+from sb3_icrl.data.serialize import DemonstrationError
 from sb3_icrl.plots.figures import load_evaluations, load_runs
 from sb3_icrl.run_folder import FINISHED_FILE, latest_checkpoint
 
@@ -314,3 +319,76 @@ def test_status_and_report_name_what_is_wrong_in_a_partial_run_folder(
         assert "Not finished yet (1): base/ppolag/GridWorldWall-v0/seed 1" in out
     else:
         assert f"left out of the report, its model in {broken} could not be evaluated" in out
+
+
+# -------------------------------------------------------------------- importers
+
+
+def _steps(n: int, bad_row: int | None = None) -> np.ndarray:
+    values = np.zeros((n, 2), dtype=np.float32)
+    if bad_row is not None:
+        values[bad_row, 0] = np.nan
+    return values
+
+
+def _pickles(folder: pathlib.Path, files: dict[str, dict[str, Any]]) -> pathlib.Path:
+    folder.mkdir()
+    for name, content in files.items():
+        (folder / name).write_bytes(pickle.dumps(content))
+    return folder
+
+
+LIU = "scene-1_len-5_time_out.pkl"
+# (id, call(tmp_path), fragment of the DemonstrationError's message)
+IMPORTER_CASES: list[tuple[str, Any, str]] = [
+    ("arrays-nan-observation", lambda t: from_arrays(_steps(5, 2), _steps(5)), "episode 0: `obs` holds NaN or infinite"),
+    ("arrays-inf-action", lambda t: from_arrays(_steps(5), _steps(5) + np.inf), "`acts` holds NaN or infinite values"),
+    ("arrays-nan-reward", lambda t: from_arrays(_steps(5), _steps(5), rewards=_steps(5, 1)[:, 0]), "`rews` holds NaN"),
+    ("arrays-nan-cost", lambda t: from_arrays(_steps(5), _steps(5), costs=_steps(5, 0)[:, 0]), "`costs` holds NaN"),
+    ("arrays-negative-cost", lambda t: from_arrays(_steps(5), _steps(5), costs=-np.ones(5)), "`costs` holds negative"),
+    ("arrays-single-value", lambda t: from_arrays(np.float32(1.0), _steps(5)), "`observations` must be an array with one"),
+    ("arrays-single-reward", lambda t: from_arrays(_steps(5), _steps(5), rewards=1.0), "`rewards` must be an array"),
+    (
+        "malik-nan-observation",
+        lambda t: from_malik_rollouts(_pickles(t / "m", {"0.pkl": {"observations": _steps(5, 2), "actions": _steps(5)}})),
+        "0.pkl: `obs` holds NaN or infinite values (1 rows, first at row 2)",
+    ),
+    (
+        "malik-nan-return",
+        lambda t: from_malik_rollouts(
+            _pickles(t / "m", {"0.pkl": {"observations": _steps(5), "actions": _steps(5), "rewards": np.array([np.nan])}})
+        ),
+        "0.pkl: its recorded return is NaN or infinite",
+    ),
+    (
+        "liu-reward-length",
+        lambda t: from_liu_pickles(
+            _pickles(t / "l", {LIU: {"original_observations": _steps(5), "actions": _steps(5), "reward": np.zeros(4)}})
+        ),
+        f"{LIU}: 4 rewards for 5 actions",
+    ),
+    (
+        "liu-nan-reward",
+        lambda t: from_liu_pickles(
+            _pickles(t / "l", {LIU: {"original_observations": _steps(5), "actions": _steps(5), "reward": _steps(5, 1)[:, 0]}})
+        ),
+        f"{LIU}: `rews` holds NaN",
+    ),
+]
+
+
+@pytest.mark.parametrize(("call", "fragment"), [case[1:] for case in IMPORTER_CASES], ids=[case[0] for case in IMPORTER_CASES])
+def test_importers_refuse_broken_numbers_naming_the_source(tmp_path: pathlib.Path, call: Any, fragment: str) -> None:
+    with pytest.raises(DemonstrationError) as raised:
+        call(tmp_path)
+    assert fragment in str(raised.value)
+
+
+def test_an_imitation_dataset_with_nan_rewards_is_refused(tmp_path: pathlib.Path) -> None:
+    datasets = pytest.importorskip("datasets")
+    clean = Trajectory(_steps(3), _steps(2), None, False, np.zeros(2, np.float32), np.zeros(2, np.float32))
+    save_imitation_dataset(tmp_path / "clean", [clean])
+    broken = datasets.load_from_disk(str(tmp_path / "clean")).map(lambda row: {**row, "rews": [float("nan"), 0.0]})
+    broken.save_to_disk(str(tmp_path / "broken"))
+    with pytest.raises(DemonstrationError, match="broken trajectory 0: `rews` holds NaN or infinite values"):
+        load_imitation_dataset(tmp_path / "broken", missing_costs="zeros")
