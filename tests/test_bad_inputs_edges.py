@@ -17,10 +17,12 @@ import shutil
 import zipfile
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import pytest
 from test_bad_inputs import TRAIN_TINY, CLIError, run_cli
 
+from sb3_icrl import PILagrangian
 from sb3_icrl.benchmark import load_suite, runner
 from sb3_icrl.benchmark.suite import SuiteError
 from sb3_icrl.common import utils
@@ -146,6 +148,20 @@ def test_resume_without_a_loadable_checkpoint_says_it_starts_afresh(run: pathlib
         for message in messages
     )
     assert json.loads((copy / FINISHED_FILE).read_text())["resumed_from"] is None
+
+
+def test_a_damaged_pi_lagrangian_expert_is_named(tmp_path: pathlib.Path) -> None:
+    saved = tmp_path / "expert.npz"
+    PILagrangian(gym.make(f"sb3_icrl/{ENV}")).learn(2).save(saved)
+    cut = tmp_path / "cut.npz"
+    cut.write_bytes(saved.read_bytes()[:300])
+    out = str(tmp_path / "demos.npz")
+    with pytest.raises(CLIError, match=f"{cut} cannot be read \\(BadZipFile.*it is cut short or damaged"):
+        run_cli(data_cli.main, ["generate", "--env", ENV, "--expert", str(cut), "--n", "1", "--out", out])
+    other = tmp_path / "other.npz"
+    np.savez(other, timesteps=np.arange(3))
+    with pytest.raises(ValueError, match=f"{other} is not a model saved by PILagrangian.save: it lacks \\['params'"):
+        PILagrangian.load(other)
 
 
 # -------------------------------------------------------------------- output folders that cannot be written
