@@ -498,9 +498,20 @@ def load_run_yaml(path: str | os.PathLike) -> dict[str, Any]:
 
     :param path: The file
     :return: Its mapping (empty for an empty file)
+    :raises ValueError: When it is not YAML, or not a mapping (naming the file)
     """
-    with open(path) as file:
-        content = yaml.load(file, Loader=RunYamlLoader)  # (a safe loader with one constructor added)
+    try:
+        with open(path) as file:
+            content = yaml.load(file, Loader=RunYamlLoader)  # (a safe loader with one constructor added)
+    except yaml.YAMLError as error:
+        mark = getattr(error, "problem_mark", None)
+        where = f"{getattr(error, 'problem', None) or 'not YAML'}, line {mark.line + 1}" if mark else str(error)
+        raise ValueError(
+            f"{path} is not valid YAML ({where}): the run folder is damaged; restore the file from a copy, or train the "
+            "run again."
+        ) from error
+    if content is not None and not isinstance(content, dict):
+        raise ValueError(f"{path} holds a {type(content).__name__}, not a mapping: the run folder is damaged.")
     return content or {}
 
 

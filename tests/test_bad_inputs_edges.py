@@ -20,6 +20,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import pytest
+from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 from test_bad_inputs import TRAIN_TINY, CLIError, run_cli
 
 from sb3_icrl import PILagrangian
@@ -27,6 +28,7 @@ from sb3_icrl.benchmark import load_suite, runner
 from sb3_icrl.benchmark.suite import SuiteError
 from sb3_icrl.common import utils
 from sb3_icrl.common.env_ids import resolve_env_id
+from sb3_icrl.common.vec_env import load_vec_normalize
 from sb3_icrl.data import Trajectory, load_imitation_dataset, save_imitation_dataset
 from sb3_icrl.data.importers import from_arrays, from_liu_pickles, from_malik_rollouts
 from sb3_icrl.data.serialize import DemonstrationError
@@ -408,3 +410,32 @@ def test_an_imitation_dataset_with_nan_rewards_is_refused(tmp_path: pathlib.Path
     broken.save_to_disk(str(tmp_path / "broken"))
     with pytest.raises(DemonstrationError, match="broken trajectory 0: `rews` holds NaN or infinite values"):
         load_imitation_dataset(tmp_path / "broken", missing_costs="zeros")
+
+
+@pytest.mark.parametrize("name", ["args.yml", "config.yml"])
+def test_a_damaged_run_yml_is_named(run: pathlib.Path, tmp_path: pathlib.Path, name: str) -> None:
+    copy = _copy(run, tmp_path)
+    broken = copy / ENV / name
+    broken.write_text("n_timesteps: [32\n")
+    expected = f"{broken} is not valid YAML (expected ',' or ']', but got '<stream end>', line 2): the run folder is damaged"
+    with pytest.raises(CLIError) as raised:
+        run_cli(enjoy_module.main, ["--algo", "ppolag", "--env", ENV, "--run", str(copy), "--no-render", "-n", "10"])
+    assert expected in str(raised.value)
+    with pytest.raises(CLIError) as raised:
+        run_cli(compare_module.main, [str(copy), "-n", "50"])
+    assert expected in str(raised.value)
+
+
+def test_damaged_statistics_and_training_state_are_named(run: pathlib.Path, tmp_path: pathlib.Path) -> None:
+    copy = _copy(run, tmp_path)
+    state = copy / ENV / "training_state.pkl"
+    state.write_bytes(state.read_bytes()[:20])
+    argv = ["--algo", "ppolag", "--env", ENV, "-n", "16", "-i", str(copy / f"{ENV}.zip"), *TRAIN_TINY]
+    with pytest.raises(CLIError, match=re.escape(f"The training state {state} cannot be read (UnpicklingError")):
+        run_cli(train_module.main, argv)
+    statistics = tmp_path / "vecnormalize.pkl"
+    venv = DummyVecEnv([lambda: gym.make("Pendulum-v1")])
+    VecNormalize(venv).save(str(statistics))
+    statistics.write_bytes(statistics.read_bytes()[:50])
+    with pytest.raises(ValueError, match=re.escape(f"The VecNormalize statistics {statistics} cannot be read")):
+        load_vec_normalize(str(statistics), venv)

@@ -32,7 +32,7 @@ from sb3_icrl.data.registry import (
 )
 from sb3_icrl.data.serialize import DemonstrationError
 from sb3_icrl.registry import env_name, import_gym_packages
-from sb3_icrl.run_folder import failure, run_vecnormalize
+from sb3_icrl.run_folder import failure, load_run_yaml, run_vecnormalize
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -91,15 +91,13 @@ def expert_of_run(run: str, model: str = "final") -> dict[str, Any]:
     :raises FileNotFoundError: When the folder, its ``args.yml``, the model or its statistics are missing
     :raises ValueError: When the run's algorithm cannot be an expert
     """
-    import yaml
 
     if not os.path.isdir(run):
         raise FileNotFoundError(f"No run folder {run}.")
     found = sorted(glob.glob(os.path.join(run, "*", "args.yml")))
     if not found:
         raise FileNotFoundError(f"{run} is not a train.py run folder: no <EnvName>/args.yml in it.")
-    with open(found[0]) as file:
-        run_args = yaml.safe_load(file) or {}
+    run_args = load_run_yaml(found[0])  # (a damaged file is named)
     algo = run_args.get("algo")
     if algo not in EXPERT_ALGORITHMS:
         raise ValueError(f"{run} is a {algo} run; an expert is one of {', '.join(sorted(EXPERT_ALGORITHMS))}.")

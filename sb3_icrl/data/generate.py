@@ -22,6 +22,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 
 from sb3_icrl.common import env_ids
 from sb3_icrl.common.saved import model_damage
+from sb3_icrl.common.vec_env import load_vec_normalize
 from sb3_icrl.data.serialize import save
 from sb3_icrl.data.types import Demonstrations, Trajectory
 from sb3_icrl.envs import NAMESPACE
@@ -375,7 +376,7 @@ def load_expert(
             raise ValueError(f"Unknown expert algorithm {algo!r}: choose one of {sorted(EXPERT_ALGORITHMS)}.")
     if vec_normalize_path is not None:
         venv = DummyVecEnv([lambda: gym.make(env_id, **env_kwargs)])
-        model = NormalizedExpert(model, VecNormalize.load(vec_normalize_path, venv))
+        model = NormalizedExpert(model, load_vec_normalize(vec_normalize_path, venv))
         source["vec_normalize_path"] = portable_path(vec_normalize_path)
         source["vec_normalize_sha256"] = file_sha256(vec_normalize_path)
     return model, {**describe_expert(model), **source}

@@ -447,9 +447,21 @@ def _saved_state(path: str) -> dict[str, Any]:
     """A :func:`save_training_state` file's content (empty when the file is missing or holds no mapping)."""
     if not os.path.isfile(path):
         return {}
-    with open(path, "rb") as file:
-        state = pickle.load(file)  # as trusted as the VecNormalize pickles beside it
+    state = _unpickle_state(path)
     return state if isinstance(state, dict) else {}
+
+
+def _unpickle_state(path: str) -> Any:
+    """A training state file's content; a file cut short is named (pickle's own error names no file)."""
+    try:
+        with open(path, "rb") as file:
+            return pickle.load(file)  # as trusted as the VecNormalize pickles beside it
+    except (pickle.UnpicklingError, EOFError) as error:
+        raise ValueError(
+            f"The training state {path} cannot be read ({type(error).__name__}: {error}): it is cut short or damaged; "
+            "continue from another checkpoint of the run, or delete the file to continue without it (the ICRL trainer "
+            "and the model selection then start afresh)."
+        ) from error
 
 
 def training_state_wall_time(path: str) -> float:
@@ -486,8 +498,7 @@ def load_training_state(model: Any, path: str, evaluation: ConstraintEvalCallbac
     """
     if not os.path.isfile(path):
         return False
-    with open(path, "rb") as file:
-        state = pickle.load(file)  # as trusted as the VecNormalize pickles beside it
+    state = _unpickle_state(path)
     if not isinstance(state, dict) or state.get("format") != TRAINING_STATE_FORMAT:
         raise ValueError(f"{path} is not a training state of this sb3-icrl version (format {TRAINING_STATE_FORMAT}).")
     if state["num_timesteps"] != model.num_timesteps:

@@ -87,6 +87,7 @@ from sb3_icrl.run_folder import (
     get_latest_run_id,
     is_finished,
     latest_checkpoint,
+    load_run_yaml,
     trim_monitors,
 )
 from sb3_icrl.zoo import compare, enjoy
@@ -274,8 +275,7 @@ def check_same_recipe(config_file: str, recipe: dict[str, Any]) -> None:
     """
     if not os.path.isfile(config_file):
         return  # a run folder from before config.yml was written: nothing to compare
-    with open(config_file) as file:
-        saved = yaml.safe_load(file) or {}
+    saved = load_run_yaml(config_file)  # (a damaged file is named)
     now = yaml.safe_load(yaml.safe_dump(recipe))
     changed = sorted(key for key in {*saved, *now} if key not in saved or key not in now or saved[key] != now[key])
     if changed:
@@ -302,8 +302,7 @@ def check_same_noise(args_file: str, args: argparse.Namespace) -> None:
     """
     if not os.path.isfile(args_file):
         return
-    with open(args_file) as file:
-        saved = yaml.safe_load(file) or {}
+    saved = load_run_yaml(args_file)
     then = recorded_transition_noise(saved)
     now = (float(args.transition_noise), args.transition_noise_model)
     if then != now:
