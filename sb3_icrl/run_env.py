@@ -16,7 +16,7 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecNormalize
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 
-from sb3_icrl.common.vec_env import ShallowCopyDummyVecEnv
+from sb3_icrl.common.vec_env import ShallowCopyDummyVecEnv, load_vec_normalize
 from sb3_icrl.envs.wrappers import (
     COMPONENT_NOISE,
     EPISODE_CONSTRAINT_KEYS,
@@ -202,7 +202,7 @@ def create_env(
         venv = recorder = LearnedCostRecorder(venv)
     if params["normalize"]:
         if stats_path is not None:
-            venv = VecNormalize.load(stats_path, venv)
+            venv = load_vec_normalize(stats_path, venv)
             if eval_env:
                 venv.training, venv.norm_reward = False, False
         else:

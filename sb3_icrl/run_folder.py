@@ -13,12 +13,12 @@ import os
 import pickle
 import re
 import warnings
-import zipfile
 from typing import Any
 
 import yaml
 from stable_baselines3.common.save_util import load_from_zip_file
 
+from sb3_icrl.common.saved import first_sentence, model_damage
 from sb3_icrl.common.utils import atomic_write_text
 from sb3_icrl.hyperparams import preprocess_hyperparams
 from sb3_icrl.registry import ALGOS, ICRL_ALGOS, env_name
@@ -83,16 +83,25 @@ def check_trained_agent(path: str, algo: str) -> None:
 
     :param path: The ``-i/--trained-agent`` (or enjoy's) model path
     :param algo: Command-line algorithm name
-    :raises TrainedAgentError: When the file is missing, not a zip, not an SB3 model or another algorithm's
+    :raises TrainedAgentError: When the file is missing, not a zip, damaged, not an SB3 model or another algorithm's
     """
     if not os.path.isfile(path):
         raise TrainedAgentError(f"The trained agent {path!r} does not exist.")
-    if not path.endswith(".zip") or not zipfile.is_zipfile(path):
+    if not path.endswith(".zip"):
         raise TrainedAgentError(f"The trained agent {path!r} is not a .zip saved by stable-baselines3.")
+    damage = model_damage(path, load=False)
+    if damage is not None:
+        raise TrainedAgentError(
+            f"The trained agent {path!r} {damage}: it cannot be loaded; train it again, or use another model of its run "
+            "(best_model.zip, a checkpoint)."
+        )
     try:
         data, _, _ = load_from_zip_file(path, device="cpu")
     except Exception as error:
-        raise TrainedAgentError(f"Cannot read the trained agent {path!r}: {error}") from error
+        raise TrainedAgentError(
+            f"The trained agent {path!r} is damaged ({first_sentence(error)}): it cannot be loaded; train it again, or "
+            "use another model of its run (best_model.zip, a checkpoint)."
+        ) from error
     if not data:
         raise TrainedAgentError(f"The trained agent {path!r} holds no stable-baselines3 model data.")
     found = saved_algo(data)
@@ -281,6 +290,18 @@ def read_finished(run: str | os.PathLike) -> dict[str, Any] | None:
     return finished if isinstance(finished, dict) else None
 
 
+def unreadable_finished(run: str | os.PathLike) -> str | None:
+    """
+    :param run: A run folder
+    :return: Why its ``finished.json`` does not count (present, but cut short or not a JSON mapping), naming the file;
+        ``None`` when it is missing or reads
+    """
+    path = os.path.join(run, FINISHED_FILE)
+    if not os.path.isfile(path) or read_finished(run) is not None:
+        return None
+    return f"{path} is not a JSON mapping (cut short or overwritten), so the run counts as not finished"
+
+
 def run_wall_time(folder: str | os.PathLike) -> float | None:
     """
     The training time of a finished run, from its ``finished.json`` (see :data:`WALL_TIME_KEYS`).
@@ -319,26 +340,24 @@ def checkpoints(run: str) -> list[tuple[int, str]]:
     return sorted(found, reverse=True)
 
 
-def latest_checkpoint(run: str) -> str | None:
+def latest_checkpoint(run: str, warn: bool = True) -> str | None:
     """
-    The checkpoint to resume an unfinished run from: the ``rl_model_<steps>_steps.zip`` with the most steps that is a
-    readable zip (checkpoints are written atomically, but a folder may come from elsewhere).
+    The checkpoint to resume an unfinished run from: the ``rl_model_<steps>_steps.zip`` with the most steps that loads,
+    with its statistics and training state (checkpoints are written atomically, but a folder may come from elsewhere).
 
     :param run: A run folder
+    :param warn: Warn of each damaged checkpoint passed over, naming its file
     :return: The path, or ``None`` when the folder holds no usable checkpoint
     """
-    for steps, path in checkpoints(run):
-        try:
-            with zipfile.ZipFile(path) as archive:
-                if archive.testzip() is not None or "data" not in archive.namelist():
-                    continue
-        except (zipfile.BadZipFile, OSError):
-            continue
-        broken = _broken_companion(run, steps)
-        if broken is not None:
-            warnings.warn(f"{broken} cannot be read: resuming from an earlier checkpoint than {os.path.basename(path)}.")
-            continue
-        return path
+    saved = checkpoints(run)
+    for index, (steps, path) in enumerate(saved):
+        damage = model_damage(path)
+        broken = f"{path} {damage}" if damage is not None else _broken_companion(run, steps)
+        if broken is None:
+            return path
+        if warn:
+            then = "resuming from an earlier checkpoint" if index + 1 < len(saved) else "no earlier checkpoint to resume from"
+            warnings.warn(f"{broken}: {then} than {os.path.basename(path)}.")
     return None
 
 
@@ -352,7 +371,7 @@ def _broken_companion(run: str, steps: int) -> str | None:
             with open(path, "rb") as file:
                 pickle.load(file)  # the run's own files, written by this library
         except Exception:  # truncated, or not a pickle at all
-            return path
+            return f"{path} cannot be read"
     return None
 
 
@@ -479,9 +498,20 @@ def load_run_yaml(path: str | os.PathLike) -> dict[str, Any]:
 
     :param path: The file
     :return: Its mapping (empty for an empty file)
+    :raises ValueError: When it is not YAML, or not a mapping (naming the file)
     """
-    with open(path) as file:
-        content = yaml.load(file, Loader=RunYamlLoader)  # (a safe loader with one constructor added)
+    try:
+        with open(path) as file:
+            content = yaml.load(file, Loader=RunYamlLoader)  # (a safe loader with one constructor added)
+    except yaml.YAMLError as error:
+        mark = getattr(error, "problem_mark", None)
+        where = f"{getattr(error, 'problem', None) or 'not YAML'}, line {mark.line + 1}" if mark else str(error)
+        raise ValueError(
+            f"{path} is not valid YAML ({where}): the run folder is damaged; restore the file from a copy, or train the "
+            "run again."
+        ) from error
+    if content is not None and not isinstance(content, dict):
+        raise ValueError(f"{path} holds a {type(content).__name__}, not a mapping: the run folder is damaged.")
     return content or {}
 
 

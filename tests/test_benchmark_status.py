@@ -5,6 +5,7 @@ import fcntl
 import json
 import os
 import textwrap
+import zipfile
 
 import pytest
 
@@ -40,6 +41,8 @@ def suite_in_five_states(tmp_path):
         os.makedirs(folder)
     with open(os.path.join(folders[0], FINISHED_FILE), "w") as file:
         json.dump({"num_timesteps": 1000, "wall_time_total_s": 500.0}, file)
+    with zipfile.ZipFile(os.path.join(folders[0], "GridWorldWall-v0.zip"), "w") as archive:
+        archive.writestr("data", "{}")  # its final model (status reads only whether the zip is whole)
     for folder, steps in zip(folders[1:4], (200, 400, 600), strict=True):
         open(os.path.join(folder, f"rl_model_{steps}_steps.zip"), "w").close()
         open(os.path.join(folder, f"rl_model_{steps // 2}_steps.zip"), "w").close()

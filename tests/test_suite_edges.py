@@ -54,6 +54,18 @@ def write(tmp_path, text: str) -> str:
             r"none are shipped for BlockedWalker-v0 with violating_fraction 0.2 \(shipped fractions: \[0.0\]\)",
         ),
         (HEAD + "variants:\n  mine: {demonstrations: no/such/file.npz}\n", 5, "no demonstrations file 'no/such/file.npz'"),
+        (
+            HEAD + "variants:\n  a:\n    hyperparams:\n      n_steps: 16\n      n_stepz: 16\n",
+            8,
+            r"`n_stepz` is not a hyper-parameter of bc2l \(did you mean 'n_steps'\?\)",
+        ),
+        (
+            "envs: [GridWorldWall-v0]\nalgos: [ppo, bc2l]\nseeds: [0]\nvariants:\n  a: {hyperparams: {constraint_steps: 2}}\n",
+            5,
+            "`constraint_steps` is not a hyper-parameter of ppo: every run of variant 'a' would stop",
+        ),
+        ("envs: [CartPole-v1]\nalgos: [ppolag]\nseeds: [0]\n", 1, r"CartPole-v1 reports no true cost \(its step's info"),
+        (HEAD + "eval_episodes: -1\n", 4, "`eval_episodes` must be an integer >= 1, got -1"),
     ],
 )
 def test_mistakes_are_caught_before_any_run(tmp_path, text, line, message):

@@ -36,7 +36,7 @@ def user_module(tmp_path, monkeypatch):
 def test_unknown_env_error_says_how_to_register_one():
     with pytest.raises(ValueError, match="--gym-packages MODULE"):
         resolve_env_id("myenvs/NotRegistered-v0")
-    with pytest.raises(ValueError, match="cannot import 'no_such_module_xyz'"):
+    with pytest.raises(ValueError, match="cannot import its module 'no_such_module_xyz'"):
         resolve_env_id("no_such_module_xyz:Env-v0")
 
 

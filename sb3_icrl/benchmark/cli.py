@@ -36,7 +36,7 @@ from sb3_icrl.benchmark.report import (
 from sb3_icrl.benchmark.runner import BACKENDS, RunOutcome, load_runtime_env, make_backend, run_all
 from sb3_icrl.benchmark.status import status_lines, suite_status
 from sb3_icrl.benchmark.suite import SUITES_DIR, RunSpec, Suite, SuiteError, load_suite
-from sb3_icrl.common.utils import plain_docstring
+from sb3_icrl.common.utils import check_writable_folder, plain_docstring, write_error_message
 from sb3_icrl.registry import import_gym_packages
 from sb3_icrl.run_evaluation import RunResult
 
@@ -170,6 +170,8 @@ def _load_suite(args: argparse.Namespace) -> Suite:
 def run_command(args: argparse.Namespace) -> int:
     suite = _load_suite(args)
     runs = suite.select(_only(args.only))
+    # Before any run starts: each would fail on its own, and be tried again, on a folder it cannot write
+    check_writable_folder(args.log_folder, "-f/--log-folder")
     backend = make_backend(args.backend, args.jobs, args.address, load_runtime_env(args.runtime_env))
     where = (
         f"ray cluster at {backend.address}, {backend.capacity} CPUs"
@@ -246,6 +248,9 @@ def report_command(args: argparse.Namespace) -> int:
     suite = _load_suite(args)
     runs = suite.select(_only(args.only))
     model = getattr(args, "model", "final")  # (``benchmark run`` reports the final models)
+    output = args.output or os.path.join(args.log_folder, suite.name, "report" if model == "final" else "report_best")
+    if args.output or os.path.isdir(os.path.join(args.log_folder, suite.name)):
+        check_writable_folder(output, "-o/--output")  # before the evaluations, which take minutes
     results = evaluate_finished(runs, args.log_folder, suite, model=model)
     # With --update and no finished run, the earlier report is written again from its summary with today's statistics
     if not results and args.command == "report" and not getattr(args, "update", False):
@@ -253,7 +258,6 @@ def report_command(args: argparse.Namespace) -> int:
             f"No finished run of suite {suite.name!r} in {os.path.join(args.log_folder, suite.name)}: train them first with "
             f"`sb3-icrl benchmark run {args.suite} -f {args.log_folder}` (or check -f and --only)."
         )
-    output = args.output or os.path.join(args.log_folder, suite.name, "report" if model == "final" else "report_best")
     metrics = constraint_metrics(results, args.log_folder, model=model)
     fresh = [run for run, _ in results]
     update = getattr(args, "update", False)  # (``benchmark run`` writes a report of its own runs)
@@ -290,6 +294,12 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
         return report_command(args)
     except (SuiteError, ValueError, RuntimeError) as error:
         print(f"error: {error}", file=sys.stderr)
+        return 2
+    except OSError as error:
+        message = write_error_message(error)  # a report or log that cannot be written
+        if message is None:
+            raise
+        print(f"error: {message}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         # The runs stop with the engine (their processes die with it); each resumes from its checkpoint next time

@@ -62,6 +62,7 @@ from sb3_icrl.run_folder import (
     lacks_own_statistics,
     last_training_episodes,
     run_wall_time,
+    unreadable_finished,
 )
 
 #: Held-out evaluation cached in each run folder
@@ -113,6 +114,9 @@ def evaluate_finished(
     for run in runs:
         folder = run.run_folder(root)
         if not is_finished(folder):
+            unreadable = unreadable_finished(folder)
+            if unreadable is not None:  # listed as not finished below: say why, and what brings it back
+                log(f"{run.name}: {unreadable}: `benchmark run` trains it again from its last checkpoint")
             continue
         best_path = os.path.join(folder, "best_model.zip")
         if best and not os.path.isfile(best_path):

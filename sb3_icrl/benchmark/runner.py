@@ -124,9 +124,12 @@ def execute_run(
         missing = [targv for file, targv in transfers if not os.path.isfile(os.path.join(run_folder, file))]
         commands += [transfer_command(targv) for targv in missing]
         for command in commands:
-            with open(log_file, "a") as log:
-                log.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} {' '.join(command)}\n")
-                log.flush()
+            # Unbuffered: nothing is left to flush at close, where a full disk would fail again without the file's name
+            with open(log_file, "ab", buffering=0) as log:
+                try:
+                    log.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} {' '.join(command)}\n".encode())
+                except OSError as error:  # a full disk: say which file, as the run's own writes do
+                    raise OSError(error.errno, error.strerror, log_file) from error
                 env = {**os.environ, "PYTHONUNBUFFERED": "1"}
                 process = subprocess.run(command, stdout=log, stderr=subprocess.STDOUT, env=env, preexec_fn=_die_with_parent)
             if process.returncode != 0 or not is_finished(run_folder):

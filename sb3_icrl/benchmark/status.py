@@ -12,9 +12,10 @@ from typing import Any
 import yaml
 
 from sb3_icrl.benchmark.suite import RunSpec
+from sb3_icrl.common.saved import model_damage
 from sb3_icrl.hyperparams import load_hyperparams
 from sb3_icrl.registry import REFERENCE_ALGOS, env_name
-from sb3_icrl.run_folder import checkpoints, failure, finished_wall_time, is_finished, read_finished
+from sb3_icrl.run_folder import checkpoints, failure, finished_wall_time, is_finished, read_finished, unreadable_finished
 
 #: The states of a run, in the order the summary line counts them
 STATES = ("finished", "running", "interrupted", "failed", "not started")
@@ -36,6 +37,8 @@ class RunStatus:
     :param steps_total: The steps it trains for (``None`` when they cannot be told)
     :param wall_time_s: Training time of a finished run
     :param error: The error of a failed run
+    :param note: What is wrong with a run's files that its state does not tell: a finished run whose final model is
+        missing or damaged (the report leaves it out), a ``finished.json`` that does not read
     """
 
     run: RunSpec
@@ -44,6 +47,7 @@ class RunStatus:
     steps_total: int | None = None
     wall_time_s: float | None = None
     error: str | None = None
+    note: str | None = None
 
 
 def held_lock_inodes(proc_locks: str = PROC_LOCKS) -> set[int] | None:
@@ -124,7 +128,7 @@ def run_status(
             done = int(finished["num_timesteps"])
         except (KeyError, TypeError, ValueError):
             done = total
-        return RunStatus(run, "finished", done, total, finished_wall_time(finished))
+        return RunStatus(run, "finished", done, total, finished_wall_time(finished), note=_final_model_note(run, folder))
     saved = checkpoints(folder)
     newest = saved[0][0] if saved else None
     # The lock first: a failed run that a suite tries again keeps its failed.json until its training starts
@@ -135,8 +139,18 @@ def run_status(
     if error is not None:
         return RunStatus(run, "failed", newest, total, error=error)
     if os.path.isdir(folder):
-        return RunStatus(run, "interrupted", newest, total)
+        return RunStatus(run, "interrupted", newest, total, note=unreadable_finished(folder))
     return RunStatus(run, "not started", None, total)
+
+
+def _final_model_note(run: RunSpec, folder: str) -> str | None:
+    """Why a finished run's final model cannot be evaluated (missing, or a zip that does not read), else ``None``."""
+    final = os.path.join(folder, f"{env_name(run.env_id)}.zip")
+    # Whether the zip reads, not its tensors: status stays quick on a suite of hundreds of runs
+    what = "is missing" if not os.path.isfile(final) else model_damage(final, load=False)
+    if what is None:
+        return None
+    return f"its final model {final} {what}: the report leaves it out; delete its finished.json to train it again"
 
 
 def suite_status(runs: list[RunSpec], root: str) -> list[RunStatus]:
@@ -174,11 +188,11 @@ def seconds_left(statuses: list[RunStatus]) -> tuple[float, int]:
 
 def status_lines(statuses: list[RunStatus], verbose: bool = False) -> list[str]:
     """
-    One line per run that is not finished (every run with ``verbose``), then the counts, the core-hours spent and
-    the estimate of those left.
+    One line per run that is not finished or has a note (every run with ``verbose``), then the counts, the core-hours
+    spent and the estimate of those left.
     """
     lines = []
-    shown = [status for status in statuses if verbose or status.state != "finished"]
+    shown = [status for status in statuses if verbose or status.state != "finished" or status.note]
     if shown:
         lines.append(f"{'state':12s} {'steps':>21s} {'train time':>10s}  run")
         for status in shown:
@@ -188,6 +202,8 @@ def status_lines(statuses: list[RunStatus], verbose: bool = False) -> list[str]:
             line = f"{status.state:12s} {done + ' / ' + total:>21s} {time_text:>10s}  {status.run.name}"
             if status.error:
                 line += f": {status.error.strip().splitlines()[0] if status.error.strip() else 'unknown error'}"
+            if status.note:
+                line += f" ({status.note})"
             lines.append(line)
         lines.append("")
     counts = {state: sum(status.state == state for status in statuses) for state in STATES}

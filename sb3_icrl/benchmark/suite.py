@@ -5,18 +5,25 @@ again finds the runs it already made.
 """
 
 import dataclasses
+import difflib
+import functools
+import inspect
 import math
 import os
 import pathlib
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+import gymnasium as gym
 import yaml
 
 from sb3_icrl.data.registry import DEMONSTRATIONS_DIR, available_demonstrations, dataset_file_name
-from sb3_icrl.envs import REWARD_TRANSFER_TASKS
+from sb3_icrl.envs import NAMESPACE, REWARD_TRANSFER_TASKS
+from sb3_icrl.envs.constraint_spec import get_constraint_spec
 from sb3_icrl.envs.wrappers import TRANSITION_NOISE_MODELS
+from sb3_icrl.hyperparams import ZOO_KEYS
 from sb3_icrl.metrics.transfer import TASKS as TRANSFER_TASKS
 from sb3_icrl.metrics.transfer import transfer_file
 from sb3_icrl.registry import (
@@ -459,6 +466,44 @@ class _SuiteReader:
                         "`demonstrations: PATH.npz` (python -m sb3_icrl.data generate), or drop the env.",
                     )
 
+    def check_hyperparams(self, algos: list[str], variants: dict[str, dict[str, Any]]) -> None:
+        """Every hyper-parameter a variant sets is one that each algorithm of the suite takes (each run gets them all)."""
+        for variant, settings in variants.items():
+            for key in settings.get("hyperparams") or {}:
+                refusing = [algo for algo in algos if str(key) not in _hyperparameter_names(algo)]
+                if refusing:
+                    known = sorted(set.intersection(*(_hyperparameter_names(algo) for algo in refusing)))
+                    close = difflib.get_close_matches(str(key), known, n=1, cutoff=0.8)
+                    raise self.error(
+                        ("variants", variant, "hyperparams", key),
+                        f"`{key}` is not a hyper-parameter of {', '.join(refusing)}"
+                        f"{f' (did you mean {close[0]!r}?)' if close else ''}: every run of variant {variant!r} "
+                        "would stop at its start.",
+                    )
+
+    def check_costs(self, envs: list[str]) -> None:
+        """Every env reports or declares its true cost: ppolag trains on it, and the report counts violations with it."""
+        for index, env_id in enumerate(envs):
+            if env_id.startswith(f"{NAMESPACE}/") or get_constraint_spec(env_id) is not None:
+                continue
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    env = gym.make(env_id)
+                    env.reset(seed=0)
+                    info = env.step(env.action_space.sample())[-1]
+                    env.close()
+            except Exception:  # an env that needs the variant's env_kwargs: its runs say what is wrong
+                continue
+            if "cost" not in info:
+                raise self.error(
+                    ("envs", index),
+                    f"{env_id} reports no true cost (its step's info has no 'cost', only {sorted(info)}) and declares no "
+                    "constraint: ppolag trains on that cost and the report counts every cell's violations with it. Put "
+                    "the per-step cost in info['cost'], or declare the constraint (a `constraint_spec` attribute on the "
+                    "env, or sb3_icrl.envs.constraint_spec.declare_constraint in a module of `gym_packages`).",
+                )
+
     def steps(self, envs: list[str]) -> dict[str, int | None]:
         raw = self.content.get("steps")
         if raw is None:
@@ -604,6 +649,20 @@ class _SuiteReader:
         return others
 
 
+@functools.cache
+def _hyperparameter_names(algo: str) -> set[str]:
+    """What a recipe of ``algo`` may set: its constructor's arguments (through its bases) and the zoo's own keys."""
+    names = set(ZOO_KEYS)
+    for klass in ALGOS[algo].__mro__:
+        if "__init__" in vars(klass):
+            try:
+                parameters = inspect.signature(vars(klass)["__init__"]).parameters.values()
+            except (TypeError, ValueError):
+                continue
+            names |= {p.name for p in parameters if p.name != "self" and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}
+    return names
+
+
 def _unknown_algo(algo: str) -> str:
     return (
         f"unknown algorithm {algo!r}: use one of {', '.join(ALGOS)}, or register yours with sb3_icrl.register_algorithm "
@@ -653,6 +712,8 @@ def load_suite(name_or_path: str | os.PathLike) -> Suite:
         raise reader.error(("recipe_version",), f"`recipe_version` is a name or a number, got {recipe_version!r}.")
     variants = reader.variants()
     reader.check_demonstrations(envs, algos, variants)
+    reader.check_hyperparams(algos, variants)
+    reader.check_costs(envs)
     return Suite(
         name=path.stem,
         path=str(path),

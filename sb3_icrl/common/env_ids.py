@@ -5,6 +5,7 @@ namespace optional, the modules that register a user's envs, and the one name an
 Only gymnasium is imported here, so that the envs themselves can resolve ids.
 """
 
+import difflib
 import importlib
 from collections.abc import Sequence
 
@@ -40,8 +41,7 @@ def resolve_env_id(env_id: str) -> str:
     :raises ValueError: When neither ``env_id`` nor ``sb3_icrl/<env_id>`` is registered (the message lists ours)
     """
     if ":" in env_id:
-        module, _, env_id = env_id.partition(":")
-        import_gym_packages([module])
+        return _resolve_module_env_id(env_id)
     if env_id in gym.registry:
         return env_id
     if f"{NAMESPACE}/{env_id}" in gym.registry:
@@ -50,6 +50,32 @@ def resolve_env_id(env_id: str) -> str:
     raise ValueError(
         f"Unknown env {env_id!r}. sb3-icrl envs: {', '.join(ours)}, or any registered gymnasium id: import the module "
         "that registers yours with --gym-packages MODULE, or write the env as MODULE:EnvId."
+    )
+
+
+def _resolve_module_env_id(text: str) -> str:
+    """:func:`resolve_env_id` of gymnasium's ``MODULE:EnvId``: errors that name the module and the id as written."""
+    module, _, env_id = text.partition(":")
+    if not module.strip() or not env_id.strip():
+        raise ValueError(f"Env {text!r}: write MODULE:EnvId, both parts given (e.g. mypackage.envs:myns/MyEnv-v0).")
+    before = set(gym.registry)
+    try:
+        importlib.import_module(module)
+    except ImportError as error:
+        raise ValueError(
+            f"Env {text!r}: cannot import its module {module!r} ({error}); is it installed or on PYTHONPATH?"
+        ) from error
+    for candidate in (env_id, f"{NAMESPACE}/{env_id}"):
+        if candidate in gym.registry:
+            return candidate
+    # What the module registered on this import (nothing when it was imported before), else every id, for the hint
+    added = sorted(set(gym.registry) - before)
+    close = difflib.get_close_matches(env_id, added or list(gym.registry), n=1)
+    hint = f" Did you mean {module}:{close[0]}?" if close else ""
+    listed = f" It registered: {', '.join(added)}." if added else ""
+    raise ValueError(
+        f"Env {text!r}: {module} is imported, but no env {env_id!r} is registered: check the id, and that {module} "
+        f"registers it.{listed}{hint}"
     )
 
 

@@ -6,11 +6,12 @@ instead of rebuilding it as the wrong class (or failing on a missing key deep in
 import io
 import os
 import pathlib
+import re
 import zipfile
 from typing import Any, TypeVar
 
 import torch as th
-from stable_baselines3.common.save_util import json_to_data, open_path
+from stable_baselines3.common.save_util import json_to_data, load_from_zip_file, open_path
 from stable_baselines3.common.type_aliases import GymEnv
 
 #: The key of a zip's ``data`` that names the sb3-icrl algorithm that saved it (older zips are told by their content)
@@ -142,3 +143,42 @@ class CheckedLoadMixin:
         """SB3's ``load``, refusing a zip that another algorithm saved (with a message naming both)."""
         check_saved_algorithm(cls, path, custom_objects)
         return super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)  # type: ignore[misc]
+
+
+def model_damage(path: str, load: bool = True) -> str | None:
+    """
+    What is wrong with a saved model file, told before SB3 loads it (whose own errors name neither the file nor the
+    cause): empty, not a zip, cut short, or with an entry that does not unpack.
+
+    :param path: A ``.zip`` saved by stable-baselines3
+    :param load: Also unpack its entries (``data`` and the ``.pth`` tensors): a zip can be whole and still hold a
+        broken entry
+    :return: ``None`` when it reads, else what is wrong (a phrase that follows the file's name)
+    """
+    if os.path.getsize(path) == 0:
+        return "is empty (0 bytes)"
+    if not zipfile.is_zipfile(path):
+        return "is not a zip archive"
+    try:
+        with zipfile.ZipFile(path) as archive:
+            names = archive.namelist()
+            bad = archive.testzip()
+    except (zipfile.BadZipFile, OSError, EOFError) as error:
+        return f"is cut short or damaged ({error})"
+    if bad is not None:
+        return f"is damaged (its entry {bad!r} fails its checksum)"
+    if "data" not in names:
+        # A copy cut short: what zipfile then reads is the last archive stored inside it (a .pth)
+        return "is cut short or damaged (it has no `data` entry)"
+    if load:
+        try:
+            load_from_zip_file(path, device="cpu")
+        except Exception as error:  # a broken JSON, pickle or tensor entry
+            return f"is damaged ({first_sentence(error)})"
+    return None
+
+
+def first_sentence(error: BaseException) -> str:
+    """``error``'s type and the first sentence of its message (torch's go on for a paragraph)."""
+    text = re.split(r"(?<=\.)\s", str(error).strip(), maxsplit=1)[0]
+    return f"{type(error).__name__}: {text}" if text else type(error).__name__

@@ -1,5 +1,6 @@
 """Small helpers shared by the package, its benchmarks and its scripts."""
 
+import errno
 import io
 import json
 import os
@@ -7,6 +8,7 @@ import pathlib
 import pickle
 import re
 import tempfile
+import zipfile
 from collections.abc import Callable, Mapping
 from typing import IO, Any
 
@@ -24,9 +26,12 @@ def atomic_write(path: str | pathlib.Path, write: Callable[[IO[bytes]], Any], mo
     :param mode: File permissions (temporary files are created private, 0600; results are meant to be shared)
     """
     path = pathlib.Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    # The name remove_temporaries looks for
-    file_descriptor, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        # The name remove_temporaries looks for
+        file_descriptor, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as error:
+        raise _naming(error, path) from error
     try:
         with os.fdopen(file_descriptor, "wb") as file:
             write(file)
@@ -35,10 +40,54 @@ def atomic_write(path: str | pathlib.Path, write: Callable[[IO[bytes]], Any], mo
             os.fsync(file.fileno())
         os.chmod(temporary, mode)
         os.replace(temporary, path)
-    except BaseException:
+    except BaseException as error:
         os.unlink(temporary)
+        if isinstance(error, OSError):
+            raise _naming(error, path) from error
         raise
     _fsync_folder(path.parent)
+
+
+def _naming(error: OSError, path: pathlib.Path) -> OSError:
+    """``error`` naming the file that was to be written (not the temporary one, or none: a full disk names no file)."""
+    return OSError(error.errno, error.strerror or str(error), str(path))
+
+
+#: The errors of a write that the user fixes by freeing space or by writing elsewhere
+WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EFBIG}
+
+
+def write_error_message(error: OSError) -> str | None:
+    """
+    One line saying which file could not be written and what to do, for the command lines.
+
+    :param error: An error raised while writing (by :func:`atomic_write`, which names the file)
+    :return: The line, or ``None`` when ``error`` is not of a write that the user can fix
+    """
+    if error.errno not in WRITE_ERRNOS:
+        return None
+    where = f"cannot write {error.filename}" if error.filename else "cannot write"
+    if error.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
+        return f"{where}: {error.strerror}; free some space there, or write elsewhere."
+    return f"{where}: {error.strerror}; pass a folder you can write to."
+
+
+def check_writable_folder(path: str, option: str) -> None:
+    """
+    Fail clearly unless ``path`` is, or can be made, a folder this process can write to.
+
+    :param path: The folder
+    :param option: The command-line option that named it (for the message)
+    :raises ValueError: When it is a file, cannot be created or is not writable
+    """
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise ValueError(f"{option} {path!r} is a file, not a folder: pass a folder.")
+    try:
+        os.makedirs(path, exist_ok=True)
+    except OSError as error:
+        raise ValueError(f"{option} {path!r} cannot be created ({error.strerror or error}): pass a writable folder.") from None
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise ValueError(f"{option} {path!r} is not writable: pass a writable folder.")
 
 
 def remove_temporaries(folder: str | pathlib.Path) -> list[str]:
@@ -107,6 +156,23 @@ def atomic_write_yaml(path: str | pathlib.Path, data: Any) -> None:
     :param data: Plain data (dicts, lists, strings, numbers)
     """
     atomic_write_text(path, yaml.safe_dump(data))
+
+
+def read_npz(path: str | pathlib.Path) -> dict[str, np.ndarray]:
+    """
+    Every array of an ``.npz`` file (no pickles).
+
+    :param path: The file
+    :return: Its arrays, by name
+    :raises ValueError: When it is cut short or not an ``.npz`` at all (naming the file; numpy's own error does not)
+    """
+    try:
+        with np.load(path) as data:
+            return {key: np.asarray(data[key]) for key in data.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
+        if isinstance(error, FileNotFoundError):
+            raise
+        raise ValueError(f"{path} cannot be read ({type(error).__name__}: {error}): it is cut short or damaged.") from error
 
 
 def atomic_save_npz(path: str | pathlib.Path, arrays: Mapping[str, Any], compressed: bool = False) -> str:

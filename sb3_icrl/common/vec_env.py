@@ -1,9 +1,10 @@
 """A ``DummyVecEnv`` for training loops where every step's copies count."""
 
+import pickle
 from typing import Any
 
 import numpy as np
-from stable_baselines3.common.vec_env import DummyVecEnv
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
 from stable_baselines3.common.vec_env.util import dict_to_obs
 
@@ -36,3 +37,21 @@ class ShallowCopyDummyVecEnv(DummyVecEnv):
 
     def _obs_from_buf(self) -> VecEnvObs:
         return dict_to_obs(self.observation_space, {key: np.copy(value) for key, value in self.buf_obs.items()})
+
+
+def load_vec_normalize(path: str, venv: VecEnv) -> VecNormalize:
+    """
+    ``VecNormalize.load``, whose error on a damaged file (a pickle cut short) names neither the file nor the cause.
+
+    :param path: The saved statistics
+    :param venv: The env to wrap
+    :return: The wrapper, with the statistics
+    :raises ValueError: When the file does not unpickle
+    """
+    try:
+        return VecNormalize.load(path, venv)
+    except (pickle.UnpicklingError, EOFError) as error:
+        raise ValueError(
+            f"The VecNormalize statistics {path} cannot be read ({type(error).__name__}: {error}): the file is cut short "
+            "or damaged; restore it, or use a checkpoint of the run with its own rl_model_vecnormalize_<steps>_steps.pkl."
+        ) from error

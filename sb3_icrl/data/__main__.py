@@ -21,6 +21,7 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
+from sb3_icrl.common.utils import write_error_message
 from sb3_icrl.data.generate import EXPERT_ALGORITHMS, build_dataset, resolve_env_id
 from sb3_icrl.data.registry import (
     DEMONSTRATIONS_DIR,
@@ -31,7 +32,7 @@ from sb3_icrl.data.registry import (
 )
 from sb3_icrl.data.serialize import DemonstrationError
 from sb3_icrl.registry import env_name, import_gym_packages
-from sb3_icrl.run_folder import failure, run_vecnormalize
+from sb3_icrl.run_folder import failure, load_run_yaml, run_vecnormalize
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -90,15 +91,13 @@ def expert_of_run(run: str, model: str = "final") -> dict[str, Any]:
     :raises FileNotFoundError: When the folder, its ``args.yml``, the model or its statistics are missing
     :raises ValueError: When the run's algorithm cannot be an expert
     """
-    import yaml
 
     if not os.path.isdir(run):
         raise FileNotFoundError(f"No run folder {run}.")
     found = sorted(glob.glob(os.path.join(run, "*", "args.yml")))
     if not found:
         raise FileNotFoundError(f"{run} is not a train.py run folder: no <EnvName>/args.yml in it.")
-    with open(found[0]) as file:
-        run_args = yaml.safe_load(file) or {}
+    run_args = load_run_yaml(found[0])  # (a damaged file is named)
     algo = run_args.get("algo")
     if algo not in EXPERT_ALGORITHMS:
         raise ValueError(f"{run} is a {algo} run; an expert is one of {', '.join(sorted(EXPERT_ALGORITHMS))}.")
@@ -165,7 +164,7 @@ def regeneration_command(args: argparse.Namespace, argv: Sequence[str]) -> str:
 
 
 def _check_output_folder(out: str) -> None:
-    """Fail before any rollout when ``--out`` cannot be written: a file where a folder should be."""
+    """Fail before any rollout when ``--out`` cannot be written: a file where a folder should be, or a read-only folder."""
     folder = os.path.dirname(os.path.abspath(out))
     while not os.path.exists(folder):
         folder = os.path.dirname(folder)
@@ -173,6 +172,10 @@ def _check_output_folder(out: str) -> None:
         raise ValueError(f"--out {out!r} cannot be written: {folder} is a file, not a folder.")
     if os.path.isdir(out):
         raise ValueError(f"--out {out!r} is a folder: give the path of the .npz file to write.")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise ValueError(
+            f"--out {out!r} cannot be written: {folder} is not writable; give a path in a folder you can write to."
+        )
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -225,8 +228,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                 shown["violating_share"] = "unknown (the source recorded no true costs)"
             print(json.dumps(shown, indent=2))
     except (DemonstrationError, ValueError, OSError, RuntimeError) as error:
-        # OSError: e.g. an --out whose folder is a file or not writable
-        print(f"error: {error}", file=sys.stderr)
+        # OSError: e.g. a disk that fills up while --out is written
+        message = write_error_message(error) if isinstance(error, OSError) else None
+        print(f"error: {message or error}", file=sys.stderr)
         return 1
     return 0
 

@@ -33,7 +33,13 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_icrl.data.checks import check_env_id
 from sb3_icrl.data.importers import is_safe_global
-from sb3_icrl.data.serialize import DemonstrationError, check_spaces, package_versions, trajectory_statistics
+from sb3_icrl.data.serialize import (
+    DemonstrationError,
+    check_imported_values,
+    check_spaces,
+    package_versions,
+    trajectory_statistics,
+)
 from sb3_icrl.data.types import Demonstrations, Trajectory
 
 #: Files ``datasets.Dataset.save_to_disk`` writes in every dataset folder
@@ -322,6 +328,7 @@ def load_imitation_dataset(
             )
         except ValueError as error:
             raise DemonstrationError(f"{source}: {error}") from error
+        check_imported_values(trajectories[-1], source)
     if not trajectories:
         raise DemonstrationError(f"{folder} holds no trajectories.")
     _warn_missing_costs(str(folder), n_missing, missing_costs, cost_info_key)
@@ -517,6 +524,7 @@ def from_minari(
             )
         except ValueError as error:
             raise DemonstrationError(f"{source}: {error}") from error
+        check_imported_values(trajectories[-1], source)
     if not trajectories:
         raise DemonstrationError(f"Minari dataset {dataset_id!r} holds no episodes.")
     _warn_missing_costs(f"Minari dataset {dataset_id!r}", n_missing, missing_costs, cost_info_key)

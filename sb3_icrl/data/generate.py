@@ -21,6 +21,8 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 
 from sb3_icrl.common import env_ids
+from sb3_icrl.common.saved import model_damage
+from sb3_icrl.common.vec_env import load_vec_normalize
 from sb3_icrl.data.serialize import save
 from sb3_icrl.data.types import Demonstrations, Trajectory
 from sb3_icrl.envs import NAMESPACE
@@ -363,6 +365,9 @@ def load_expert(
         if not os.path.isfile(expert):
             raise FileNotFoundError(f"No expert file at {expert!r}: give a saved model (.zip, .npz) or 'pilag'.")
         source = {"path": portable_path(expert), "sha256": file_sha256(expert)}
+        damage = None if expert.endswith(".npz") else model_damage(expert)
+        if damage is not None:  # SB3's own error would name neither the file nor what is wrong with it
+            raise ValueError(f"The expert {expert} {damage}: train it again, or give another saved model.")
         if expert.endswith(".npz"):
             model = PILagrangian.load(expert)
         elif algo in EXPERT_ALGORITHMS:
@@ -371,7 +376,7 @@ def load_expert(
             raise ValueError(f"Unknown expert algorithm {algo!r}: choose one of {sorted(EXPERT_ALGORITHMS)}.")
     if vec_normalize_path is not None:
         venv = DummyVecEnv([lambda: gym.make(env_id, **env_kwargs)])
-        model = NormalizedExpert(model, VecNormalize.load(vec_normalize_path, venv))
+        model = NormalizedExpert(model, load_vec_normalize(vec_normalize_path, venv))
         source["vec_normalize_path"] = portable_path(vec_normalize_path)
         source["vec_normalize_sha256"] = file_sha256(vec_normalize_path)
     return model, {**describe_expert(model), **source}

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from sb3_icrl.data.checks import import_replay_check
-from sb3_icrl.data.serialize import DemonstrationError
+from sb3_icrl.data.serialize import DemonstrationError, check_imported_values
 from sb3_icrl.data.types import Demonstrations, Trajectory
 
 #: Globals an imported pickle may reference: what numpy needs to rebuild arrays and scalars, and plain containers
@@ -103,7 +103,7 @@ def _trajectory(
 ) -> Trajectory:
     length = len(acts)
     try:
-        return Trajectory(
+        trajectory = Trajectory(
             obs=np.asarray(obs),
             acts=np.asarray(acts),
             infos=None,
@@ -113,6 +113,9 @@ def _trajectory(
         )
     except ValueError as error:
         raise DemonstrationError(f"{source}: {error}") from error
+    # Here, naming the file and step: save() would refuse them later, without saying where they came from
+    check_imported_values(trajectory, source)
+    return trajectory
 
 
 def _as_float(values: Any) -> np.ndarray:
@@ -181,13 +184,24 @@ def from_arrays(
     :return: The demonstrations
     """
     observations, actions = np.asarray(observations), np.asarray(actions)
+    named = {
+        "observations": observations,
+        "actions": actions,
+        "rewards": rewards,
+        "costs": costs,
+        "next_observations": next_observations,
+    }
+    for name, values in named.items():
+        if values is not None and np.ndim(values) == 0:
+            raise DemonstrationError(
+                f"`{name}` must be an array with one row per step, got the single value {np.asarray(values).item()!r}."
+            )
     n_steps = len(actions)
     if n_steps == 0:
         raise DemonstrationError("`actions` is empty: give at least one step.")
-    named = {"observations": observations, "rewards": rewards, "costs": costs, "next_observations": next_observations}
-    for name, array in named.items():
-        if array is not None and len(array) != n_steps:
-            raise DemonstrationError(f"`{name}` has {len(array)} rows, `actions` {n_steps}: give one row per step.")
+    for name, values in named.items():
+        if values is not None and len(values) != n_steps:
+            raise DemonstrationError(f"`{name}` has {len(values)} rows, `actions` {n_steps}: give one row per step.")
     bounds = _split_points(n_steps, episode_starts, episode_lengths)
     n_episodes = len(bounds) - 1
     terminal_flags = np.zeros(n_episodes, dtype=bool) if terminals is None else np.asarray(terminals, dtype=bool)
@@ -297,6 +311,8 @@ def from_malik_rollouts(
             obs, acts = observations[:-1], actions[1:-1]
         trajectories.append(_trajectory(obs, acts, None, None, False, str(path)))
         returns.append(float(np.sum(data["rewards"])) if "rewards" in data else None)
+        if returns[-1] is not None and not np.isfinite(returns[-1]):
+            raise DemonstrationError(f"{path}: its recorded return is NaN or infinite: the rollout is broken; leave it out.")
         files.append(path.name)
     metadata: dict[str, Any] = {
         "source": {"format": "malik-rollouts", "files": files},
@@ -349,7 +365,9 @@ def from_liu_pickles(
             raise DemonstrationError(
                 f"{path}: {len(obs)} observations for {len(actions)} actions; expected one of each per step, at least two."
             )
-        rewards = np.asarray(data["reward"]).reshape(len(actions)) if "reward" in data else None
+        rewards = np.asarray(data["reward"]).ravel() if "reward" in data else None
+        if rewards is not None and len(rewards) != len(actions):
+            raise DemonstrationError(f"{path}: {len(rewards)} rewards for {len(actions)} actions; expected one per step.")
         rewards_recorded.append(rewards is not None)
         match = _LIU_FILE_PATTERN.match(path.name)
         reasons = [reason for reason in (match["reasons"] or "").split("-") if reason] if match else []

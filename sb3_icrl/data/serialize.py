@@ -217,6 +217,32 @@ def _check_finite(key: str, array: np.ndarray, source: str) -> None:
         )
 
 
+def check_imported_values(trajectory: Trajectory, source: str) -> None:
+    """
+    Refuse an imported trajectory whose numbers :func:`save` and :func:`load` would refuse later, far from the data:
+    NaN or infinite observations, actions, rewards or costs, and negative costs.
+
+    :param trajectory: The trajectory as an importer built it
+    :param source: Where it came from (file, episode), for the message
+    :raises DemonstrationError: Naming the field, the first bad step and the fix
+    """
+    for key in ("obs", "acts", "rews", "costs"):
+        array = np.asarray(getattr(trajectory, key))
+        if array.dtype.kind not in "biuf":
+            raise DemonstrationError(f"{source}: `{key}` must be numbers, got dtype {array.dtype}.")
+        bad = ~np.isfinite(array.reshape(len(array), -1)).all(axis=1) if array.dtype.kind == "f" else np.zeros(0, bool)
+        if bad.any():
+            raise DemonstrationError(
+                f"{source}: `{key}` holds NaN or infinite values ({int(bad.sum())} rows, first at row "
+                f"{int(np.argmax(bad))}): repair or drop those steps in the source data before importing it."
+            )
+    if np.any(np.asarray(trajectory.costs) < 0):
+        raise DemonstrationError(
+            f"{source}: `costs` holds negative values (min {float(np.min(trajectory.costs)):g}); a true cost counts "
+            "violations and must be >= 0."
+        )
+
+
 def _validate_arrays(arrays: dict[str, np.ndarray], source: str) -> np.ndarray:
     """Check dtypes, shapes and values; return the boundaries of the trajectories in ``acts`` (``[0, ..., N]``)."""
     _check_dtype("obs", arrays["obs"], "biuf", "a numeric array", source)

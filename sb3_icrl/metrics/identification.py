@@ -579,10 +579,12 @@ def policy_pairs(
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import VecNormalize
 
+    from sb3_icrl.common.vec_env import load_vec_normalize
+
     wrapper = transition_noise_wrapper(transition_noise, transition_noise_model)
     venv: Any = make_vec_env(env_id, n_envs=1, seed=seed, env_kwargs=dict(env_kwargs or {}), wrapper_class=wrapper)
     if vecnormalize_path is not None:
-        venv = VecNormalize.load(vecnormalize_path, venv)
+        venv = load_vec_normalize(vecnormalize_path, venv)
         venv.training, venv.norm_reward = False, False
     observations, actions = [], []
     obs = venv.reset()

@@ -11,10 +11,12 @@ from stable_baselines3.common.env_util import is_wrapped
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 
-from sb3_icrl.common.utils import atomic_write_bytes
+from sb3_icrl.common.utils import atomic_write_bytes, read_npz
 
 # Two action values closer than this are a tie: keeps the policy from flipping between equal actions
 _TIE_TOLERANCE = 1e-10
+#: The arrays :meth:`PILagrangian.save` writes besides its ``params`` and ``state``
+PILAGRANGIAN_ARRAYS = ("policy_table", "q_values", "values", "transitions", "rewards", "cost_table")
 
 
 class PILagrangian:
@@ -334,11 +336,18 @@ class PILagrangian:
         :param path: The saved file
         :param env: Optional environment to continue training on (must have the same numbers of states and actions)
         :return: The model
+        :raises ValueError: When the file is cut short, damaged or not one that :meth:`save` wrote
         """
-        with np.load(path, allow_pickle=False) as archive:
-            params = json.loads(str(archive["params"]))
-            state = json.loads(str(archive["state"]))
-            arrays = {key: archive[key] for key in archive.files if key not in ("params", "state")}
+        # numpy's errors on a damaged file name neither the file nor what it was read as
+        arrays = read_npz(path)  # (a ValueError naming the file when it is cut short)
+        missing = [key for key in ("params", "state", *PILAGRANGIAN_ARRAYS) if key not in arrays]
+        if missing:
+            raise ValueError(f"{path} is not a model saved by PILagrangian.save: it lacks {missing}.")
+        try:
+            params = json.loads(str(arrays.pop("params")))
+            state = json.loads(str(arrays.pop("state")))
+        except ValueError as error:
+            raise ValueError(f"{path} is damaged: its params or state is not JSON ({error}).") from error
         model = cls.__new__(cls)
         for key, value in params.items():
             setattr(model, key, value)

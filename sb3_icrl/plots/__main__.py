@@ -211,10 +211,12 @@ def policy_observations(
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import VecNormalize
 
+    from sb3_icrl.common.vec_env import load_vec_normalize
+
     wrapper = transition_noise_wrapper(*recorded_transition_noise(run_args))
     venv: Any = make_vec_env(env_id, n_envs=1, seed=seed, env_kwargs=env_kwargs, wrapper_class=wrapper)
     if stats_path is not None:
-        venv = VecNormalize.load(stats_path, venv)
+        venv = load_vec_normalize(stats_path, venv)
         venv.training, venv.norm_reward = False, False
     observations: list[np.ndarray] = []
     obs = venv.reset()

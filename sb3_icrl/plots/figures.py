@@ -24,7 +24,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import EngFormatter, MaxNLocator
 
 from sb3_icrl.common.env_ids import env_name
-from sb3_icrl.common.utils import atomic_write_bytes
+from sb3_icrl.common.utils import atomic_write_bytes, read_npz
 from sb3_icrl.constraints.networks import BetaFeasibilityNet, _ConstraintNet
 from sb3_icrl.envs.constraint_spec import get_constraint_spec
 from sb3_icrl.envs.grid_world import GridWorldEnv
@@ -543,6 +543,7 @@ def load_evaluations(run_folder: str | os.PathLike) -> dict[str, np.ndarray]:
     :return: ``timesteps`` (n_evals,) and per-episode arrays ``results``, ``feasible_rewards``, ``violations``... of
         shape (n_evals, n_episodes)
     :raises FileNotFoundError: When the folder or its ``evaluations.npz`` does not exist
+    :raises ValueError: When the file is damaged, or holds no ``timesteps``
     """
     path = pathlib.Path(run_folder)
     if path.suffix != ".npz":
@@ -553,8 +554,10 @@ def load_evaluations(run_folder: str | os.PathLike) -> dict[str, np.ndarray]:
         raise FileNotFoundError(
             f"No {EVALUATIONS_FILE} in {path.parent}: the run has not been evaluated yet (train with --eval-freq > 0)."
         )
-    with np.load(path) as data:
-        arrays = {key: np.asarray(data[key]) for key in data.files}
+    try:
+        arrays = read_npz(path)
+    except ValueError as error:
+        raise ValueError(f"{error} Train the run again, or delete the file to leave the run out of the curves.") from error
     if "timesteps" not in arrays:
         raise ValueError(f"{path} holds no 'timesteps' array (keys: {sorted(arrays)}).")
     return arrays
@@ -600,7 +603,7 @@ def load_runs(
     :param log_folder: The training log folder (holds ``<algo>/<EnvName>_<N>``)
     :param algos: Algorithm names (``["mecl", "vicrl"]``)
     :param env: Env name or id
-    :param skip_missing: Skip (with a warning) runs without ``evaluations.npz`` instead of raising
+    :param skip_missing: Skip (with a warning) runs without a readable ``evaluations.npz`` instead of raising
     :return: ``{ALGO: [arrays of each run]}``
     :raises FileNotFoundError: For a missing folder, an algorithm without runs, or a run without evaluations
     """
@@ -610,7 +613,7 @@ def load_runs(
         for folder in find_runs(log_folder, algo, env):
             try:
                 seeds.append(load_evaluations(folder))
-            except FileNotFoundError as error:
+            except (FileNotFoundError, ValueError) as error:  # (ValueError: a damaged file)
                 if not skip_missing:
                     raise
                 warnings.warn(f"{error} Skipped.", stacklevel=2)

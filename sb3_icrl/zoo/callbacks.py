@@ -13,7 +13,7 @@ from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
 from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 
 from sb3_icrl.common.evaluation import evaluate_constraint
-from sb3_icrl.common.utils import atomic_save_model, atomic_save_npz, atomic_save_pickle
+from sb3_icrl.common.utils import atomic_save_model, atomic_save_npz, atomic_save_pickle, read_npz
 from sb3_icrl.run_env import LearnedCostRecorder, RecordedEpisode
 from sb3_icrl.run_folder import BEST_VECNORMALIZE_FILE, CHECKPOINT_PATTERN, monitor_row_counts
 from sb3_icrl.zoo.summary import evaluation_line, model_multiplier
@@ -208,14 +208,14 @@ class ConstraintEvalCallback(EvalCallback):
         path = self.log_path if self.log_path is None or self.log_path.endswith(".npz") else self.log_path + ".npz"
         if path is None or not os.path.isfile(path):
             return
-        with np.load(path) as saved:
-            arrays = {key: np.asarray(saved[key]) for key in saved.files}
         selection_path = os.path.join(os.path.dirname(path), SELECTION_FILE)
-        if os.path.isfile(selection_path):
-            with np.load(selection_path) as saved:
-                selection = {key: np.asarray(saved[key]) for key in saved.files}
-        else:
-            selection = {}
+        try:
+            arrays = read_npz(path)
+            selection = read_npz(selection_path) if os.path.isfile(selection_path) else {}
+        except ValueError as error:
+            # The run goes on (a suite retries it as it is): its curves then start at the checkpoint
+            warnings.warn(f"{error} The resumed run's evaluations start afresh at step {up_to_timesteps}.", stacklevel=2)
+            return
         history, selection = split_evaluation_history(arrays, selection)
         self.history = _rows_up_to(history, up_to_timesteps)
         self.selection_history = _rows_up_to(selection, up_to_timesteps)
@@ -447,9 +447,21 @@ def _saved_state(path: str) -> dict[str, Any]:
     """A :func:`save_training_state` file's content (empty when the file is missing or holds no mapping)."""
     if not os.path.isfile(path):
         return {}
-    with open(path, "rb") as file:
-        state = pickle.load(file)  # as trusted as the VecNormalize pickles beside it
+    state = _unpickle_state(path)
     return state if isinstance(state, dict) else {}
+
+
+def _unpickle_state(path: str) -> Any:
+    """A training state file's content; a file cut short is named (pickle's own error names no file)."""
+    try:
+        with open(path, "rb") as file:
+            return pickle.load(file)  # as trusted as the VecNormalize pickles beside it
+    except (pickle.UnpicklingError, EOFError) as error:
+        raise ValueError(
+            f"The training state {path} cannot be read ({type(error).__name__}: {error}): it is cut short or damaged; "
+            "continue from another checkpoint of the run, or delete the file to continue without it (the ICRL trainer "
+            "and the model selection then start afresh)."
+        ) from error
 
 
 def training_state_wall_time(path: str) -> float:
@@ -486,8 +498,7 @@ def load_training_state(model: Any, path: str, evaluation: ConstraintEvalCallbac
     """
     if not os.path.isfile(path):
         return False
-    with open(path, "rb") as file:
-        state = pickle.load(file)  # as trusted as the VecNormalize pickles beside it
+    state = _unpickle_state(path)
     if not isinstance(state, dict) or state.get("format") != TRAINING_STATE_FORMAT:
         raise ValueError(f"{path} is not a training state of this sb3-icrl version (format {TRAINING_STATE_FORMAT}).")
     if state["num_timesteps"] != model.num_timesteps:

@@ -26,7 +26,7 @@ from typing import Any
 
 from sb3_icrl.common.evaluation import OUTCOME_KEYS, OUTCOME_RATE_KEYS
 from sb3_icrl.common.statistics import MIN_PAIRS_FOR_WILCOXON
-from sb3_icrl.common.utils import atomic_write_json, plain_docstring
+from sb3_icrl.common.utils import atomic_write_json, plain_docstring, write_error_message
 from sb3_icrl.registry import import_gym_packages
 from sb3_icrl.run_evaluation import (
     OUTCOME_TITLES,
@@ -219,12 +219,14 @@ def outcome_table(results: list[RunResult]) -> list[str]:
 
 
 def _check_json_path(path: str) -> None:
-    """Fail before the evaluations when ``--json`` cannot be written (its folder missing, or a file)."""
+    """Fail before the evaluations when ``--json`` cannot be written (its folder missing, a file, or read-only)."""
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder) or os.path.isdir(path):
         raise RunFolderError(
             f"--json {path!r} cannot be written: {folder} must be an existing folder and the path a file name."
         )
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise RunFolderError(f"--json {path!r} cannot be written: {folder} is not writable.")
 
 
 def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
@@ -291,7 +293,14 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
         print(f"warning: {warning}", file=sys.stderr)
     if args.json:
         payload = {"runs": [asdict(result) for result in results], "summary": summary, "eval_seed": args.seed}
-        atomic_write_json(args.json, payload, indent=2)
+        try:
+            atomic_write_json(args.json, payload, indent=2)
+        except OSError as error:
+            message = write_error_message(error)  # a disk that filled up during the evaluations
+            if message is None:
+                raise
+            print(f"error: {message}", file=sys.stderr)
+            return 2
     return 0
 
 

@@ -34,6 +34,7 @@ from sb3_icrl.run_folder import (
     saved_algo,
     saved_as,
     trim_monitors,
+    unreadable_finished,
 )
 
 __all__ = [
@@ -67,4 +68,5 @@ __all__ = [
     "saved_algo",
     "saved_as",
     "trim_monitors",
+    "unreadable_finished",
 ]

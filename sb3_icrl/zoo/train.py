@@ -21,6 +21,7 @@ latest checkpoint for the steps it had left (skipped once ``finished.json`` is t
 """
 
 import argparse
+import contextlib
 import inspect
 import json
 import os
@@ -54,8 +55,10 @@ from sb3_icrl.common.utils import (
     atomic_write_json,
     atomic_write_text,
     atomic_write_yaml,
+    check_writable_folder,
     plain_docstring,
     remove_temporaries,
+    write_error_message,
 )
 from sb3_icrl.common.versions import versions
 from sb3_icrl.data import load_demonstrations
@@ -79,10 +82,12 @@ from sb3_icrl.run_folder import (
     FINISHED_FILE,
     TrainedAgentError,
     check_trained_agent,
+    checkpoints,
     find_vecnormalize,
     get_latest_run_id,
     is_finished,
     latest_checkpoint,
+    load_run_yaml,
     trim_monitors,
 )
 from sb3_icrl.zoo import compare, enjoy
@@ -270,8 +275,7 @@ def check_same_recipe(config_file: str, recipe: dict[str, Any]) -> None:
     """
     if not os.path.isfile(config_file):
         return  # a run folder from before config.yml was written: nothing to compare
-    with open(config_file) as file:
-        saved = yaml.safe_load(file) or {}
+    saved = load_run_yaml(config_file)  # (a damaged file is named)
     now = yaml.safe_load(yaml.safe_dump(recipe))
     changed = sorted(key for key in {*saved, *now} if key not in saved or key not in now or saved[key] != now[key])
     if changed:
@@ -298,8 +302,7 @@ def check_same_noise(args_file: str, args: argparse.Namespace) -> None:
     """
     if not os.path.isfile(args_file):
         return
-    with open(args_file) as file:
-        saved = yaml.safe_load(file) or {}
+    saved = load_run_yaml(args_file)
     then = recorded_transition_noise(saved)
     now = (float(args.transition_noise), args.transition_noise_model)
     if then != now:
@@ -310,15 +313,21 @@ def check_same_noise(args_file: str, args: argparse.Namespace) -> None:
         )
 
 
-def _resume_checkpoint(args: argparse.Namespace, save_path: str) -> str | None:
+def _resume_checkpoint(args: argparse.Namespace, save_path: str, resume_from: str | None) -> str | None:
     """
-    With ``--resume``, the checkpoint an unfinished run goes on from (set as ``args.trained_agent``); without one, the
-    folder is cleared so the run starts afresh in it.
+    With ``--resume``, the checkpoint an unfinished run goes on from (:func:`latest_checkpoint`, set as
+    ``args.trained_agent``); without one, the folder is cleared so the run starts afresh in it.
     """
     if not args.resume:
         return None
-    resume_from = latest_checkpoint(save_path)
     if resume_from is None:
+        damaged = [os.path.basename(path) for _, path in checkpoints(save_path)]
+        if damaged:
+            # Each was named by latest_checkpoint's warning: say what becomes of them
+            warnings.warn(
+                f"No checkpoint of {save_path} can be loaded ({', '.join(damaged)}): the run starts afresh and its folder "
+                "is cleared."
+            )
         shutil.rmtree(save_path, ignore_errors=True)
         return None
     args.trained_agent = resume_from
@@ -657,23 +666,6 @@ def _evaluation(callbacks: list[BaseCallback]) -> ConstraintEvalCallback | None:
     return next((callback for callback in callbacks if isinstance(callback, ConstraintEvalCallback)), None)
 
 
-def check_writable_folder(path: str, option: str) -> None:
-    """
-    Fail clearly unless ``path`` is, or can be made, a folder this process can write to.
-
-    :param path: The folder
-    :param option: The command-line option that named it (for the message)
-    """
-    if os.path.exists(path) and not os.path.isdir(path):
-        raise ValueError(f"{option} {path!r} is a file, not a folder: pass a folder.")
-    try:
-        os.makedirs(path, exist_ok=True)
-    except OSError as error:
-        raise ValueError(f"{option} {path!r} cannot be created ({error.strerror or error}): pass a writable folder.") from None
-    if not os.access(path, os.W_OK | os.X_OK):
-        raise ValueError(f"{option} {path!r} is not writable: pass a writable folder.")
-
-
 def _accepts_text(annotation: Any) -> bool:
     """Whether a parameter annotated ``annotation`` may receive a string (unknown annotations: yes)."""
     if annotation is inspect.Parameter.empty or annotation is Any or annotation is str:
@@ -723,6 +715,15 @@ def _absolute_if_file(path: str | None) -> str | None:
     return path
 
 
+def _mark_failed(save_path: str, error: Exception, model: BaseAlgorithm) -> None:
+    """Write ``failed.json``, unless the disk that stopped the run takes no more (the error itself then says why)."""
+    with contextlib.suppress(OSError):
+        atomic_write_json(
+            os.path.join(save_path, FAILED_FILE),
+            {"error": f"{type(error).__name__}: {error}", "num_timesteps": int(model.num_timesteps)},
+        )
+
+
 def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
     """
     Run one training as described by parsed ``args``; return the run folder.
@@ -767,7 +768,8 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
 
     save_path = _run_folder(args, name)
     recipe = {**raw_params, "n_timesteps": n_timesteps}  # what config.yml records
-    if args.resume and (is_finished(save_path) or latest_checkpoint(save_path) is not None):
+    latest = latest_checkpoint(save_path) if args.resume and not is_finished(save_path) else None
+    if args.resume and (is_finished(save_path) or latest is not None):
         # Before anything in the folder changes: a run made with another recipe is neither resumed nor passed as done
         check_same_recipe(os.path.join(save_path, name, "config.yml"), recipe)
         check_same_noise(os.path.join(save_path, name, "args.yml"), args)
@@ -775,7 +777,7 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
         if args.verbose:
             print(f"{save_path} has finished: nothing to do")
         return save_path
-    resume_from = _resume_checkpoint(args, save_path)
+    resume_from = _resume_checkpoint(args, save_path, latest)
     resuming = resume_from is not None or _continue_in_place(args, name, save_path)
     if resuming:
         remove_temporaries(save_path)  # of writes cut short when the run was killed
@@ -817,10 +819,7 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
         print("Interrupted: saving the model")
     except Exception as error:
         # No final model: enjoy and compare would take it for a trained one; the checkpoints stay for --resume
-        atomic_write_json(
-            os.path.join(save_path, FAILED_FILE),
-            {"error": f"{type(error).__name__}: {error}", "num_timesteps": int(model.num_timesteps)},
-        )
+        _mark_failed(save_path, error, model)
         raise
     final_model = os.path.join(save_path, f"{name}.zip")
     # Before the model it goes with
@@ -867,6 +866,12 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
         hint = did_you_mean(args.env, ours) if "Unknown env" in str(error) else ""
         print(f"error: {error}{hint}", file=sys.stderr)
         return 2
+    except OSError as error:
+        message = write_error_message(error)
+        if message is None:
+            raise
+        print(f"error: {message}", file=sys.stderr)  # a full disk or a folder turned read-only mid-run
+        return 1
     return 0
 
 

@@ -1,0 +1,441 @@
+"""
+Bad inputs at the edges, each with a clear error that names the bad file or option: damaged model zips and
+checkpoints, output folders that cannot be written, ``MODULE:EnvId`` mistakes, partial run folders, importer data
+with NaNs, suite mistakes caught before any run.
+"""
+
+import builtins
+import errno
+import importlib
+import io
+import json
+import os
+import pathlib
+import pickle
+import re
+import shutil
+import zipfile
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+from test_bad_inputs import TRAIN_TINY, CLIError, run_cli
+
+from sb3_icrl import PILagrangian
+from sb3_icrl.benchmark import load_suite, runner
+from sb3_icrl.benchmark.suite import SuiteError
+from sb3_icrl.common import utils
+from sb3_icrl.common.env_ids import resolve_env_id
+from sb3_icrl.common.vec_env import load_vec_normalize
+from sb3_icrl.data import Trajectory, load_imitation_dataset, save_imitation_dataset
+from sb3_icrl.data.importers import from_arrays, from_liu_pickles, from_malik_rollouts
+from sb3_icrl.data.serialize import DemonstrationError
+from sb3_icrl.plots.figures import load_evaluations, load_runs
+from sb3_icrl.run_folder import FINISHED_FILE, latest_checkpoint
+
+train_module = importlib.import_module("sb3_icrl.zoo.train")
+enjoy_module = importlib.import_module("sb3_icrl.zoo.enjoy")
+compare_module = importlib.import_module("sb3_icrl.zoo.compare")
+data_cli = importlib.import_module("sb3_icrl.data.__main__")
+benchmark_cli = importlib.import_module("sb3_icrl.benchmark.cli")
+
+ENV = "GridWorldWall-v0"
+#: How each damaged copy of a model zip is made, and the words the error uses for it
+DAMAGES = {
+    "truncated": "is cut short or damaged",
+    "empty": "is empty (0 bytes)",
+    "broken-tensor": "is damaged (RuntimeError",
+    "broken-json": "is damaged (JSONDecodeError",
+    "broken-pickle": "is damaged (UnpicklingError",
+}
+
+
+def damage(source: pathlib.Path, target: pathlib.Path, how: str) -> None:
+    """Write a damaged copy of the model zip ``source`` to ``target``, as ``how`` (a key of :data:`DAMAGES`) says."""
+    content = source.read_bytes()
+    if how == "truncated":
+        target.write_bytes(content[: len(content) // 2])
+        return
+    if how == "empty":
+        target.write_bytes(b"")
+        return
+    with zipfile.ZipFile(source) as original:
+        entries = {info.filename: original.read(info.filename) for info in original.infolist()}
+    if how == "broken-tensor":
+        entries["policy.pth"] = entries["policy.pth"][:100]
+    elif how == "broken-json":
+        entries["data"] = b"{not json"
+    else:  # a cloudpickled value cut short inside valid JSON
+        data = json.loads(entries["data"])
+        blob = data["observation_space"][":serialized:"]
+        data["observation_space"][":serialized:"] = blob[: len(blob) // 8 * 4]
+        entries["data"] = json.dumps(data).encode()
+    target.unlink(missing_ok=True)
+    with zipfile.ZipFile(target, "w") as archive:
+        for name, value in entries.items():
+            archive.writestr(name, value)
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory: pytest.TempPathFactory) -> pathlib.Path:
+    """A finished tiny PPO-Lagrangian run with checkpoints and evaluations at 16 and 32 steps."""
+    root = tmp_path_factory.mktemp("edges")
+    argv = ["--algo", "ppolag", "--env", ENV, "-n", "32", "--seed", "0", "-f", str(root), "--save-freq", "16"]
+    run_cli(train_module.main, [*argv, "--eval-freq", "16", "--eval-episodes", "1", *TRAIN_TINY[2:]])
+    return root / "ppolag" / f"{ENV}_1"
+
+
+def _copy(run: pathlib.Path, tmp_path: pathlib.Path) -> pathlib.Path:
+    copy = tmp_path / "ppolag" / f"{ENV}_1"
+    shutil.copytree(run, copy)
+    return copy
+
+
+# -------------------------------------------------------------------- damaged models and checkpoints
+
+
+@pytest.mark.parametrize("how", DAMAGES)
+def test_a_damaged_model_is_named_by_every_command(run: pathlib.Path, tmp_path: pathlib.Path, how: str) -> None:
+    copy = _copy(run, tmp_path)
+    model = copy / f"{ENV}.zip"
+    damage(run / f"{ENV}.zip", model, how)
+    expected = f"{model}' {DAMAGES[how]}"
+    with pytest.raises(CLIError, match="trained agent") as raised:
+        argv = ["--algo", "ppolag", "--env", ENV, "-n", "16", "-i", str(model), "--new-folder", "-f", str(tmp_path)]
+        run_cli(train_module.main, argv)
+    assert expected in str(raised.value)
+    with pytest.raises(CLIError) as raised:
+        run_cli(enjoy_module.main, ["--algo", "ppolag", "--env", ENV, "--run", str(copy), "--no-render", "-n", "10"])
+    assert expected in str(raised.value)
+    with pytest.raises(CLIError) as raised:
+        run_cli(compare_module.main, [str(copy), "-n", "50"])
+    assert expected in str(raised.value)
+    with pytest.raises(CLIError) as raised:
+        run_cli(data_cli.main, ["generate", "--run", str(copy), "--n", "1", "--out", str(tmp_path / "demos.npz")])
+    assert f"The expert {model} {DAMAGES[how]}" in str(raised.value)
+
+
+@pytest.mark.parametrize("how", DAMAGES)
+def test_resume_falls_back_past_a_damaged_checkpoint_and_names_it(run: pathlib.Path, tmp_path: pathlib.Path, how: str) -> None:
+    copy = _copy(run, tmp_path)
+    (copy / FINISHED_FILE).unlink()
+    (copy / f"{ENV}.zip").unlink()
+    latest = copy / "rl_model_32_steps.zip"
+    damage(run / latest.name, latest, how)
+    with pytest.warns(UserWarning, match=re.escape(f"{latest} {DAMAGES[how]}") + ".*resuming from an earlier checkpoint"):
+        assert latest_checkpoint(str(copy)) == str(copy / "rl_model_16_steps.zip")
+    argv = ["--algo", "ppolag", "--env", ENV, "-n", "32", "--seed", "0", "-f", str(tmp_path), "--exp-id", "1", "--resume"]
+    with pytest.warns(UserWarning, match="resuming from an earlier checkpoint"):
+        run_cli(train_module.main, [*argv, "--save-freq", "16", *TRAIN_TINY])
+    finished: dict[str, Any] = json.loads((copy / FINISHED_FILE).read_text())
+    assert finished["resumed_from"] == str(copy / "rl_model_16_steps.zip") and finished["num_timesteps"] == 32
+
+
+def test_resume_without_a_loadable_checkpoint_says_it_starts_afresh(run: pathlib.Path, tmp_path: pathlib.Path) -> None:
+    copy = _copy(run, tmp_path)
+    (copy / FINISHED_FILE).unlink()
+    for steps in (16, 32):
+        damage(run / f"rl_model_{steps}_steps.zip", copy / f"rl_model_{steps}_steps.zip", "truncated")
+    argv = ["--algo", "ppolag", "--env", ENV, "-n", "32", "--seed", "0", "-f", str(tmp_path), "--exp-id", "1", "--resume"]
+    with pytest.warns(UserWarning) as caught:
+        run_cli(train_module.main, [*argv, *TRAIN_TINY])
+    messages = [str(warning.message) for warning in caught]
+    first = "rl_model_16_steps.zip is cut short or damaged (it has no `data` entry): no earlier checkpoint"
+    assert any(first in message for message in messages)
+    assert any(
+        "No checkpoint of" in message
+        and "can be loaded (rl_model_32_steps.zip, rl_model_16_steps.zip): the run starts afresh" in message
+        for message in messages
+    )
+    assert json.loads((copy / FINISHED_FILE).read_text())["resumed_from"] is None
+
+
+def test_a_damaged_pi_lagrangian_expert_is_named(tmp_path: pathlib.Path) -> None:
+    saved = tmp_path / "expert.npz"
+    PILagrangian(gym.make(f"sb3_icrl/{ENV}")).learn(2).save(saved)
+    cut = tmp_path / "cut.npz"
+    cut.write_bytes(saved.read_bytes()[:300])
+    out = str(tmp_path / "demos.npz")
+    with pytest.raises(CLIError, match=f"{cut} cannot be read \\(BadZipFile.*it is cut short or damaged"):
+        run_cli(data_cli.main, ["generate", "--env", ENV, "--expert", str(cut), "--n", "1", "--out", out])
+    other = tmp_path / "other.npz"
+    np.savez(other, timesteps=np.arange(3))
+    with pytest.raises(ValueError, match=f"{other} is not a model saved by PILagrangian.save: it lacks \\['params'"):
+        PILagrangian.load(other)
+
+
+# -------------------------------------------------------------------- output folders that cannot be written
+
+
+@pytest.fixture
+def full_disk(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every atomic write fails as on a full disk (where the data reaches it: ``fsync``)."""
+
+    def no_space(descriptor: int) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(utils.os, "fsync", no_space)
+
+
+def test_a_full_disk_ends_train_and_generate_with_one_line_naming_the_file(tmp_path: pathlib.Path, full_disk: None) -> None:
+    with pytest.raises(CLIError, match=r"cannot write .*config\.yml: No space left on device; free some space there"):
+        run_cli(train_module.main, ["--algo", "ppolag", "--env", ENV, "-n", "16", "-f", str(tmp_path), *TRAIN_TINY])
+    out = tmp_path / "demos.npz"
+    with pytest.raises(CLIError, match=f"cannot write {out}: No space left on device"):
+        run_cli(data_cli.main, ["generate", "--env", ENV, "--expert", "pilag", "--n", "1", "--out", str(out)])
+
+
+def test_a_full_disk_names_a_runs_log_in_the_suites_failures(tmp_path: pathlib.Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    class FullLog(io.RawIOBase):
+        def writable(self) -> bool:
+            return True
+
+        def write(self, data: Any) -> int:
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+    log = str(tmp_path / "logs" / "run.log")
+    opened = builtins.open
+    # The run's log only: its lock is opened too
+    monkeypatch.setattr(
+        runner,
+        "open",
+        lambda path, *args, **kwargs: FullLog() if path == log else opened(path, *args, **kwargs),
+        raising=False,
+    )
+    with pytest.raises(OSError, match=f"No space left on device: '{log}'"):
+        runner.execute_run(["--algo", "ppolag"], log, str(tmp_path / "run"))
+
+
+def test_a_read_only_folder_is_refused_before_anything_runs(
+    run: pathlib.Path, tmp_path: pathlib.Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    read_only = tmp_path / "read_only"
+    read_only.mkdir()
+    access = os.access
+    monkeypatch.setattr(os, "access", lambda path, mode: not str(path).startswith(str(read_only)) and access(path, mode))
+    suite = tmp_path / "suite.yml"
+    suite.write_text(f"envs: [{ENV}]\nalgos: [ppolag]\nseeds: [0]\nsteps: 16\n")
+    with pytest.raises(CLIError, match=f"-f/--log-folder '{read_only}' is not writable"):
+        run_cli(benchmark_cli.main, ["run", str(suite), "-f", str(read_only)])
+    with pytest.raises(CLIError, match=f"-o/--output '{read_only}/report' is not writable"):
+        run_cli(benchmark_cli.main, ["report", str(suite), "-f", str(tmp_path), "-o", str(read_only / "report")])
+    with pytest.raises(CLIError, match=f"--out '{read_only}/x.npz' cannot be written: {read_only} is not writable"):
+        run_cli(data_cli.main, ["generate", "--env", ENV, "--expert", "pilag", "--n", "1", "--out", str(read_only / "x.npz")])
+    with pytest.raises(CLIError, match=f"--json '{read_only}/x.json' cannot be written: {read_only} is not writable"):
+        run_cli(compare_module.main, [str(run), "--json", str(read_only / "x.json")])
+    with pytest.raises(CLIError, match=f"-f/--log-folder '{read_only}' is not writable"):
+        run_cli(train_module.main, ["--algo", "ppolag", "--env", ENV, "-n", "16", "-f", str(read_only)])
+
+
+# -------------------------------------------------------------------- MODULE:EnvId
+
+
+@pytest.mark.parametrize(
+    "env, message",
+    [
+        ("no_such_module_xyz:Env-v0", "Env 'no_such_module_xyz:Env-v0': cannot import its module 'no_such_module_xyz'"),
+        (":GridWorldWall-v0", "Env ':GridWorldWall-v0': write MODULE:EnvId, both parts given"),
+        ("sb3_icrl.envs:", "Env 'sb3_icrl.envs:': write MODULE:EnvId"),
+        ("sb3_icrl.envs:NoSuch-v0", "sb3_icrl.envs is imported, but no env 'NoSuch-v0' is registered: check the id"),
+        ("sb3_icrl.envs:GridWorldWal-v0", "Did you mean sb3_icrl.envs:sb3_icrl/GridWorldWall-v0?"),
+    ],
+)
+def test_module_colon_env_id_mistakes_name_the_module_and_the_id(tmp_path: pathlib.Path, env: str, message: str) -> None:
+    with pytest.raises(ValueError, match=re.escape(message)):
+        resolve_env_id(env)
+    with pytest.raises(CLIError, match=re.escape(message)):
+        run_cli(train_module.main, ["--algo", "ppolag", "--env", env, "-n", "16", "-f", str(tmp_path)])
+    suite = tmp_path / "suite.yml"
+    suite.write_text(f"envs: ['{env}']\nalgos: [ppolag]\nseeds: [0]\n")
+    with pytest.raises(SuiteError, match=f"line 1: .*{re.escape(message)}"):
+        load_suite(str(suite))
+
+
+def test_a_typo_in_a_users_env_id_lists_what_its_module_registered(
+    tmp_path: pathlib.Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    name = f"edges_envs_{tmp_path.name.replace('-', '_')}"
+    register = "gym.register('edges/Corridor-v0', entry_point='sb3_icrl.envs.grid_world:GridWorldEnv')"
+    (tmp_path / f"{name}.py").write_text(f"import gymnasium as gym\n{register}\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    with pytest.raises(ValueError) as raised:
+        resolve_env_id(f"{name}:edges/Coridor-v0")
+    assert "It registered: edges/Corridor-v0." in str(raised.value)
+    assert f"Did you mean {name}:edges/Corridor-v0?" in str(raised.value)
+
+
+# -------------------------------------------------------------------- partial run folders
+
+
+def test_a_damaged_evaluations_npz_is_named_and_skipped(run: pathlib.Path, tmp_path: pathlib.Path) -> None:
+    copy = _copy(run, tmp_path)
+    evaluations = copy / "evaluations.npz"
+    evaluations.write_bytes(evaluations.read_bytes()[:100])
+    message = f"{evaluations} cannot be read (BadZipFile"
+    with pytest.raises(ValueError, match=re.escape(message) + ".*delete the file to leave the run out of the curves"):
+        load_evaluations(copy)
+    with pytest.warns(UserWarning, match=re.escape(message) + ".* Skipped"), pytest.raises(FileNotFoundError):
+        load_runs(tmp_path, ["ppolag"], ENV, skip_missing=True)  # (the only run: none left to plot)
+    # Resumed, the run goes on with its evaluations afresh from the checkpoint, and says so
+    (copy / FINISHED_FILE).unlink()
+    argv = ["--algo", "ppolag", "--env", ENV, "-n", "32", "--seed", "0", "-f", str(tmp_path), "--exp-id", "1", "--resume"]
+    with pytest.warns(UserWarning, match=re.escape(message) + ".*evaluations start afresh at step 32"):
+        run_cli(train_module.main, [*argv, "--eval-freq", "16", "--eval-episodes", "1", *TRAIN_TINY[2:]])
+    assert load_evaluations(copy)["timesteps"].tolist() == [32]  # written anew: no evaluation of the lost file is kept
+
+
+@pytest.fixture(scope="module")
+def suite_runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[pathlib.Path, pathlib.Path]:
+    """A finished suite of two tiny PPO-Lagrangian runs: its file and its log root."""
+    root = tmp_path_factory.mktemp("suite")
+    path = root / "partial.yml"
+    path.write_text(
+        f"envs: [{ENV}]\nalgos: [ppolag]\nseeds: [0, 1]\nsteps: 32\neval_episodes: 1\n"
+        "train_args: {eval_freq: 16, eval_episodes: 1, save_freq: 16}\n"
+        "variants: {base: {hyperparams: {n_steps: 16, batch_size: 16, policy_kwargs: 'dict(net_arch=[4])'}}}\n"
+    )
+    run_cli(benchmark_cli.main, ["run", str(path), "-f", str(root / "logs"), "--jobs", "1", "--no-report"])
+    return path, root / "logs"
+
+
+@pytest.mark.parametrize(
+    "how, note",
+    [
+        ("finished.json cut short", "finished.json is not a JSON mapping (cut short or overwritten)"),
+        ("final model cut short", f"{ENV}.zip is cut short or damaged (it has no `data` entry): the report leaves it out"),
+        ("final model empty", f"{ENV}.zip is empty (0 bytes): the report leaves it out"),
+        ("final model missing", f"{ENV}.zip is missing: the report leaves it out"),
+    ],
+)
+def test_status_and_report_name_what_is_wrong_in_a_partial_run_folder(
+    suite_runs: tuple[pathlib.Path, pathlib.Path], tmp_path: pathlib.Path, capsys: pytest.CaptureFixture, how: str, note: str
+) -> None:
+    path, logs = suite_runs
+    root = tmp_path / "logs"
+    shutil.copytree(logs, root)
+    broken = load_suite(str(path)).runs()[1].run_folder(str(root))
+    if how == "finished.json cut short":
+        (pathlib.Path(broken) / FINISHED_FILE).write_text('{"num_timesteps": 3')
+    elif how == "final model missing":
+        (pathlib.Path(broken) / f"{ENV}.zip").unlink()
+    else:
+        damage(
+            pathlib.Path(broken) / f"{ENV}.zip",
+            pathlib.Path(broken) / f"{ENV}.zip",
+            how.split()[-1].replace("short", "truncated"),
+        )
+    capsys.readouterr()
+    assert benchmark_cli.main(["status", str(path), "-f", str(root)]) == 0
+    line = next(line for line in capsys.readouterr().out.splitlines() if "seed 1" in line)
+    assert note in line and broken in line
+    assert benchmark_cli.main(["report", str(path), "-f", str(root), "--no-figures"]) == 0
+    out = capsys.readouterr().out
+    if how == "finished.json cut short":
+        assert f"{broken}/finished.json is not a JSON mapping" in out and "trains it again from its last checkpoint" in out
+        assert "Not finished yet (1): base/ppolag/GridWorldWall-v0/seed 1" in out
+    else:
+        assert f"left out of the report, its model in {broken} could not be evaluated" in out
+
+
+# -------------------------------------------------------------------- importers
+
+
+def _steps(n: int, bad_row: int | None = None) -> np.ndarray:
+    values = np.zeros((n, 2), dtype=np.float32)
+    if bad_row is not None:
+        values[bad_row, 0] = np.nan
+    return values
+
+
+def _pickles(folder: pathlib.Path, files: dict[str, dict[str, Any]]) -> pathlib.Path:
+    folder.mkdir()
+    for name, content in files.items():
+        (folder / name).write_bytes(pickle.dumps(content))
+    return folder
+
+
+LIU = "scene-1_len-5_time_out.pkl"
+# (id, call(tmp_path), fragment of the DemonstrationError's message)
+IMPORTER_CASES: list[tuple[str, Any, str]] = [
+    ("arrays-nan-observation", lambda t: from_arrays(_steps(5, 2), _steps(5)), "episode 0: `obs` holds NaN or infinite"),
+    ("arrays-inf-action", lambda t: from_arrays(_steps(5), _steps(5) + np.inf), "`acts` holds NaN or infinite values"),
+    ("arrays-nan-reward", lambda t: from_arrays(_steps(5), _steps(5), rewards=_steps(5, 1)[:, 0]), "`rews` holds NaN"),
+    ("arrays-nan-cost", lambda t: from_arrays(_steps(5), _steps(5), costs=_steps(5, 0)[:, 0]), "`costs` holds NaN"),
+    ("arrays-negative-cost", lambda t: from_arrays(_steps(5), _steps(5), costs=-np.ones(5)), "`costs` holds negative"),
+    ("arrays-single-value", lambda t: from_arrays(np.float32(1.0), _steps(5)), "`observations` must be an array with one"),
+    ("arrays-single-reward", lambda t: from_arrays(_steps(5), _steps(5), rewards=1.0), "`rewards` must be an array"),
+    (
+        "malik-nan-observation",
+        lambda t: from_malik_rollouts(_pickles(t / "m", {"0.pkl": {"observations": _steps(5, 2), "actions": _steps(5)}})),
+        "0.pkl: `obs` holds NaN or infinite values (1 rows, first at row 2)",
+    ),
+    (
+        "malik-nan-return",
+        lambda t: from_malik_rollouts(
+            _pickles(t / "m", {"0.pkl": {"observations": _steps(5), "actions": _steps(5), "rewards": np.array([np.nan])}})
+        ),
+        "0.pkl: its recorded return is NaN or infinite",
+    ),
+    (
+        "liu-reward-length",
+        lambda t: from_liu_pickles(
+            _pickles(t / "l", {LIU: {"original_observations": _steps(5), "actions": _steps(5), "reward": np.zeros(4)}})
+        ),
+        f"{LIU}: 4 rewards for 5 actions",
+    ),
+    (
+        "liu-nan-reward",
+        lambda t: from_liu_pickles(
+            _pickles(t / "l", {LIU: {"original_observations": _steps(5), "actions": _steps(5), "reward": _steps(5, 1)[:, 0]}})
+        ),
+        f"{LIU}: `rews` holds NaN",
+    ),
+]
+
+
+@pytest.mark.parametrize(("call", "fragment"), [case[1:] for case in IMPORTER_CASES], ids=[case[0] for case in IMPORTER_CASES])
+def test_importers_refuse_broken_numbers_naming_the_source(tmp_path: pathlib.Path, call: Any, fragment: str) -> None:
+    with pytest.raises(DemonstrationError) as raised:
+        call(tmp_path)
+    assert fragment in str(raised.value)
+
+
+def test_an_imitation_dataset_with_nan_rewards_is_refused(tmp_path: pathlib.Path) -> None:
+    datasets = pytest.importorskip("datasets")
+    clean = Trajectory(_steps(3), _steps(2), None, False, np.zeros(2, np.float32), np.zeros(2, np.float32))
+    save_imitation_dataset(tmp_path / "clean", [clean])
+    broken = datasets.load_from_disk(str(tmp_path / "clean")).map(lambda row: {**row, "rews": [float("nan"), 0.0]})
+    broken.save_to_disk(str(tmp_path / "broken"))
+    with pytest.raises(DemonstrationError, match="broken trajectory 0: `rews` holds NaN or infinite values"):
+        load_imitation_dataset(tmp_path / "broken", missing_costs="zeros")
+
+
+@pytest.mark.parametrize("name", ["args.yml", "config.yml"])
+def test_a_damaged_run_yml_is_named(run: pathlib.Path, tmp_path: pathlib.Path, name: str) -> None:
+    copy = _copy(run, tmp_path)
+    broken = copy / ENV / name
+    broken.write_text("n_timesteps: [32\n")
+    expected = f"{broken} is not valid YAML (expected ',' or ']', but got '<stream end>', line 2): the run folder is damaged"
+    with pytest.raises(CLIError) as raised:
+        run_cli(enjoy_module.main, ["--algo", "ppolag", "--env", ENV, "--run", str(copy), "--no-render", "-n", "10"])
+    assert expected in str(raised.value)
+    with pytest.raises(CLIError) as raised:
+        run_cli(compare_module.main, [str(copy), "-n", "50"])
+    assert expected in str(raised.value)
+
+
+def test_damaged_statistics_and_training_state_are_named(run: pathlib.Path, tmp_path: pathlib.Path) -> None:
+    copy = _copy(run, tmp_path)
+    state = copy / ENV / "training_state.pkl"
+    state.write_bytes(state.read_bytes()[:20])
+    argv = ["--algo", "ppolag", "--env", ENV, "-n", "16", "-i", str(copy / f"{ENV}.zip"), *TRAIN_TINY]
+    with pytest.raises(CLIError, match=re.escape(f"The training state {state} cannot be read (UnpicklingError")):
+        run_cli(train_module.main, argv)
+    statistics = tmp_path / "vecnormalize.pkl"
+    venv = DummyVecEnv([lambda: gym.make("Pendulum-v1")])
+    VecNormalize(venv).save(str(statistics))
+    statistics.write_bytes(statistics.read_bytes()[:50])
+    with pytest.raises(ValueError, match=re.escape(f"The VecNormalize statistics {statistics} cannot be read")):
+        load_vec_normalize(str(statistics), venv)
