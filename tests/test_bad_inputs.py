@@ -605,7 +605,7 @@ BAD_INPUTS: list[tuple[str, Callable[[dict[str, str]], Any], type[BaseException]
         "train-unknown-algo",
         lambda r: run_cli(train_module.main, ["--algo", "sac", "--env", "GridWorldWall-v0"]),
         CLIError,
-        "Unknown algo 'sac': use one of ppo, ppolag, gacl, bc2l, mecl, vicrl, irlplus, or register your own",
+        "Unknown algo 'sac': use one of ppo, ppolag, gacl, bc2l, mecl, vicrl, irlplus, irlplusppo, or register your own",
     ),
     (
         "train-env-kwarg-value",

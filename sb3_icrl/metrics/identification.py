@@ -32,6 +32,7 @@ import scipy.stats
 import torch as th
 
 from sb3_icrl.common.utils import atomic_write_json
+from sb3_icrl.common.vec_env import load_vec_normalize
 from sb3_icrl.data import load_demonstrations
 from sb3_icrl.envs.wrappers import recorded_transition_noise, transition_noise_wrapper
 from sb3_icrl.icrl.tabular import precision_recall
@@ -578,8 +579,6 @@ def policy_pairs(
     """
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import VecNormalize
-
-    from sb3_icrl.common.vec_env import load_vec_normalize
 
     wrapper = transition_noise_wrapper(transition_noise, transition_noise_model)
     venv: Any = make_vec_env(env_id, n_envs=1, seed=seed, env_kwargs=dict(env_kwargs or {}), wrapper_class=wrapper)

@@ -21,6 +21,7 @@ import numpy as np
 import yaml
 
 from sb3_icrl.common.utils import plain_docstring
+from sb3_icrl.common.vec_env import load_vec_normalize
 from sb3_icrl.data import load_demonstrations
 from sb3_icrl.envs.wrappers import recorded_transition_noise, transition_noise_wrapper
 from sb3_icrl.metrics.identification import methods_figure
@@ -210,8 +211,6 @@ def policy_observations(
     """
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import VecNormalize
-
-    from sb3_icrl.common.vec_env import load_vec_normalize
 
     wrapper = transition_noise_wrapper(*recorded_transition_noise(run_args))
     venv: Any = make_vec_env(env_id, n_envs=1, seed=seed, env_kwargs=env_kwargs, wrapper_class=wrapper)
