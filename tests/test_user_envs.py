@@ -348,7 +348,10 @@ def guide_blocks() -> list[tuple[str, str]]:
 
 @pytest.mark.slow
 def test_custom_env_guide_runs_end_to_end(tmp_path):
-    """Every file and command of the how-to, as written, in a fresh folder: expert, demonstrations, MECL, compare, plots."""
+    """
+    Every file and command of the how-to, as written, in a fresh folder: expert, demonstrations, MECL, compare, plots.
+    On its hopper, whose episodes end when it falls, MECL keeps the constraint without falling on purpose.
+    """
     blocks = guide_blocks()
     scripts = []
     for language, text in blocks:
@@ -363,9 +366,11 @@ def test_custom_env_guide_runs_end_to_end(tmp_path):
     bin_dir = os.path.dirname(sys.executable)  # sb3-icrl and python of this environment
     env = {**os.environ, "PYTHONPATH": str(tmp_path), "PATH": os.pathsep.join([bin_dir, os.environ.get("PATH", "")])}
     for script in scripts:
-        result = subprocess.run(script, cwd=tmp_path, capture_output=True, text=True, env=env, timeout=600)
+        result = subprocess.run(script, cwd=tmp_path, capture_output=True, text=True, env=env, timeout=1800)
         assert result.returncode == 0, f"{script[-1]}\n{(result.stdout + result.stderr)[-3000:]}"
     for produced in ("demos.npz", "compare.json", "constraint.png", "curves.png"):
         assert (tmp_path / produced).is_file(), produced
-    labels = [run.get("label") or run["algo"] for run in json.loads((tmp_path / "compare.json").read_text())["runs"]]
-    assert labels == ["mecl (logs)", "mecl (logs_raw)", "ppolag"]
+    runs = {run.get("label") or run["algo"]: run for run in json.loads((tmp_path / "compare.json").read_text())["runs"]}
+    assert list(runs) == ["mecl (logs)", "mecl (logs_raw)", "ppolag"]
+    mecl, expert = runs["mecl (logs)"], runs["ppolag"]
+    assert mecl["violation_rate"] <= 0.1 and mecl["episode_length"] >= 0.5 * expert["episode_length"], (mecl, expert)
