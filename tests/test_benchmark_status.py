@@ -160,3 +160,14 @@ def test_cli_says_when_the_log_folder_holds_no_run_of_the_suite(suite_in_five_st
     suite, _, _ = suite_in_five_states
     assert benchmark_main(["status", suite.path, "-f", str(tmp_path / "typo")]) == 0
     assert "no run has started there; check -f" in capsys.readouterr().out
+
+
+def test_another_variant_s_pace_is_not_used(suite_in_five_states):
+    """A variant may train at another throughput (a faster recipe): its runs wait for a finished run of their own."""
+    _, root, runs = suite_in_five_states
+    statuses = suite_status(runs, root)
+    faster = dataclasses.replace(runs[4], variant="family")
+    statuses.append(RunStatus(faster, "not started", None, 1000))
+    assert seconds_left(statuses) == (pytest.approx(1400.0), 1)
+    statuses.append(RunStatus(dataclasses.replace(runs[0], variant="family"), "finished", 1000, 1000, wall_time_s=100.0))
+    assert seconds_left(statuses) == (pytest.approx(1400.0 + 100.0), 0)  # 1000 steps at 0.1 s

@@ -162,22 +162,26 @@ def suite_status(runs: list[RunSpec], root: str) -> list[RunStatus]:
 
 def seconds_left(statuses: list[RunStatus]) -> tuple[float, int]:
     """
-    The training time left, at the pace (seconds per step) of the finished runs of the same env and algorithm, else
-    of the same env.
+    The training time left, at the pace (seconds per step) of the finished runs of the same variant, env and
+    algorithm, else of the same variant and env. Variants can change the learner (a recipe at another throughput), so
+    another variant's pace is not used.
 
-    :return: ``(seconds, runs not estimated)``: runs whose steps are unknown or whose env has no finished run
+    :return: ``(seconds, runs not estimated)``: runs whose steps are unknown or whose variant and env have no finished
+        run
     """
     pace: dict[Any, list[float]] = {}
     for status in statuses:
         if status.state == "finished" and status.wall_time_s and status.steps_done:
             rate = status.wall_time_s / status.steps_done
-            pace.setdefault((status.run.env_id, status.run.algo), []).append(rate)
-            pace.setdefault(status.run.env_id, []).append(rate)
+            run = status.run
+            pace.setdefault((run.variant, run.env_id, run.algo), []).append(rate)
+            pace.setdefault((run.variant, run.env_id), []).append(rate)
     seconds, unknown = 0.0, 0
     for status in statuses:
         if status.state == "finished":
             continue
-        rates = pace.get((status.run.env_id, status.run.algo)) or pace.get(status.run.env_id)
+        run = status.run
+        rates = pace.get((run.variant, run.env_id, run.algo)) or pace.get((run.variant, run.env_id))
         if status.steps_total is None or not rates:
             unknown += 1
             continue
