@@ -32,6 +32,7 @@ import sb3_icrl  # noqa: F401  (registers the envs)
 from sb3_icrl.common.utils import atomic_write_json
 from sb3_icrl.data.registry import expert_paths, load_demonstrations
 from sb3_icrl.envs import get_constraint_spec
+from sb3_icrl.envs.constraint_spec import FeatureConstraint
 from sb3_icrl.registry import env_name, resolve_env_id
 from sb3_icrl.run_evaluation import describe_run, load_run_model
 from sb3_icrl.run_folder import find_vecnormalize, model_path
@@ -58,7 +59,7 @@ class Episodes:
 
 def margin(values: np.ndarray, threshold: float, op: str) -> np.ndarray:
     """Distance to the threshold on the allowed side (negative beyond it)."""
-    return values - threshold if op == "<=" else threshold - values
+    return FeatureConstraint(0, threshold, op).margin(values)
 
 
 def load_model(path: str, statistics: str | None, env_id: str, algo: str, seed: int) -> tuple[BaseAlgorithm, Any]:

@@ -27,6 +27,7 @@ from sb3_icrl.constraints import BetaFeasibilityNet
 from sb3_icrl.data import NormalizedExpert, Trajectory, load_demonstrations
 from sb3_icrl.data.generate import rollout_trajectory
 from sb3_icrl.envs import CONSTRAINED_FEATURE
+from sb3_icrl.envs.constraint_spec import OPERATORS
 from sb3_icrl.registry import ALGOS
 from sb3_icrl.run_folder import find_vecnormalize
 
@@ -79,7 +80,7 @@ def band_rows(values: np.ndarray, costs: np.ndarray, edges: np.ndarray, env_id: 
         in_band = (values >= low) & (values < high)
         if not in_band.any():
             continue
-        broken = values[in_band] <= constraint.threshold if constraint.op == "<=" else values[in_band] >= constraint.threshold
+        broken = OPERATORS[constraint.op](values[in_band], constraint.threshold)
         rows.append(
             f"  {constraint.name} in [{low:7.1f}, {high:7.1f}) {in_band.sum():7d} pairs"
             f"  learned cost {costs[in_band].mean():.3f}  (true violation in {broken.mean():4.0%})"

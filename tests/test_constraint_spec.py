@@ -152,3 +152,22 @@ def test_declared_true_cost_matches_the_env_cost(env_id: str, env_kwargs: dict) 
     env.close()
     assert declared == reported
     assert 0 < sum(reported) < len(reported)
+
+
+@pytest.mark.parametrize(
+    "op, values, expected",
+    [
+        ("<=", [-4.0, -3.0, 1.0], [-1.0, 0.0, 4.0]),  # broken at or below -3: the allowed side is above
+        ("<", [-4.0, -3.0, 1.0], [-1.0, 0.0, 4.0]),
+        (">=", [-4.0, -3.0, 1.0], [1.0, 0.0, -4.0]),  # broken at or above -3: the allowed side is below
+        (">", [-4.0, -3.0, 1.0], [1.0, 0.0, -4.0]),
+    ],
+)
+def test_margin_is_the_distance_on_the_allowed_side(op, values, expected):
+    """Positive on the allowed side, negative beyond the threshold, for each operator."""
+    feature = FeatureConstraint(obs_index=0, threshold=-3.0, op=op)
+    np.testing.assert_allclose(feature.margin(values), expected)
+    on_the_line_breaks = op in ("<=", ">=")
+    margins = feature.margin(values)
+    expected_violated = (margins < 0) | ((margins == 0) & on_the_line_breaks)
+    np.testing.assert_array_equal(feature.violated(np.asarray(values)[:, None]), expected_violated)

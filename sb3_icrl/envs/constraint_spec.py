@@ -79,6 +79,14 @@ class FeatureConstraint:
         """``"below"`` when values under the threshold break the constraint, else ``"above"``."""
         return "below" if self.op in ("<=", "<") else "above"
 
+    def margin(self, values: Any) -> np.ndarray:
+        """
+        :param values: Values of the constrained feature
+        :return: Their distance to the threshold on the allowed side, negative beyond it (on the threshold itself: 0)
+        """
+        values = np.asarray(values, dtype=np.float64)
+        return values - self.threshold if self.unsafe_side == "below" else self.threshold - values
+
     def violated(self, observations: Any) -> np.ndarray:
         """
         :param observations: One observation ``(obs_dim,)`` or a batch ``(n, obs_dim)``
