@@ -138,3 +138,24 @@ def test_every_extra_is_in_the_install_guide_with_its_packages():
             package = re.split(r"[<>=!~ ]", requirement)[0]
             if package:
                 assert f"`{package}`" in rows[extra], f"{extra}: {package} is not in its install.md row ({rows[extra]})"
+
+
+def test_quickstart_describes_the_grid_world_recipes_and_when_the_map_is_logged():
+    """The quickstart's account of the grid-world recipes and of the constraint/map image follows the recipes."""
+    import yaml
+
+    from sb3_icrl.zoo.train import get_parser
+
+    recipes = DOCS.parent / "sb3_icrl" / "zoo_hyperparams"
+    for algo in ("gacl", "bc2l", "mecl", "vicrl"):
+        entries = yaml.safe_load((recipes / f"{algo}.yml").read_text())
+        grid = {env: recipe for env, recipe in entries.items() if "GridWorld" in env}
+        assert grid, algo
+        for env, recipe in grid.items():
+            assert recipe["forward_solver"] == "pi_lagrangian" and recipe["n_timesteps"] == 10000, (algo, env)
+            assert "nominal_buffer_size=500" in recipe["planner_kwargs"], (algo, env)
+    eval_freq = get_parser().get_default("eval_freq")
+    assert eval_freq > 10000  # the quickstart's run logs its map only at its end
+    text = " ".join((DOCS / "guide" / "quickstart.md").read_text().split())
+    assert f"(`--eval-freq`, default {eval_freq} steps) and at the end of the run" in text
+    assert "first command above logs it once, at step 10000" in text

@@ -6,10 +6,12 @@ import shutil
 import subprocess
 import sys
 
+import gymnasium as gym
 import numpy as np
 import pytest
 from stable_baselines3.common.vec_env import VecNormalize
 
+from sb3_icrl.common.envs import ConstrainedCorridorEnv
 from sb3_icrl.common.evaluation import evaluate_constraint
 from sb3_icrl.zoo import ALGOS
 from sb3_icrl.zoo import enjoy as enjoy_module
@@ -23,6 +25,22 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 ENV = "ConstrainedCorridor-v0"
 TRAIN = ["-n", "256", "-params", "n_steps:128", "batch_size:32", "--eval-freq", "128", "--eval-episodes", "2", "--seed", "1"]
 TRAIN += ["--save-freq", "128", "--verbose", "0"]
+
+
+def corridor_factory(render_mode: str | None = None, **kwargs: object) -> gym.Env:
+    """A user's env made by a function that takes ``render_mode`` and passes it on: no class metadata to read."""
+    return ConstrainedCorridorEnv(render_mode=render_mode, **kwargs)  # type: ignore[arg-type]
+
+
+def corridor_factory_without_rendering(safe_limit: int = 6) -> gym.Env:
+    """A factory that takes no ``render_mode``: its env cannot be recorded."""
+    return ConstrainedCorridorEnv(safe_limit=safe_limit)
+
+
+FACTORY_ENVS = {"factory/Corridor-v0": corridor_factory, "factory/NoRendering-v0": corridor_factory_without_rendering}
+for _env_id, _factory in FACTORY_ENVS.items():
+    if _env_id not in gym.registry:
+        gym.register(id=_env_id, entry_point=_factory, max_episode_steps=20)
 
 
 @pytest.fixture(scope="module")
@@ -165,6 +183,21 @@ def test_record_errors(logs: pathlib.Path, monkeypatch, capsys) -> None:
     monkeypatch.setattr(enjoy_module, "render_modes", lambda env_id: ["ansi"])
     assert enjoy_main(_enjoy(logs, "-n", "5", "--record")) == 2
     assert "cannot render rgb_array frames" in capsys.readouterr().err
+
+
+def test_record_an_env_made_by_a_factory_function(tmp_path: pathlib.Path, monkeypatch, capsys) -> None:
+    """--record passes render_mode="rgb_array" through gym.make to a factory function, as to an env class."""
+    monkeypatch.setattr(enjoy_module, "recording_backend", lambda: "matplotlib")
+    for env_id in FACTORY_ENVS:
+        train = ["--algo", "ppo", "--env", env_id, "-n", "64", "-params", "n_steps:64", "batch_size:32", "--eval-freq", "0"]
+        assert train_main([*train, "-f", str(tmp_path), "--verbose", "0"]) == 0
+    assert enjoy_main(["--algo", "ppo", "--env", "factory/Corridor-v0", "-f", str(tmp_path), "-n", "20", "--record"]) == 0
+    assert "Recorded 21 frames, one file per episode" in capsys.readouterr().out
+    frames = sorted((tmp_path / "ppo" / "factory-Corridor-v0_1" / "videos").glob("*/frame_*.png"))
+    assert len(frames) == 21
+    # A factory without a render_mode argument is refused before any env is made, and says why
+    assert enjoy_main(["--algo", "ppo", "--env", "factory/NoRendering-v0", "-f", str(tmp_path), "--record"]) == 2
+    assert "takes no render_mode" in capsys.readouterr().err
 
 
 def test_record_mp4_with_moviepy(logs: pathlib.Path, tmp_path: pathlib.Path) -> None:

@@ -78,3 +78,13 @@ def test_custom_icrl_method_updates_its_constraint_and_learns_the_expert_region(
         - model.constraint_cost(model.expert_obs, model.expert_acts).mean()
     )
     assert gap_after > 0.15
+
+
+@pytest.mark.slow
+def test_ppolag_quickstart_shows_ppo_crossing_the_line_and_ppolagrangian_stopping_at_it():
+    """What the install check prints, and the docs describe: PPOLagrangian earns reward up to the line, not 0."""
+    example = load_example("ppolag_quickstart")
+    results, _ = example.train_and_evaluate(steps=10_000, budget=2.0, seed=0)
+    (ppo_return, ppo_cost), (lag_return, lag_cost) = results["PPO"], results["PPOLagrangian"]
+    assert ppo_cost > 2.0 and ppo_return > lag_return  # PPO runs through the costly cells
+    assert lag_cost <= 2.0 and lag_return >= 8.0  # stopping at cell 6 earns 10.5; staying at the start earns 0

@@ -400,6 +400,20 @@ def test_callback_logs_the_grid_map(tmp_path: pathlib.Path) -> None:
     assert list((tmp_path / "tb").glob("events.out.tfevents.*"))
 
 
+def test_callback_logs_the_final_grid_map_of_a_run_shorter_than_eval_freq(tmp_path: pathlib.Path) -> None:
+    """train.py's default --eval-freq (25000) is longer than a grid world's run: the map still reaches TensorBoard."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    model = BC2L("MlpPolicy", grid_vec_env(), "GridWorldWall-v0", n_steps=32, batch_size=32, n_epochs=1, seed=0)
+    callback = ConstraintFigureCallback(eval_freq=25_000)
+    figures = recorded_figures(model, callback, tmp_path)
+    assert [key for key, _ in figures] == ["constraint/map"] and callback.n_figures == 1
+    events = EventAccumulator(str(tmp_path / "tb"))
+    events.Reload()
+    assert [image.step for image in events.Images("constraint/map")] == [64]
+    assert "constraint/map" not in model.logger.name_to_value  # written, not left pending
+
+
 def test_callback_logs_the_partial_dependence(tmp_path: pathlib.Path) -> None:
     env = DummyVecEnv([lambda: Monitor(gym.make("sb3_icrl/ConstrainedCorridor-v0", max_steps=CORRIDOR_STEPS))])
     model = BC2L("MlpPolicy", env, corridor_demonstrations(), n_steps=32, batch_size=32, n_epochs=1, seed=0)

@@ -32,8 +32,10 @@ class ConstraintFigureCallback(BaseCallback):
       of the feature's values in the expert data and in the latest rollouts (see
       :func:`~sb3_icrl.plots.partial_dependence_figure`)
 
-    The env and its true constraint are read from the training env's spec (or given). Nothing is drawn when the
-    logger has no TensorBoard output.
+    The env and its true constraint are read from the training env's spec (or given). A run shorter than
+    ``eval_freq``, or not a multiple of it, still ends with the figures of its final model, unless the last ones came
+    within the final rollout (as the zoo's evaluation callback does). Nothing is drawn when the logger has no
+    TensorBoard output.
 
     :param eval_freq: Log every ``eval_freq`` calls of the callback (per vectorised step; <= 0: never)
     :param env_id: The env id (default: the training env's spec)
@@ -59,6 +61,8 @@ class ConstraintFigureCallback(BaseCallback):
         self.constraints: tuple[TrueConstraint, ...] = ()
         self.n_figures = 0
         self._warned = False
+        self._last_logged_at: int | None = None  # num_timesteps of the latest figures
+        self._recorded_keys: list[str] = []
 
     def _init_callback(self) -> None:
         if getattr(self.model, "constraint_net", None) is None:
@@ -117,7 +121,7 @@ class ConstraintFigureCallback(BaseCallback):
             figure = grid_constraint_figure(
                 grid_cost_map(net, grid), grid.unsafe_mask, grid.start_cell, grid.goal_cell, visited=visited_cells, title=step
             )
-            self.logger.record("constraint/map", LoggedFigure(figure, close=True), exclude=NOT_TENSORBOARD)
+            self._record("constraint/map", figure)
             return 1
         expert_obs, expert_acts = getattr(self.model, "expert_obs", None), getattr(self.model, "expert_acts", None)
         if expert_obs is None:
@@ -140,20 +144,47 @@ class ConstraintFigureCallback(BaseCallback):
                 title=step,
                 seed=self.num_timesteps,
             )
-            key = f"constraint/partial_dependence_{constraint.name}"
-            self.logger.record(key, LoggedFigure(figure, close=True), exclude=NOT_TENSORBOARD)
+            self._record(f"constraint/partial_dependence_{constraint.name}", figure)
         return len(self.constraints)
 
-    def _on_step(self) -> bool:
-        if self.eval_freq <= 0 or self.n_calls % self.eval_freq != 0:
-            return True
+    def _record(self, key: str, figure: Any) -> None:
+        self.logger.record(key, LoggedFigure(figure, close=True), exclude=NOT_TENSORBOARD)
+        self._recorded_keys.append(key)
+
+    def _log(self) -> int:
         if not self._has_tensorboard():
             if self.verbose >= 1 and not self._warned:
                 self._warned = True
                 print("ConstraintFigureCallback: the logger has no TensorBoard output (pass tensorboard_log): no figures.")
-            return True
+            return 0
+        self._recorded_keys = []
         count = self.log_figures()
         self.n_figures += count
+        self._last_logged_at = self.num_timesteps
         if self.verbose >= 1:
             print(f"ConstraintFigureCallback: {count} figure(s) logged at {self.num_timesteps} steps")
+        return count
+
+    def _on_step(self) -> bool:
+        if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0:
+            self._log()
         return True
+
+    def _on_training_end(self) -> None:
+        # A run shorter than eval_freq (train.py's default --eval-freq is longer than the grid worlds' runs) still shows
+        # its recovered constraint; a figure from within the final rollout is recent enough
+        rollout = int(getattr(self.model, "n_steps", 1)) * int(self.model.n_envs)
+        latest = self._last_logged_at
+        if self.eval_freq <= 0 or self.n_calls == 0 or (latest is not None and self.num_timesteps - latest < rollout):
+            return
+        if self._log() == 0:
+            return
+        # No dump follows the end of training: write the figures to TensorBoard now (only there: a dump would also
+        # add an empty row to the other outputs)
+        values = {key: self.logger.name_to_value.pop(key) for key in self._recorded_keys}
+        excluded = {key: self.logger.name_to_excluded.pop(key, NOT_TENSORBOARD) for key in self._recorded_keys}
+        for key in self._recorded_keys:
+            self.logger.name_to_count.pop(key, None)
+        for output in self.logger.output_formats:
+            if isinstance(output, TensorBoardOutputFormat):
+                output.write(values, excluded, self.num_timesteps)

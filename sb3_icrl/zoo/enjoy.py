@@ -8,12 +8,14 @@ Loads ``<folder>/<algo>/<EnvName>_<exp-id>/<EnvName>.zip`` (``--load-best``: ``b
 ``rl_model_<N>_steps.zip``) with the run's env settings (``config.yml``, ``args.yml``) and its ``VecNormalize``
 statistics, frozen. Prints, per finished episode, the reward, the true cost, whether the constraint was violated and
 the feasible reward (summed until the first violation), then the violation rate and the mean feasible reward.
-``--record`` writes the ``rgb_array`` frames into ``<run>/videos/`` as they come, one file per episode: an mp4 when
-imageio-ffmpeg is installed, else a GIF (Pillow), else PNG frames (matplotlib); without a display, MuJoCo renders
-off screen (``MUJOCO_GL=egl``, else ``osmesa``, unless ``MUJOCO_GL`` is set).
+``--record`` makes the env with ``render_mode="rgb_array"`` (an env class must declare it in ``metadata``, a factory
+function entry point must accept it and pass it on) and writes the frames into ``<run>/videos/`` as they come, one file
+per episode: an mp4 when imageio-ffmpeg is installed, else a GIF (Pillow), else PNG frames (matplotlib); without a
+display, MuJoCo renders off screen (``MUJOCO_GL=egl``, else ``osmesa``, unless ``MUJOCO_GL`` is set).
 """
 
 import argparse
+import inspect
 import os
 import sys
 from typing import Any
@@ -120,11 +122,31 @@ def _run_folder_ours_or_rl_zoo3(folder: str, algo: str, env_id: str, exp_id: int
             raise error from None  # (the message of train.py's name: rl_zoo3's is the exception)
 
 
-def _metadata(env_id: str) -> dict[str, Any]:
+def _creator(env_id: str) -> Any:
     entry_point = gym.spec(env_id).entry_point
     # Registered as "module:Class" or as the class (or function) itself
-    creator = load_env_creator(entry_point) if isinstance(entry_point, str) else entry_point
-    return dict(getattr(creator, "metadata", None) or {})
+    return load_env_creator(entry_point) if isinstance(entry_point, str) else entry_point
+
+
+def _metadata(env_id: str) -> dict[str, Any]:
+    return dict(getattr(_creator(env_id), "metadata", None) or {})
+
+
+def factory_takes_render_mode(env_id: str) -> bool:
+    """
+    Whether the env's entry point is a factory function (no class metadata to read) that accepts ``render_mode``, by
+    name or as ``**kwargs``: gym.make passes it on, and only the env it makes can tell which modes it renders.
+
+    :param env_id: A registered env id
+    """
+    creator = _creator(env_id)
+    if isinstance(creator, type) or getattr(creator, "metadata", None) is not None:
+        return False
+    try:
+        parameters = inspect.signature(creator).parameters.values()
+    except (TypeError, ValueError):  # a builtin or C callable: let gym.make try
+        return True
+    return any(parameter.name == "render_mode" or parameter.kind is parameter.VAR_KEYWORD for parameter in parameters)
 
 
 def render_modes(env_id: str) -> list[str]:
@@ -158,7 +180,13 @@ def enjoy(args: argparse.Namespace) -> ConstraintEvaluation:
     modes = render_modes(env_id)
     backend = None
     if args.record:
-        if "rgb_array" not in modes:
+        if "rgb_array" not in modes and not factory_takes_render_mode(env_id):
+            creator = _creator(env_id)
+            if not isinstance(creator, type) and not modes:
+                raise RecordingError(
+                    f"{name} is made by {getattr(creator, '__qualname__', creator)!r}, which takes no render_mode: "
+                    "it cannot make rgb_array frames (accept render_mode and pass it to the env)."
+                )
             raise RecordingError(f"{name} cannot render rgb_array frames (render modes: {modes or 'none'}).")
         backend = recording_backend()
         if backend is None:
@@ -187,13 +215,21 @@ def enjoy(args: argparse.Namespace) -> ConstraintEvaluation:
         stats_path=stats_path,
         transition_noise_model=noise_model,
     )
+    if backend is not None and getattr(env, "render_mode", None) != "rgb_array":
+        # A factory function may take render_mode and drop it: the env it made is the only judge
+        env.close()
+        raise RecordingError(
+            f"{name} was made with render_mode='rgb_array' but renders {getattr(env, 'render_mode', None)!r}: "
+            "pass render_mode on to the env."
+        )
     model = load_run_model(args.algo, path, args.device, args.seed)
     if args.verbose:
         print(f"Loaded {path}" + (f" with {stats_path}" if stats_path else ""))
     writer = None
     if backend is not None:
         stem = f"{args.algo}-{name}-{os.path.splitext(os.path.basename(path))[0]}"
-        fps = float(_metadata(env_id).get("render_fps") or 30)
+        # The env's own metadata: a factory function has none of its own
+        fps = float(env.get_attr("metadata", [0])[0].get("render_fps") or _metadata(env_id).get("render_fps") or 30)
         writer = FrameWriter(backend, os.path.join(run, "videos"), stem, fps)
     try:
         evaluation = run_episodes(model, env, args.n_timesteps, args.deterministic, args.verbose, writer)
