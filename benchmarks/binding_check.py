@@ -57,11 +57,6 @@ class Episodes:
         return float(np.median(self.closest_approach))
 
 
-def margin(values: np.ndarray, threshold: float, op: str) -> np.ndarray:
-    """Distance to the threshold on the allowed side (negative beyond it)."""
-    return FeatureConstraint(0, threshold, op).margin(values)
-
-
 def load_model(path: str, statistics: str | None, env_id: str, algo: str, seed: int) -> tuple[BaseAlgorithm, Any]:
     """
     A saved model (``algo``: its registered name) on a single env with its frozen VecNormalize statistics.
@@ -81,7 +76,7 @@ def load_model(path: str, statistics: str | None, env_id: str, algo: str, seed: 
 
 
 def run_policy(
-    model: BaseAlgorithm, venv: Any, episodes: int, seed: int, obs_index: int, threshold: float, op: str
+    model: BaseAlgorithm, venv: Any, episodes: int, seed: int, feature: FeatureConstraint
 ) -> Episodes:
     """Deterministic episodes, one at a time, env seeds ``seed, seed + 1, ...``."""
     violated, returns, feasible, closest = [], [], [], []
@@ -89,7 +84,7 @@ def run_policy(
         venv.seed(seed + episode)
         obs = venv.reset()
         raw = venv.get_original_obs() if isinstance(venv, VecNormalize) else obs
-        closest_x = float(margin(np.asarray(raw)[0, obs_index], threshold, op))
+        closest_x = float(feature.margin(np.asarray(raw)[0, feature.obs_index]))
         total = feasible_total = 0.0
         broken, done = False, False
         while not done:
@@ -103,7 +98,7 @@ def run_policy(
                 reached = venv.unnormalize_obs(reached)  # VecNormalize normalises the terminal observation too
             if reached is None:
                 reached = venv.get_original_obs()[0] if isinstance(venv, VecNormalize) else obs[0]
-            closest_x = min(closest_x, float(margin(np.asarray(reached)[obs_index], threshold, op)))
+            closest_x = min(closest_x, float(feature.margin(np.asarray(reached)[feature.obs_index])))
             broken |= float(info["cost"]) > 0
             total += reward_value
             if not broken:
@@ -124,9 +119,9 @@ def run_paths(run: str, model: str = "final") -> tuple[str, str | None, str]:
     return zip_path, find_vecnormalize(zip_path, name), algo
 
 
-def demonstrations_closest(name: str, source: str, obs_index: int, threshold: float, op: str) -> list[float]:
+def demonstrations_closest(name: str, source: str, feature: FeatureConstraint) -> list[float]:
     demos = load_demonstrations(name if source == "shipped" else source)
-    return [float(margin(np.asarray(t.obs)[:, obs_index], threshold, op).min()) for t in demos.trajectories]
+    return [float(feature.margin(np.asarray(t.obs)[:, feature.obs_index]).min()) for t in demos.trajectories]
 
 
 def main() -> None:
@@ -150,18 +145,17 @@ def main() -> None:
     env_id = resolve_env_id(args.env)
     name = env_name(env_id)
     (feature,) = get_constraint_spec(gym.make(env_id)).features
-    where = (feature.obs_index, feature.threshold, feature.op)
 
     ppo_model, ppo_env = load_model(*run_paths(args.ppo)[:2], env_id, "ppo", args.eval_seed)
-    ppo = run_policy(ppo_model, ppo_env, args.episodes, args.eval_seed, *where)
+    ppo = run_policy(ppo_model, ppo_env, args.episodes, args.eval_seed, feature)
     if args.expert == "shipped":
         zip_path, statistics = expert_paths(name)
         expert_args = (str(zip_path), str(statistics) if statistics else None)
     else:
         expert_args = run_paths(args.expert, args.expert_model)[:2]
     expert_model, expert_env = load_model(*expert_args, env_id, "ppolag", args.eval_seed)
-    expert = run_policy(expert_model, expert_env, args.episodes, args.eval_seed, *where)
-    demos = demonstrations_closest(name, args.demos, *where) if args.demos else None
+    expert = run_policy(expert_model, expert_env, args.episodes, args.eval_seed, feature)
+    demos = demonstrations_closest(name, args.demos, feature) if args.demos else None
 
     row: dict[str, Any] = {
         "env": name,
