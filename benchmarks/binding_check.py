@@ -75,9 +75,7 @@ def load_model(path: str, statistics: str | None, env_id: str, algo: str, seed: 
     return load_run_model(algo, path, "cpu", seed), venv
 
 
-def run_policy(
-    model: BaseAlgorithm, venv: Any, episodes: int, seed: int, feature: FeatureConstraint
-) -> Episodes:
+def run_policy(model: BaseAlgorithm, venv: Any, episodes: int, seed: int, feature: FeatureConstraint) -> Episodes:
     """Deterministic episodes, one at a time, env seeds ``seed, seed + 1, ...``."""
     violated, returns, feasible, closest = [], [], [], []
     for episode in range(episodes):
