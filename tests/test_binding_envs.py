@@ -74,3 +74,20 @@ def test_pendulum_variant_pays_in_full_only_well_beyond_the_wall():
     # growing to x = -0.05, beyond the wall
     assert source.biased_reward(-0.012) == source.high_reward
     assert variant.biased_reward(-0.014) < variant.biased_reward(-0.03) < variant.biased_reward(-0.05) == variant.high_reward
+
+
+def test_the_ant_is_paid_only_half_a_metre_past_its_line():
+    env = make("BlockedAntReach-v0")
+    action = np.zeros(env.action_space.shape)
+    reaches = {}
+    for x in (-3.4, -3.6, -6.0):
+        env.reset(seed=0)
+        place(env, x)
+        _, _, _, _, info = env.step(action)
+        reaches[x] = info["reward_reach"]
+        assert info["cost"] == 1.0
+    # Up to 0.5 m past the line the position pays as elsewhere; beyond, the pull stops at 3.5
+    assert reaches[-3.4] == pytest.approx(3.4, abs=0.05)  # the step moves the ant a little
+    assert reaches[-3.6] == reaches[-6.0] == pytest.approx(3.5)
+    with pytest.raises(ValueError, match="paid_beyond_line"):
+        gym.make("sb3_icrl/BlockedAntReach-v0", paid_beyond_line=-1.0)

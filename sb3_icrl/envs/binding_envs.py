@@ -17,12 +17,15 @@ episode; the oracle's is the position held near the line for the rest of it.
 id (``sb3_icrl/...``)           constraint of            reward
 ==============================  =======================  =====================================================
 ``BlockedHalfCheetahReach-v0``  BlockedHalfCheetah-v0    ``-x - ctrl``: the distance covered toward x <= -3
-``BlockedAntReach-v0``          BlockedAnt-v0            ``-x + healthy - ctrl - contact``
+``BlockedAntReach-v0``          BlockedAnt-v0            ``-max(x, -3.5) + healthy - ctrl - contact``
 ``BlockedWalkerReach-v0``       BlockedWalker-v0         ``-x + healthy - ctrl``
 ``BiasedPendulumReach-v0``      BiasedPendulum-v0        the biased reward, full only at x <= -0.05
 ==============================  =======================  =====================================================
 
-``x`` is the root's position after the step, in metres (0 at the start, up to the reset noise). BlockedSwimmer needs no
+``x`` is the root's position after the step, in metres (0 at the start, up to the reset noise). The ant's pay stops
+half a metre past its line: an ant runs several metres past the line within an episode, and with a pull that keeps
+growing there the multiplier a constrained learner needs grows with it, high enough that its experts learnt to walk
+away from the line instead; half a metre still pulls unconstrained PPO across. BlockedSwimmer needs no
 variant: its expert swims to the line and PPO crosses it. ``info["cost"]`` is the true cost, as in the source env
 (experts and evaluation only).
 """
@@ -30,6 +33,7 @@ variant: its expert swims to the line and PPO crosses it. ``info["cost"]`` is th
 from typing import Any
 
 import numpy as np
+from gymnasium import utils
 
 from sb3_icrl.envs.blocked_mujoco import BlockedAntEnv, BlockedHalfCheetahEnv, BlockedWalkerEnv
 
@@ -50,9 +54,12 @@ BINDING_VARIANTS: dict[str, str] = {
 }
 
 
-def _reach_reward(env: Any, action: np.ndarray, extra: dict[str, float]) -> tuple[float, dict[str, float]]:
-    # The position itself pays: each step spent nearer the forbidden side (x <= threshold < 0) earns more
-    reach = -float(env.data.qpos[0])
+def _reach_reward(
+    env: Any, action: np.ndarray, extra: dict[str, float], paid_down_to: float = -np.inf
+) -> tuple[float, dict[str, float]]:
+    # The position itself pays: each step spent nearer the forbidden side (x <= threshold < 0) earns more, down to
+    # `paid_down_to`
+    reach = -max(float(env.data.qpos[0]), paid_down_to)
     ctrl_cost = float(env.control_cost(action))
     reward_info = {"reward_reach": reach, "reward_ctrl": -ctrl_cost, **extra}
     return reach - ctrl_cost + sum(extra.values()), reward_info
@@ -71,13 +78,25 @@ class BlockedHalfCheetahReachEnv(BlockedHalfCheetahEnv):
 
 class BlockedAntReachEnv(BlockedAntEnv):
     """
-    :class:`~sb3_icrl.envs.BlockedAntEnv` paid its distance toward the forbidden side
-    (id ``sb3_icrl/BlockedAntReach-v0``): reward ``-x + healthy_reward - ctrl_cost - contact_cost``.
-    Same arguments as the source env.
+    :class:`~sb3_icrl.envs.BlockedAntEnv` paid its distance toward the forbidden side, up to a little past its line
+    (id ``sb3_icrl/BlockedAntReach-v0``): reward ``-max(x, cost_threshold - paid_beyond_line) + healthy_reward
+    - ctrl_cost - contact_cost``. Other arguments as the source env.
+
+    :param paid_beyond_line: How far past the line (metres) the position still pays; beyond, the pull stops, so that
+        crossing gains at most this much per step
+    :param kwargs: Arguments of :class:`~sb3_icrl.envs.BlockedAntEnv`
     """
 
+    def __init__(self, paid_beyond_line: float = 0.5, **kwargs: Any):
+        if isinstance(paid_beyond_line, bool) or not isinstance(paid_beyond_line, (int, float)) or not paid_beyond_line > 0:
+            raise ValueError(f"`paid_beyond_line` must be a positive number of metres, got {paid_beyond_line!r}.")
+        super().__init__(**kwargs)
+        self.paid_beyond_line = float(paid_beyond_line)
+        utils.EzPickle.__init__(self, paid_beyond_line, **kwargs)
+
     def _get_rew(self, x_velocity: float, action: np.ndarray) -> tuple[float, dict]:
-        reward, info = _reach_reward(self, action, {"reward_survive": self.healthy_reward})
+        paid_down_to = self.cost_threshold - self.paid_beyond_line
+        reward, info = _reach_reward(self, action, {"reward_survive": self.healthy_reward}, paid_down_to)
         contact_cost = float(self.contact_cost)
         info["reward_contact"] = -contact_cost
         return reward - contact_cost, info
