@@ -3,8 +3,9 @@ The layout of a run folder: which algorithm a zip holds, and the ``VecNormalize`
 
 A run folder ``<folder>/<algo>/<EnvName>_<N>/`` holds ``<EnvName>.zip`` (final), ``best_model.zip``,
 ``rl_model_<steps>_steps.zip`` checkpoints with their ``rl_model_vecnormalize_<steps>_steps.pkl`` statistics and
-``rl_model_training_state_<steps>_steps.pkl`` training state, and ``<EnvName>/vecnormalize.pkl`` and
-``<EnvName>/training_state.pkl`` (those of the final model).
+``rl_model_training_state_<steps>_steps.pkl`` training state (and for an off-policy algorithm, the newest one's
+``rl_model_replay_buffer_<steps>_steps.pkl``), and ``<EnvName>/vecnormalize.pkl`` and ``<EnvName>/training_state.pkl``
+(those of the final model).
 """
 
 import json

@@ -471,6 +471,7 @@ def test_resume_from_a_checkpoint(algo: str, tmp_path: pathlib.Path) -> None:
     # Saved at the start of the third rollout (256 steps), after two updates: one multiplier update behind the end
     checkpoint = first / "rl_model_256_steps.zip"
     assert all((first / f"rl_model_vecnormalize_{steps}_steps.pkl").is_file() for steps in (128, 256, 384))
+    assert not list(first.glob("*replay_buffer*"))  # on-policy: no replay buffer to save
 
     # The model the resumed run starts from, built by the command line's own set-up
     resume = get_parser().parse_args([*args, "-i", str(checkpoint)])

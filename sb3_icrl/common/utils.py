@@ -10,7 +10,7 @@ import re
 import tempfile
 import zipfile
 from collections.abc import Callable, Mapping
-from typing import IO, Any
+from typing import IO, Any, cast
 
 import numpy as np
 import yaml
@@ -220,6 +220,18 @@ def atomic_save_model(model: Any, path: str | pathlib.Path) -> str:
     model.save(buffer)
     atomic_write_bytes(path, buffer.getvalue())
     return path
+
+
+def atomic_save_replay_buffer(model: Any, path: str | pathlib.Path) -> None:
+    """
+    ``model.save_replay_buffer(path)`` for an SB3 off-policy model, atomically: SB3's own pickle (highest protocol,
+    for buffers over 4 GB), which ``model.load_replay_buffer`` reads back.
+
+    :param model: An SB3 off-policy algorithm with a replay buffer
+    :param path: Destination file
+    """
+    # SB3 writes to an open binary file as it does to a path
+    atomic_write(path, lambda file: model.save_replay_buffer(cast(io.BufferedIOBase, file)))
 
 
 def atomic_save_pickle(obj: Any, path: str | pathlib.Path) -> None:

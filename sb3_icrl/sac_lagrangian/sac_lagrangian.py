@@ -1,5 +1,7 @@
 """SAC-Lagrangian: SAC with a cost critic and a Lagrange multiplier, the off-policy forward solver."""
 
+import io
+import pathlib
 from collections import deque
 from typing import Any, ClassVar
 
@@ -165,6 +167,27 @@ class SACLagrangian(CheckedLoadMixin, SAC):
         self.cost_fn = cost_fn
         if getattr(self, "replay_buffer", None) is not None:
             self.replay_buffer.cost_info_key = self._stored_cost_key()
+
+    def load_replay_buffer(self, path: str | pathlib.Path | io.BufferedIOBase, truncate_last_traj: bool = True) -> None:
+        """
+        SB3's ``load_replay_buffer`` (e.g. the buffer of a checkpoint, to go on learning from its transitions), for a
+        :class:`~sb3_icrl.sac_lagrangian.CostReplayBuffer`. The buffer stores the costs of new steps as this model's
+        cost function asks (:meth:`set_cost_fn`: the function is not saved), whatever it stored when saved.
+
+        :param path: The pickled buffer (``save_replay_buffer``)
+        :param truncate_last_traj: See SB3's ``load_replay_buffer`` (``HerReplayBuffer`` only)
+        :raises TypeError: When the file holds another kind of buffer (the model keeps its own)
+        """
+        previous = self.replay_buffer
+        try:
+            super().load_replay_buffer(path, truncate_last_traj)
+            if not isinstance(self.replay_buffer, CostReplayBuffer):
+                loaded = type(self.replay_buffer).__name__
+                raise TypeError(f"{type(self).__name__} needs a CostReplayBuffer (with costs); {path} holds a {loaded}.")
+        except BaseException:
+            self.replay_buffer = previous  # a failed load leaves the model as it was
+            raise
+        self.replay_buffer.cost_info_key = self._stored_cost_key()
 
     def set_cost_budget(self, cost_budget: float) -> None:
         """

@@ -1,7 +1,9 @@
 """Evaluation callback with the benchmark's metrics; model selection sees only what the learner knows."""
 
+import contextlib
 import os
 import pickle
+import re
 import time
 import warnings
 from collections.abc import Callable, Sequence
@@ -9,11 +11,19 @@ from copy import deepcopy
 from typing import Any
 
 import numpy as np
+from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 
 from sb3_icrl.common.evaluation import evaluate_constraint
-from sb3_icrl.common.utils import atomic_save_model, atomic_save_npz, atomic_save_pickle, read_npz
+from sb3_icrl.common.utils import (
+    atomic_save_model,
+    atomic_save_npz,
+    atomic_save_pickle,
+    atomic_save_replay_buffer,
+    read_npz,
+)
 from sb3_icrl.run_env import LearnedCostRecorder, RecordedEpisode
 from sb3_icrl.run_folder import BEST_VECNORMALIZE_FILE, CHECKPOINT_PATTERN, monitor_row_counts
 from sb3_icrl.zoo.summary import evaluation_line, model_multiplier
@@ -516,17 +526,77 @@ def load_training_state(model: Any, path: str, evaluation: ConstraintEvalCallbac
     return True
 
 
+def has_replay_buffer(model: Any) -> bool:
+    """
+    :param model: The learner
+    :return: Whether it learns from a replay buffer (an off-policy algorithm: SAC, SAC-Lagrangian, IRL-Plus)
+    """
+    return isinstance(model, OffPolicyAlgorithm) and model.replay_buffer is not None
+
+
+def replay_buffer_path(model_path: str, num_timesteps: int) -> str:
+    """
+    Where the replay buffer saved with a model is: ``<prefix>_replay_buffer_<steps>_steps.pkl`` beside a checkpoint
+    ``<prefix>_<steps>_steps.zip`` (the name SB3's ``CheckpointCallback`` gives it), else, for another model (the final
+    one, saved without its buffer), the buffer of the run's checkpoint at the model's step count beside it
+    (``rl_model_replay_buffer_<num_timesteps>_steps.pkl``): a run that ended on a checkpoint saved it there.
+
+    :param model_path: The model zip
+    :param num_timesteps: The model's step count
+    """
+    folder, base = os.path.split(os.path.abspath(model_path))
+    match = CHECKPOINT_PATTERN.match(base)
+    prefix = match["prefix"] if match else "rl_model"
+    return os.path.join(folder, f"{prefix}_replay_buffer_{num_timesteps}_steps.pkl")
+
+
+def load_replay_buffer(model: OffPolicyAlgorithm, path: str) -> bool:
+    """
+    Restore the replay buffer saved at a checkpoint (:class:`AtomicCheckpointCallback`) into ``model``: its
+    transitions, position and fill go on as they were.
+
+    :param model: The learner, loaded from the model the buffer was saved with
+    :param path: The buffer file (:func:`replay_buffer_path`)
+    :return: Whether a buffer was restored (``False``: no file; the model keeps its empty buffer)
+    :raises ValueError: When the file is cut short, damaged or holds no replay buffer (naming it)
+    """
+    if not os.path.isfile(path):
+        return False
+    previous = model.replay_buffer
+    try:
+        model.load_replay_buffer(path)  # as trusted as the VecNormalize pickles beside it
+        if not isinstance(model.replay_buffer, ReplayBuffer):  # SB3 asserts it, which python -O skips
+            raise TypeError(f"it holds a {type(model.replay_buffer).__name__}")
+    except (MemoryError, OSError):
+        model.replay_buffer = previous
+        raise  # not the content's fault (an OSError names the file)
+    except Exception as error:
+        model.replay_buffer = previous
+        # A damaged pickle fails in many ways (truncated, a key or a type that does not fit...), none naming the file
+        raise ValueError(
+            f"The replay buffer {path} cannot be read ({type(error).__name__}: {error}): it is cut short or damaged; "
+            "delete it to continue from its checkpoint with an empty replay buffer, or continue from another checkpoint."
+        ) from error
+    return True
+
+
 class AtomicCheckpointCallback(CheckpointCallback):
     """
-    Checkpoints (model, ``VecNormalize`` statistics and training state) every ``save_freq`` timesteps, taken where a
-    run can be continued exactly: at the start of a rollout, after the previous update, so a resumed run
-    (``train.py --resume`` or ``-i``) collects the same rollouts the interrupted one had left. Each file is written
-    atomically, the model last: a run killed at any moment leaves whole checkpoints only, each with its statistics
-    and state beside it.
+    Checkpoints (model, ``VecNormalize`` statistics, training state and an off-policy learner's replay buffer) every
+    ``save_freq`` timesteps, taken where a run can be continued exactly: at the start of a rollout, after the previous
+    update, so a resumed run (``train.py --resume`` or ``-i``) collects the same rollouts the interrupted one had left.
+    Each file is written atomically, the model last: a run killed at any moment leaves whole checkpoints only, each
+    with its statistics and state beside it.
+
+    A replay buffer holds up to ``buffer_size`` transitions (hundreds of MB for a million MuJoCo steps), so only the
+    newest checkpoint keeps one: once a checkpoint's model is written, every other replay buffer of the folder is
+    removed (while it is written, the folder holds two). An older checkpoint resumes with an empty buffer.
 
     :param save_freq: Timesteps between checkpoints (the first rollout start at or past each multiple)
     :param save_path: Folder of the checkpoints
     :param name_prefix: File prefix: ``<prefix>_<timesteps>_steps.zip``
+    :param save_replay_buffer: Also save the replay buffer of an off-policy model
+        (``<prefix>_replay_buffer_<timesteps>_steps.pkl``, SB3's ``save_replay_buffer`` pickle; the newest only)
     :param save_vecnormalize: Also save the ``VecNormalize`` statistics (``<prefix>_vecnormalize_<timesteps>_steps.pkl``)
     :param save_training_state: Also save the training state (``<prefix>_training_state_<timesteps>_steps.pkl``,
         see :func:`save_training_state`)
@@ -540,13 +610,21 @@ class AtomicCheckpointCallback(CheckpointCallback):
         save_freq: int,
         save_path: str,
         name_prefix: str = "rl_model",
+        save_replay_buffer: bool = False,
         save_vecnormalize: bool = False,
         save_training_state: bool = False,
         evaluation: ConstraintEvalCallback | None = None,
         wall_clock: WallClock | None = None,
         verbose: int = 0,
     ):
-        super().__init__(save_freq, save_path, name_prefix=name_prefix, save_vecnormalize=save_vecnormalize, verbose=verbose)
+        super().__init__(
+            save_freq,
+            save_path,
+            name_prefix=name_prefix,
+            save_replay_buffer=save_replay_buffer,
+            save_vecnormalize=save_vecnormalize,
+            verbose=verbose,
+        )
         self.save_training_state = save_training_state
         self.evaluation = evaluation
         self.wall_clock = wall_clock
@@ -562,6 +640,10 @@ class AtomicCheckpointCallback(CheckpointCallback):
         if self.num_timesteps - self._last_saved < self.save_freq:
             return
         self._last_saved = self.num_timesteps
+        buffer_path = None
+        if self.save_replay_buffer and has_replay_buffer(self.model):
+            buffer_path = self._checkpoint_path("replay_buffer_", extension="pkl")
+            atomic_save_replay_buffer(self.model, buffer_path)
         vec_normalize = self.model.get_vec_normalize_env()
         if self.save_vecnormalize and vec_normalize is not None:
             atomic_save_pickle(vec_normalize, self._checkpoint_path("vecnormalize_", extension="pkl"))
@@ -571,8 +653,21 @@ class AtomicCheckpointCallback(CheckpointCallback):
             rows = monitor_row_counts(self.save_path)
             save_training_state(self.model, path, self.evaluation, wall_time_s=wall_time, monitor_rows=rows)
         model_path = atomic_save_model(self.model, self._checkpoint_path(extension="zip"))
+        if buffer_path is not None:
+            # Only now: a run killed before its model was written resumes from the previous checkpoint, with its buffer
+            self._remove_other_replay_buffers(buffer_path)
         if self.verbose >= 2:
             print(f"Saving model checkpoint to {model_path}")
+
+    def _remove_other_replay_buffers(self, keep: str) -> None:
+        """Delete the folder's replay buffers but ``keep``: those of older checkpoints, and one whose model a kill
+        left unwritten (whatever its step count: it belongs to no checkpoint of this run any more)."""
+        pattern = re.compile(rf"^{re.escape(self.name_prefix)}_replay_buffer_\d+_steps\.pkl$")
+        for entry in os.listdir(self.save_path):
+            path = os.path.join(self.save_path, entry)
+            if pattern.match(entry) and path != keep:
+                with contextlib.suppress(FileNotFoundError):
+                    os.remove(path)
 
     def _on_training_end(self) -> None:
         self._on_rollout_start()  # the end of training is a rollout boundary too

@@ -7,13 +7,15 @@ Train any sb3-icrl algorithm the rl-baselines3-zoo way::
 
 Hyper-parameters come from ``zoo_hyperparams/<algo>.yml`` (the one source of truth), overridden with ``-params``.
 A run writes ``<folder>/<algo>/<EnvName>_<N>/``: the final model ``<EnvName>.zip``, ``best_model.zip``, periodic
-``rl_model_<steps>_steps.zip`` (with ``rl_model_vecnormalize_<steps>_steps.pkl`` when normalising),
+``rl_model_<steps>_steps.zip`` (with ``rl_model_vecnormalize_<steps>_steps.pkl`` when normalising, and for an
+off-policy algorithm the newest one's replay buffer ``rl_model_replay_buffer_<steps>_steps.pkl``),
 ``evaluations.npz``, monitor files, ``<EnvName>/{config,args,versions}.yml``, ``<EnvName>/vecnormalize.pkl`` when
 normalising, and ``command.txt``. Every file is written atomically: a run killed at any moment leaves whole files only.
 
 Resuming. ``-i PATH.zip`` continues a saved model for ``-n`` more steps: its timestep count, hyper-parameters,
 multiplier and constraint net go on, with the ``VecNormalize`` statistics and the training state saved with it (the
-ICRL trainer's nominal memory, sampler and last update step; the model selection's best score and episodes). A model
+ICRL trainer's nominal memory, sampler and last update step; the model selection's best score and episodes), and an
+off-policy model's replay buffer (an older checkpoint, whose buffer was removed, goes on with an empty one). A model
 of a run folder (a checkpoint, or the final model) goes on in that same folder: monitor files, ``evaluations.npz``
 and TensorBoard curves continue, so plots and ``compare`` see one run. ``--new-folder`` writes the continuation to a
 new run folder instead (needed to branch from an earlier checkpoint). ``--exp-id N --resume`` continues run N from its
@@ -43,6 +45,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_util import unwrap_wrapper
 from stable_baselines3.common.logger import configure as configure_logger
 from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.utils import get_latest_run_id as sb3_latest_run_id
 from stable_baselines3.common.utils import set_random_seed
@@ -106,7 +109,9 @@ from sb3_icrl.zoo.callbacks import (
     AtomicCheckpointCallback,
     ConstraintEvalCallback,
     WallClock,
+    load_replay_buffer,
     load_training_state,
+    replay_buffer_path,
     save_training_state,
     training_state_monitor_rows,
     training_state_path,
@@ -439,6 +444,7 @@ def _go_on(args: argparse.Namespace, model: BaseAlgorithm, callbacks: list[BaseC
             callback.n_calls = model.num_timesteps // model.n_envs
     if args.trained_agent:
         _restore_training_state(model, args.trained_agent, name, evaluation)
+        _restore_replay_buffer(model, args.trained_agent, args.verbose)
 
 
 def _wall_clock(args: argparse.Namespace, callbacks: list[BaseCallback], name: str, resuming: bool) -> WallClock:
@@ -468,6 +474,25 @@ def _restore_training_state(
             f"No training state with {trained_agent} ({path}): the ICRL trainer's nominal memory, unused trajectories "
             "and update schedule start afresh."
         )
+
+
+def _restore_replay_buffer(model: BaseAlgorithm, trained_agent: str, verbose: int) -> None:
+    """
+    An off-policy model's replay buffer, saved with ``trained_agent`` (:func:`~sb3_icrl.zoo.callbacks.replay_buffer_path`;
+    only a run's newest checkpoint keeps one); without it the model goes on with an empty buffer, with a warning.
+    """
+    if not isinstance(model, OffPolicyAlgorithm):
+        return
+    path = replay_buffer_path(trained_agent, model.num_timesteps)
+    if load_replay_buffer(model, path):  # a damaged file: a ValueError that names it
+        if verbose and model.replay_buffer is not None:
+            print(f"Replay buffer restored from {os.path.basename(path)} ({model.replay_buffer.size()} transitions)")
+        return
+    warnings.warn(
+        f"No replay buffer with {trained_agent} ({os.path.basename(path)}; only a run's newest checkpoint keeps one): "
+        "the run goes on with an empty replay buffer: its first updates sample only the few transitions collected "
+        "since, so it learns differently from an uninterrupted run."
+    )
 
 
 def _pin_tensorboard(args: argparse.Namespace, model: BaseAlgorithm, params_path: str, name: str, resuming: bool) -> None:
@@ -618,7 +643,12 @@ def _callbacks(
     if args.save_freq > 0:
         callbacks.append(
             AtomicCheckpointCallback(
-                args.save_freq, save_path, name_prefix="rl_model", save_vecnormalize=True, save_training_state=True
+                args.save_freq,
+                save_path,
+                name_prefix="rl_model",
+                save_replay_buffer=True,  # off-policy models only
+                save_vecnormalize=True,
+                save_training_state=True,
             )
         )
     if args.eval_freq > 0:
