@@ -116,6 +116,22 @@ def is_mapping_argument(values: Sequence[str]) -> bool:
     return text.lstrip().startswith("{") or (text.endswith((".yml", ".yaml", ".json")) and os.path.isfile(text))
 
 
+def parse_override(key: str, text: str) -> Any:
+    """
+    The value of one ``-params key:value`` (or ``--env-kwargs``) item as train.py takes it: evaluated as a Python
+    literal or expression, else kept as the string; the dict-valued arguments (:data:`EVAL_KEYS`) stay strings.
+
+    :param key: The name
+    :param text: The value as written on the command line
+    """
+    if key in EVAL_KEYS:
+        return text  # evaluated with the yml's strings, so config.yml records it as written
+    try:
+        return eval(text, {"nn": th.nn, "th": th, "dict": dict})  # rl-zoo convention: trusted config strings
+    except Exception:
+        return text  # plain strings such as lin_3e-4 or MlpPolicy
+
+
 def linear_schedule(initial_value: float | str) -> Any:
     """rl-zoo's ``lin_<value>``: a schedule decreasing linearly from ``initial_value`` to 0."""
     initial = float(initial_value)
