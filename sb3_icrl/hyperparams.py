@@ -13,6 +13,8 @@ import json
 import os
 import pathlib
 import re
+import types
+import typing
 import warnings
 from collections.abc import Sequence
 from typing import Any
@@ -112,6 +114,22 @@ def is_mapping_argument(values: Sequence[str]) -> bool:
         return False
     text = values[0]
     return text.lstrip().startswith("{") or (text.endswith((".yml", ".yaml", ".json")) and os.path.isfile(text))
+
+
+def parse_override(key: str, text: str) -> Any:
+    """
+    The value of one ``-params key:value`` (or ``--env-kwargs``) item as train.py takes it: evaluated as a Python
+    literal or expression, else kept as the string; the dict-valued arguments (:data:`EVAL_KEYS`) stay strings.
+
+    :param key: The name
+    :param text: The value as written on the command line
+    """
+    if key in EVAL_KEYS:
+        return text  # evaluated with the yml's strings, so config.yml records it as written
+    try:
+        return eval(text, {"nn": th.nn, "th": th, "dict": dict})  # rl-zoo convention: trusted config strings
+    except Exception:
+        return text  # plain strings such as lin_3e-4 or MlpPolicy
 
 
 def linear_schedule(initial_value: float | str) -> Any:
@@ -337,6 +355,47 @@ def preprocess_hyperparams(entry: dict[str, Any]) -> dict[str, Any]:
 def algo_kwargs(params: dict[str, Any]) -> dict[str, Any]:
     """The part of preprocessed ``params`` that goes to the algorithm's constructor."""
     return {key: value for key, value in params.items() if key not in ZOO_KEYS}
+
+
+def _accepts_text(annotation: Any) -> bool:
+    """Whether a parameter annotated ``annotation`` may receive a string (unknown annotations: yes)."""
+    if annotation is inspect.Parameter.empty or annotation is Any or annotation is str:
+        return True
+    if isinstance(annotation, str):  # postponed annotation
+        return "str" in annotation or "Any" in annotation
+    arguments = typing.get_args(annotation)
+    if typing.get_origin(annotation) in (typing.Union, types.UnionType):
+        return any(_accepts_text(argument) for argument in arguments)
+    return False
+
+
+def check_hyperparameter_types(algo_class: type, kwargs: dict[str, Any], example: str = "-params {key}:{default!r}") -> None:
+    """
+    Fail clearly when a hyper-parameter that is not text was given as text (``-params n_steps:abc``: the value could
+    not be evaluated, so it stayed a string that the algorithm would reject deep inside).
+
+    :param algo_class: The algorithm class
+    :param kwargs: Its constructor arguments
+    :param example: How the fix is written where the value came from, formatted with ``key`` and ``default``
+    :raises HyperparameterError: Naming the first such hyper-parameter and the type it takes
+    """
+    parameters: dict[str, inspect.Parameter] = {}
+    for klass in reversed(algo_class.__mro__):
+        if "__init__" in vars(klass):
+            try:
+                parameters.update(inspect.signature(vars(klass)["__init__"]).parameters)
+            except (TypeError, ValueError):
+                continue
+    for key, value in kwargs.items():
+        parameter = parameters.get(key)
+        if not isinstance(value, str) or parameter is None or _accepts_text(parameter.annotation):
+            continue
+        expected = getattr(parameter.annotation, "__name__", None) or str(parameter.annotation)
+        expected = expected.replace("typing.", "").replace("collections.abc.", "")
+        raise HyperparameterError(
+            f"Hyper-parameter {key}={value!r} is text, but {algo_class.__name__} expects {expected} "
+            f"(default {parameter.default!r}): give a Python value, e.g. {example.format(key=key, default=parameter.default)}."
+        )
 
 
 def forward_solver(algo: str, params: dict[str, Any], env_id: str) -> str:

@@ -46,7 +46,7 @@ ENV = "GridWorldWall-v0"
 DAMAGES = {
     "truncated": "is cut short or damaged",
     "empty": "is empty (0 bytes)",
-    "broken-tensor": "is damaged (RuntimeError",
+    "broken-tensor": "is damaged (its tensor entry 'policy.pth' is cut short",
     "broken-json": "is damaged (JSONDecodeError",
     "broken-pickle": "is damaged (UnpicklingError",
 }
@@ -306,6 +306,12 @@ def suite_runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[pathlib.Path, 
         ("finished.json cut short", "finished.json is not a JSON mapping (cut short or overwritten)"),
         ("final model cut short", f"{ENV}.zip is cut short or damaged (it has no `data` entry): the report leaves it out"),
         ("final model empty", f"{ENV}.zip is empty (0 bytes): the report leaves it out"),
+        # A whole zip whose tensor entry is cut short: its CRC holds, so only the entry's own archive tells
+        (
+            "final model broken-tensor",
+            f"{ENV}.zip is damaged (its tensor entry 'policy.pth' is cut short or is not a torch archive): the report "
+            "leaves it out",
+        ),
         ("final model missing", f"{ENV}.zip is missing: the report leaves it out"),
     ],
 )

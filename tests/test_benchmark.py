@@ -393,7 +393,11 @@ def test_resume_continues_a_run_from_its_checkpoint(tmp_path):
 def test_failing_run_is_retried_once_then_listed_with_its_log(tmp_path, capsys):
     # (the tiny suite's own variants replaced: a key given twice is a mistake the suite check reports)
     text = TINY_SUITE.replace("variants: {base: {hyperparams: {forward_solver: policy_gradient}}}", "")
-    path = write(tmp_path, text + "variants:\n  broken: {hyperparams: {n_steps: -5}}\n")
+    # Demonstrations that do not load: the suite check sees only that the file is there, the run fails on loading them
+    # (a hyper-parameter the algorithm refuses is caught by the check, before any run)
+    demonstrations = tmp_path / "broken.npz"
+    demonstrations.write_bytes(b"not an npz")
+    path = write(tmp_path, text + f"variants:\n  broken: {{demonstrations: {demonstrations}}}\n")
     root = str(tmp_path / "logs")
     assert benchmark_main(["run", path, "-f", root, "--jobs", "2", "--only", "algo=bc2l", "seed=0", "--no-report"]) == 1
     out = capsys.readouterr().out

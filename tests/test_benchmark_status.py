@@ -2,12 +2,14 @@
 
 import dataclasses
 import fcntl
+import io
 import json
 import os
 import textwrap
 import zipfile
 
 import pytest
+import torch as th
 
 from sb3_icrl.benchmark import load_suite
 from sb3_icrl.benchmark.cli import main as benchmark_main
@@ -171,3 +173,26 @@ def test_another_variant_s_pace_is_not_used(suite_in_five_states):
     assert seconds_left(statuses) == (pytest.approx(1400.0), 1)
     statuses.append(RunStatus(dataclasses.replace(runs[0], variant="family"), "finished", 1000, 1000, wall_time_s=100.0))
     assert seconds_left(statuses) == (pytest.approx(1400.0 + 100.0), 0)  # 1000 steps at 0.1 s
+
+
+def test_a_finished_run_whose_tensor_entry_is_cut_short_gets_a_note(suite_in_five_states, capsys):
+    """A whole zip (every CRC holds) with a cut-short ``policy.pth``: status names it without loading the model."""
+    suite, root, runs = suite_in_five_states
+    tensors = io.BytesIO()
+    th.save({"weight": th.zeros(8)}, tensors)
+    final = os.path.join(runs[0].run_folder(root), "GridWorldWall-v0.zip")
+    with zipfile.ZipFile(final, "w") as archive:
+        archive.writestr("data", "{}")
+        archive.writestr("policy.pth", tensors.getvalue())
+    assert suite_status(runs[:1], root)[0].note is None  # a whole tensor archive
+    with zipfile.ZipFile(final, "w") as archive:
+        archive.writestr("data", "{}")
+        archive.writestr("policy.pth", tensors.getvalue()[:100])
+    status = suite_status(runs[:1], root)[0]
+    assert status.state == "finished"
+    assert status.note == (
+        f"its final model {final} is damaged (its tensor entry 'policy.pth' is cut short or is not a torch archive): the "
+        "report leaves it out; delete its finished.json to train it again"
+    )
+    assert benchmark_main(["status", suite.path, "-f", root, "--only", "seed=0"]) == 0
+    assert "its tensor entry 'policy.pth' is cut short" in capsys.readouterr().out

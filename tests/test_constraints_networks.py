@@ -115,6 +115,13 @@ def test_constructor_errors():
         BetaFeasibilityNet(4, 2, cost_mode="median")
     with pytest.raises(ValueError, match=r"`confidence` must be in \(0, 1\), got 1.0"):
         BetaFeasibilityNet(4, 2, confidence=1.0)
+    # A misspelt argument from a recipe's constraint_net_kwargs: named, with the closest argument the net takes
+    with pytest.raises(
+        TypeError, match=r"BetaFeasibilityNet takes no argument 'hiden_sizes' \(did you mean 'hidden_sizes'\?\)"
+    ):
+        BetaFeasibilityNet.from_spaces(spaces.Box(0, 1, (4,)), spaces.Discrete(2), hiden_sizes=[8])
+    with pytest.raises(TypeError, match="takes no argument 'width': its arguments are activation_fn, clip_input, hidden"):
+        FeasibilityNet.from_spaces(spaces.Box(0, 1, (4,)), spaces.Discrete(2), width=8)
 
 
 @pytest.mark.parametrize("cls,extra", [(FeasibilityNet, {}), (BetaFeasibilityNet, dict(cost_mode="VaR", confidence=0.8))])

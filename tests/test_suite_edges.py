@@ -12,6 +12,7 @@ import time
 import zipfile
 
 import pytest
+import torch as th
 
 from sb3_icrl.benchmark import load_suite
 from sb3_icrl.benchmark.cli import main as benchmark_main
@@ -66,11 +67,59 @@ def write(tmp_path, text: str) -> str:
         ),
         ("envs: [CartPole-v1]\nalgos: [ppolag]\nseeds: [0]\n", 1, r"CartPole-v1 reports no true cost \(its step's info"),
         (HEAD + "eval_episodes: -1\n", 4, "`eval_episodes` must be an integer >= 1, got -1"),
+        # Values only the algorithm refuses: the checker makes each run's model (a dry build) to find them
+        (
+            HEAD + "variants:\n  a:\n    hyperparams:\n      n_steps: 128\n      cost_budget: -1\n",
+            8,
+            "variant 'a' stops every bc2l run on GridWorldWall-v0 at its start, at `cost_budget`: ValueError: "
+            r"`cost_budget` must be >= 0 \(costs are non-negative, so no policy could meet it\), got -1",
+        ),
+        (
+            "envs: [GridWorldWall-v0]\nalgos: [ppo, gacl]\nseeds: [0]\nvariants:\n  a: {hyperparams: {n_steps: abc}}\n",
+            5,
+            r"variant 'a' stops every ppo run on GridWorldWall-v0 at its start, at `n_steps`: .*n_steps='abc' is text, "
+            r"but PPO expects int \(default 2048\): give a Python value, e.g. n_steps: 2048",
+        ),
+        (
+            HEAD + "variants:\n  base: {}\n  wide:\n    hyperparams:\n      n_steps: 128\n"
+            '      constraint_net_kwargs: "dict(hiden_sizes=[64])"\n',
+            9,
+            "variant 'wide' stops every bc2l run on GridWorldWall-v0 at its start, at `constraint_net_kwargs`: "
+            r"TypeError: FeasibilityNet takes no argument 'hiden_sizes' \(did you mean 'hidden_sizes'\?\)",
+        ),
     ],
 )
 def test_mistakes_are_caught_before_any_run(tmp_path, text, line, message):
     with pytest.raises(SuiteError, match=f"line {line}: .*{message}"):
         load_suite(write(tmp_path, text))
+
+
+def test_run_refuses_a_variant_its_algorithm_refuses_before_any_run_starts(tmp_path, capsys):
+    path = write(tmp_path, HEAD + "variants:\n  a: {hyperparams: {cost_budget: -1}}\n")
+    root = tmp_path / "logs"
+    assert benchmark_main(["run", path, "-f", str(root), "--jobs", "1", "--no-report"]) == 2
+    assert "line 5: variant 'a' stops every bc2l run on GridWorldWall-v0 at its start" in capsys.readouterr().err
+    assert not root.exists()  # no run folder, no log
+    # status and report start no run: they read the folders without making models
+    assert benchmark_main(["status", path, "-f", str(root)]) == 0
+
+
+def test_a_dry_build_keeps_the_random_state_and_passes_good_values(tmp_path):
+    # 3e-4 is a string to yml and a float to the run's train.py: the check takes it as the run does
+    text = HEAD + "variants:\n  small:\n    hyperparams:\n      n_steps: 64\n      learning_rate: 3e-4\n"
+    text += "      constraint_net_kwargs: 'dict(hidden_sizes=[8])'\n"
+    th.manual_seed(0)
+    state, threads = th.get_rng_state(), th.get_num_threads()
+    suite = load_suite(write(tmp_path, text))
+    assert th.equal(th.get_rng_state(), state)  # the models made to check the suite drew no random number of the caller
+    assert th.get_num_threads() == threads  # (they are made on one thread)
+    assert [run.variant for run in suite.runs()] == ["small"]
+
+
+def test_a_build_that_fails_without_the_variant_s_values_too_is_left_to_the_run(tmp_path):
+    # IRL+ (SAC) takes Box actions only: the grid's runs stop whatever the variant sets, and say so in their logs
+    text = "envs: [GridWorldWall-v0]\nalgos: [irlplus]\nseeds: [0]\nvariants:\n  a: {hyperparams: {learning_starts: 10}}\n"
+    assert [run.name for run in load_suite(write(tmp_path, text)).runs()] == ["a/irlplus/GridWorldWall-v0/seed 0"]
 
 
 def test_reference_rows_need_no_demonstrations(tmp_path):

@@ -158,17 +158,24 @@ class Display:
             self.live.stop()
 
 
-def _load_suite(args: argparse.Namespace) -> Suite:
-    """The suite, with the modules of ``--gym-packages`` imported first and passed on to every run."""
+def _load_suite(args: argparse.Namespace, dry_build: bool = False) -> Suite:
+    """
+    The suite, with the modules of ``--gym-packages`` imported first and passed on to every run.
+
+    :param args: The parsed command line
+    :param dry_build: Also make the model of each run whose variant sets hyper-parameters (see
+        :func:`~sb3_icrl.benchmark.suite.load_suite`): ``run`` does, before any run starts; status and report, which
+        start none, do not wait for it
+    """
     packages = list(getattr(args, "gym_packages", None) or [])
     import_gym_packages(packages)
-    suite = load_suite(args.suite)
+    suite = load_suite(args.suite, dry_build=dry_build)
     extra = tuple(package for package in packages if package not in suite.gym_packages)
     return dataclasses.replace(suite, gym_packages=(*suite.gym_packages, *extra)) if extra else suite
 
 
 def run_command(args: argparse.Namespace) -> int:
-    suite = _load_suite(args)
+    suite = _load_suite(args, dry_build=True)
     runs = suite.select(_only(args.only))
     # Before any run starts: each would fail on its own, and be tried again, on a folder it cannot write
     check_writable_folder(args.log_folder, "-f/--log-folder")
@@ -282,7 +289,7 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     try:
         if args.command == "list":
             for path in sorted(SUITES_DIR.glob("*.yml")):
-                suite = load_suite(path)
+                suite = load_suite(path, dry_build=False)
                 print(f"{suite.name:10s} {len(suite.runs()):4d} runs  {suite.description}")
             return 0
         if os.path.exists(args.log_folder) and not os.path.isdir(args.log_folder):

@@ -8,6 +8,7 @@ import os
 import pathlib
 import re
 import zipfile
+import zlib
 from typing import Any, TypeVar
 
 import torch as th
@@ -150,6 +151,10 @@ def model_damage(path: str, load: bool = True) -> str | None:
     What is wrong with a saved model file, told before SB3 loads it (whose own errors name neither the file nor the
     cause): empty, not a zip, cut short, or with an entry that does not unpack.
 
+    Without ``load``, each entry is read (its checksum checked) and each ``.pth`` entry's own archive directory is
+    opened, with no torch object built: as quick as ``ZipFile.testzip`` (about 1 ms for a 1.7 MB HalfCheetah model),
+    and it finds a tensor entry cut short inside a zip that is whole.
+
     :param path: A ``.zip`` saved by stable-baselines3
     :param load: Also unpack its entries (``data`` and the ``.pth`` tensors): a zip can be whole and still hold a
         broken entry
@@ -162,20 +167,44 @@ def model_damage(path: str, load: bool = True) -> str | None:
     try:
         with zipfile.ZipFile(path) as archive:
             names = archive.namelist()
-            bad = archive.testzip()
+            if "data" not in names:
+                # A copy cut short: what zipfile then reads is the last archive stored inside it (a .pth)
+                return "is cut short or damaged (it has no `data` entry)"
+            for name in names:
+                try:
+                    content = archive.read(name)
+                except zipfile.BadZipFile:  # zipfile checks each entry's CRC as it reads it
+                    return f"is damaged (its entry {name!r} fails its checksum)"
+                except zlib.error as error:
+                    return f"is damaged (its entry {name!r} does not decompress: {error})"
+                if name.endswith(".pth") and not _whole_torch_archive(content):
+                    return f"is damaged (its tensor entry {name!r} is cut short or is not a torch archive)"
     except (zipfile.BadZipFile, OSError, EOFError) as error:
         return f"is cut short or damaged ({error})"
-    if bad is not None:
-        return f"is damaged (its entry {bad!r} fails its checksum)"
-    if "data" not in names:
-        # A copy cut short: what zipfile then reads is the last archive stored inside it (a .pth)
-        return "is cut short or damaged (it has no `data` entry)"
     if load:
         try:
             load_from_zip_file(path, device="cpu")
         except Exception as error:  # a broken JSON, pickle or tensor entry
             return f"is damaged ({first_sentence(error)})"
     return None
+
+
+def _whole_torch_archive(content: bytes) -> bool:
+    """
+    Whether the bytes of a ``.pth`` entry hold a whole ``torch.save`` archive: a zip whose directory (at its end)
+    reads and that has its ``data.pkl``. Tensors saved in torch's legacy format (a pickle, not a zip) are not told.
+
+    :param content: The entry's bytes
+    """
+    if not content:
+        return False
+    if not content.startswith(b"PK"):
+        return True  # the legacy format, which only torch.load can check
+    try:
+        with zipfile.ZipFile(io.BytesIO(content)) as archive:
+            return any(name.endswith("data.pkl") for name in archive.namelist())
+    except (zipfile.BadZipFile, EOFError, ValueError):
+        return False
 
 
 def first_sentence(error: BaseException) -> str:

@@ -7,6 +7,8 @@ with statistics fitted on the expert data, and give the learned cost ``1 - phi``
 ``PPOLagrangian.set_cost_fn`` and ``LearnedCostVecEnvWrapper`` accept.
 """
 
+import difflib
+import inspect
 from collections.abc import Sequence
 from typing import Any, TypeVar
 
@@ -102,6 +104,20 @@ class InputNormalizer(nn.Module):
         return normalised
 
 
+def _constructor_arguments(net_class: type) -> set[str]:
+    """The keyword arguments a constraint net class takes: its ``__init__``'s and, where that passes ``**kwargs`` on,
+    its bases'."""
+    names: set[str] = set()
+    for klass in net_class.__mro__:
+        if "__init__" not in vars(klass) or klass is nn.Module:
+            continue
+        parameters = inspect.signature(vars(klass)["__init__"]).parameters.values()
+        names |= {p.name for p in parameters if p.name != "self" and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}
+        if not any(parameter.kind is parameter.VAR_KEYWORD for parameter in parameters):
+            break
+    return names
+
+
 class _ConstraintNet(nn.Module):
     """
     Shared input handling, normaliser and saving of the constraint nets. Subclasses set ``n_outputs`` and
@@ -181,6 +197,15 @@ class _ConstraintNet(nn.Module):
         :param kwargs: The other constructor arguments
         :return: The net
         """
+        # A misspelt argument (``constraint_net_kwargs: "dict(hiden_sizes=[64])"`` in a recipe) named with its fix
+        accepted = _constructor_arguments(cls) - {"obs_dim", "action_dim", "discrete_obs", "discrete_actions"}
+        for name in kwargs:
+            if name not in accepted:
+                close = difflib.get_close_matches(name, sorted(accepted), n=1, cutoff=0.6)
+                raise TypeError(
+                    f"{cls.__name__} takes no argument {name!r}{f' (did you mean {close[0]!r}?)' if close else ''}: its "
+                    f"arguments are {', '.join(sorted(accepted))}."
+                )
         obs_dim, discrete_obs = _space_features(observation_space, "observation")
         action_dim, discrete_actions = _space_features(action_space, "action")
         return cls(obs_dim, action_dim, discrete_obs=discrete_obs, discrete_actions=discrete_actions, **kwargs)

@@ -10,9 +10,8 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
-import torch as th
 
-from sb3_icrl.hyperparams import EVAL_KEYS, HyperparameterError, is_mapping_argument, read_mapping
+from sb3_icrl.hyperparams import HyperparameterError, is_mapping_argument, parse_override, read_mapping
 from sb3_icrl.registry import ALGOS, import_gym_packages, unknown_algo_message
 
 
@@ -34,13 +33,7 @@ class StoreDict(argparse.Action):
             key, sep, value = item.partition(":")
             if not sep or not key:
                 parser.error(f"{option_string} expects key:value pairs, got {item!r}.")
-            if key in EVAL_KEYS:
-                result[key] = value  # evaluated with the yml's strings, so config.yml records it as written
-                continue
-            try:
-                result[key] = eval(value, {"nn": th.nn, "th": th, "dict": dict})  # rl-zoo convention: trusted config strings
-            except Exception:
-                result[key] = value  # plain strings such as lin_3e-4 or MlpPolicy
+            result[key] = parse_override(key, value)
         setattr(namespace, self.dest, result)
 
 

@@ -24,15 +24,12 @@ latest checkpoint for the steps it had left (skipped once ``finished.json`` is t
 
 import argparse
 import contextlib
-import inspect
 import json
 import os
 import shlex
 import shutil
 import sys
 import time
-import types
-import typing
 import warnings
 from typing import Any
 
@@ -70,6 +67,7 @@ from sb3_icrl.hyperparams import (
     ZOO_KEYS,
     HyperparameterError,
     algo_kwargs,
+    check_hyperparameter_types,
     forward_solver,
     load_hyperparams,
     preprocess_hyperparams,
@@ -694,45 +692,6 @@ def _callbacks(
 def _evaluation(callbacks: list[BaseCallback]) -> ConstraintEvalCallback | None:
     """The run's evaluation callback, if it has one."""
     return next((callback for callback in callbacks if isinstance(callback, ConstraintEvalCallback)), None)
-
-
-def _accepts_text(annotation: Any) -> bool:
-    """Whether a parameter annotated ``annotation`` may receive a string (unknown annotations: yes)."""
-    if annotation is inspect.Parameter.empty or annotation is Any or annotation is str:
-        return True
-    if isinstance(annotation, str):  # postponed annotation
-        return "str" in annotation or "Any" in annotation
-    arguments = typing.get_args(annotation)
-    if typing.get_origin(annotation) in (typing.Union, types.UnionType):
-        return any(_accepts_text(argument) for argument in arguments)
-    return False
-
-
-def check_hyperparameter_types(algo_class: type, kwargs: dict[str, Any]) -> None:
-    """
-    Fail clearly when a hyper-parameter that is not text was given as text (``-params n_steps:abc``: the value could
-    not be evaluated, so it stayed a string that the algorithm would reject deep inside).
-
-    :param algo_class: The algorithm class
-    :param kwargs: Its constructor arguments
-    """
-    parameters: dict[str, inspect.Parameter] = {}
-    for klass in reversed(algo_class.__mro__):
-        if "__init__" in vars(klass):
-            try:
-                parameters.update(inspect.signature(vars(klass)["__init__"]).parameters)
-            except (TypeError, ValueError):
-                continue
-    for key, value in kwargs.items():
-        parameter = parameters.get(key)
-        if not isinstance(value, str) or parameter is None or _accepts_text(parameter.annotation):
-            continue
-        expected = getattr(parameter.annotation, "__name__", None) or str(parameter.annotation)
-        expected = expected.replace("typing.", "").replace("collections.abc.", "")
-        raise HyperparameterError(
-            f"Hyper-parameter {key}={value!r} is text, but {algo_class.__name__} expects {expected} "
-            f"(default {parameter.default!r}): give a Python value, e.g. -params {key}:{parameter.default!r}."
-        )
 
 
 def _absolute_if_file(path: str | None) -> str | None:
