@@ -445,3 +445,17 @@ def test_damaged_statistics_and_training_state_are_named(run: pathlib.Path, tmp_
     statistics.write_bytes(statistics.read_bytes()[:50])
     with pytest.raises(ValueError, match=re.escape(f"The VecNormalize statistics {statistics} cannot be read")):
         load_vec_normalize(str(statistics), venv)
+
+
+def test_statistics_of_something_else_or_of_another_env_are_named(tmp_path: pathlib.Path) -> None:
+    venv = DummyVecEnv([lambda: gym.make("Pendulum-v1")])
+    overwritten = tmp_path / "overwritten.pkl"
+    overwritten.write_bytes(pickle.dumps({"obs_rms": None}))
+    with pytest.raises(
+        ValueError, match=re.escape(f"The VecNormalize statistics {overwritten} hold a dict, not VecNormalize")
+    ):
+        load_vec_normalize(str(overwritten), venv)
+    other = tmp_path / "other.pkl"
+    VecNormalize(DummyVecEnv([lambda: gym.make("CartPole-v1")])).save(str(other))
+    with pytest.raises(ValueError, match=re.escape(f"The VecNormalize statistics {other} were saved for another env")):
+        load_vec_normalize(str(other), venv)
