@@ -286,6 +286,27 @@ def test_a_damaged_evaluations_npz_is_named_and_skipped(run: pathlib.Path, tmp_p
     assert load_evaluations(copy)["timesteps"].tolist() == [32]  # written anew: no evaluation of the lost file is kept
 
 
+def test_compare_names_a_damaged_finished_json(
+    run: pathlib.Path, tmp_path: pathlib.Path, capsys: pytest.CaptureFixture
+) -> None:
+    copy = _copy(run, tmp_path)
+    (copy / FINISHED_FILE).write_text('{"num_timesteps": 3')
+    compare_module.check_runs([str(copy)])
+    assert f"{copy}/finished.json is not a JSON mapping (cut short or overwritten)" in capsys.readouterr().err
+
+
+def test_ctrl_c_ends_compare_with_one_line(
+    run: pathlib.Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+) -> None:
+    def interrupted(*args: Any, **kwargs: Any) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(compare_module, "evaluate_run", interrupted)
+    assert compare_module.main([str(run), "-n", "50"]) == 130
+    errors = capsys.readouterr().err
+    assert "Traceback" not in errors and errors.strip().splitlines()[-1].startswith("interrupted: no table")
+
+
 @pytest.fixture(scope="module")
 def suite_runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[pathlib.Path, pathlib.Path]:
     """A finished suite of two tiny PPO-Lagrangian runs: its file and its log root."""
