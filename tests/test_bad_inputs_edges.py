@@ -286,6 +286,21 @@ def test_a_damaged_evaluations_npz_is_named_and_skipped(run: pathlib.Path, tmp_p
     assert load_evaluations(copy)["timesteps"].tolist() == [32]  # written anew: no evaluation of the lost file is kept
 
 
+def test_an_evaluations_npz_of_other_arrays_is_named_on_resume(run: pathlib.Path, tmp_path: pathlib.Path) -> None:
+    copy = _copy(run, tmp_path)
+    (copy / FINISHED_FILE).unlink()
+    evaluations = copy / "evaluations.npz"
+    np.savez(evaluations, foo=np.arange(3))  # an npz written by something else
+    argv = ["--algo", "ppolag", "--env", ENV, "-n", "32", "--seed", "0", "-f", str(tmp_path), "--exp-id", "1", "--resume"]
+    message = f"{evaluations} holds no 'timesteps' array (keys: ['foo']): it was not written by train.py."
+    with pytest.warns(UserWarning, match=re.escape(message) + ".*evaluations start afresh at step 32"):
+        run_cli(train_module.main, [*argv, "--eval-freq", "16", "--eval-episodes", "1", *TRAIN_TINY[2:]])
+    (copy / FINISHED_FILE).unlink()
+    np.savez(evaluations, timesteps=np.array([16, 32]), results=np.zeros((3, 1)))  # rows that do not match
+    with pytest.warns(UserWarning, match=re.escape(f"{evaluations} has 2 timesteps, but not as many rows in ['results']")):
+        run_cli(train_module.main, [*argv, "--eval-freq", "16", "--eval-episodes", "1", *TRAIN_TINY[2:]])
+
+
 def test_compare_names_a_damaged_finished_json(
     run: pathlib.Path, tmp_path: pathlib.Path, capsys: pytest.CaptureFixture
 ) -> None:
