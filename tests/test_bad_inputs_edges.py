@@ -40,6 +40,7 @@ enjoy_module = importlib.import_module("sb3_icrl.zoo.enjoy")
 compare_module = importlib.import_module("sb3_icrl.zoo.compare")
 data_cli = importlib.import_module("sb3_icrl.data.__main__")
 benchmark_cli = importlib.import_module("sb3_icrl.benchmark.cli")
+plots_cli = importlib.import_module("sb3_icrl.plots.__main__")
 
 ENV = "GridWorldWall-v0"
 #: How each damaged copy of a model zip is made, and the words the error uses for it
@@ -227,6 +228,39 @@ def test_a_read_only_folder_is_refused_before_anything_runs(
         run_cli(compare_module.main, [str(run), "--json", str(read_only / "x.json")])
     with pytest.raises(CLIError, match=f"-f/--log-folder '{read_only}' is not writable"):
         run_cli(train_module.main, ["--algo", "ppolag", "--env", ENV, "-n", "16", "-f", str(read_only)])
+
+
+def test_enjoy_record_and_figures_into_folders_that_cannot_be_written_end_with_one_line(
+    run: pathlib.Path, tmp_path: pathlib.Path, monkeypatch: pytest.MonkeyPatch, full_disk: None
+) -> None:
+    copy = _copy(run, tmp_path)
+    access = os.access
+    monkeypatch.setattr(os, "access", lambda path, mode: not str(path).startswith(str(copy)) and access(path, mode))
+    with pytest.raises(
+        CLIError, match=re.escape(f"--record writes into {copy}/videos, which cannot be written (not writable)")
+    ):
+        run_cli(
+            enjoy_module.main, ["--algo", "ppolag", "--env", ENV, "--run", str(copy), "--no-render", "--record", "-n", "10"]
+        )
+    figure = tmp_path / "curves.png"
+    with pytest.raises(CLIError, match=re.escape(f"cannot write {figure}: No space left on device")):
+        run_cli(plots_cli.main, ["curves", "-f", str(run.parent.parent), "--algos", "ppolag", "--env", ENV, "-o", str(figure)])
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--load-best", "--load-checkpoint", "16"], "argument --load-checkpoint: not allowed with argument --load-best"),
+        (["--load-last-checkpoint", "--load-best"], "argument --load-best: not allowed with argument --load-last-checkpoint"),
+        (["--exp-id", "1"], "--run names the run folder itself: leave out --exp-id (or give -f and --exp-id instead)"),
+        (["--load-checkpoint", "-16"], "argument --load-checkpoint: expected an integer >= 0, got '-16'"),
+    ],
+)
+def test_enjoy_refuses_flags_it_would_ignore(run: pathlib.Path, extra: list[str], message: str) -> None:
+    with pytest.raises(CLIError, match=re.escape(message)):
+        run_cli(enjoy_module.main, ["--algo", "ppolag", "--env", ENV, "--run", str(run), "--no-render", "-n", "10", *extra])
+    with pytest.raises(CLIError, match=re.escape("argument --exp-id: expected an integer >= 0, got '-1'")):
+        run_cli(enjoy_module.main, ["--algo", "ppolag", "--env", ENV, "-f", str(run.parent.parent), "--exp-id", "-1"])
 
 
 # -------------------------------------------------------------------- MODULE:EnvId
