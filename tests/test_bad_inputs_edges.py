@@ -443,6 +443,22 @@ IMPORTER_CASES: list[tuple[str, Any, str]] = [
     ("arrays-single-value", lambda t: from_arrays(np.float32(1.0), _steps(5)), "`observations` must be an array with one"),
     ("arrays-single-reward", lambda t: from_arrays(_steps(5), _steps(5), rewards=1.0), "`rewards` must be an array"),
     (
+        "arrays-next-observations-shape",
+        lambda t: from_arrays(_steps(5), _steps(5), next_observations=np.zeros((5, 3))),
+        "`next_observations` have shape (3,) per step, `observations` (2,)",
+    ),
+    # Observations or actions of another env's shape: refused before the replay, which would fail inside MuJoCo
+    (
+        "arrays-observations-of-another-env",
+        lambda t: from_arrays(_steps(5), _steps(5)[:, :1], env_id="sb3_icrl/BiasedPendulum-v0"),
+        "from_arrays: the observations have shape (2,) per step, but sb3_icrl/BiasedPendulum-v0's are (4,)",
+    ),
+    (
+        "arrays-actions-of-another-env",
+        lambda t: from_arrays(np.zeros((5, 4)), _steps(5), env_id="sb3_icrl/BiasedPendulum-v0"),
+        "from_arrays: the actions have shape (2,) per step, but sb3_icrl/BiasedPendulum-v0's are (1,)",
+    ),
+    (
         "malik-nan-observation",
         lambda t: from_malik_rollouts(_pickles(t / "m", {"0.pkl": {"observations": _steps(5, 2), "actions": _steps(5)}})),
         "0.pkl: `obs` holds NaN or infinite values (1 rows, first at row 2)",
