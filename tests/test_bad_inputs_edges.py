@@ -415,6 +415,21 @@ def test_status_and_report_name_what_is_wrong_in_a_partial_run_folder(
         assert f"left out of the report, its model in {broken} could not be evaluated" in out
 
 
+@pytest.mark.parametrize("content", ['{"suite": "partial"', "[1, 2]"])
+def test_report_update_names_a_summary_json_that_is_cut_short_or_overwritten(
+    suite_runs: tuple[pathlib.Path, pathlib.Path], tmp_path: pathlib.Path, content: str
+) -> None:
+    path, logs = suite_runs
+    summary = tmp_path / "report" / "summary.json"
+    summary.parent.mkdir()
+    summary.write_text(content)
+    message = f"--update: {summary} is not a report's summary (cut short or overwritten): write the report anew without"
+    with pytest.raises(CLIError, match=re.escape(message)):
+        run_cli(
+            benchmark_cli.main, ["report", str(path), "-f", str(logs), "-o", str(summary.parent), "--no-figures", "--update"]
+        )
+
+
 # -------------------------------------------------------------------- importers
 
 

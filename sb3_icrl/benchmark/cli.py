@@ -232,8 +232,16 @@ def _with_earlier_report(
     path = os.path.join(output, "summary.json")
     if not os.path.isfile(path):
         raise SuiteError(f"--update: no report in {output!r} (no summary.json): pass its folder with -o, or drop --update.")
-    with open(path) as file:
-        earlier = json.load(file)
+    try:
+        with open(path) as file:
+            earlier = json.load(file)
+    except ValueError as error:
+        earlier = error
+    if not isinstance(earlier, dict):
+        raise SuiteError(
+            f"--update: {path} is not a report's summary (cut short or overwritten): write the report anew without "
+            "--update, or pass the folder of an intact report with -o."
+        )
     earlier_model = earlier.get("model", "final")
     if earlier_model != model:
         raise SuiteError(
