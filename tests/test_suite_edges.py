@@ -157,6 +157,23 @@ def test_ctrl_c_ends_a_suite_with_one_line(tmp_path):
     assert "Traceback" not in errors and errors.strip().splitlines()[-1].startswith("interrupted: the runs resume")
 
 
+def test_sigint_to_the_engine_alone_stops_its_runs_and_ends_with_one_line(tmp_path):
+    path = write(tmp_path, HEAD + "steps: 100000\ntrain_args: {eval_freq: 50000, save_freq: 0}\n")
+    root = str(tmp_path / "logs")
+    command = [sys.executable, "-m", "sb3_icrl.benchmark", "run", path, "-f", root, "--jobs", "1", "--no-report"]
+    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    log = load_suite(path).runs()[0].log_file(root)
+    deadline = time.time() + 60
+    while not (os.path.isfile(log) and "step" in pathlib.Path(log).read_text()) and time.time() < deadline:
+        time.sleep(0.2)
+    # As `kill -INT` or a job scheduler sends it: the engine's process only, which passes it on to its runs
+    os.kill(process.pid, signal.SIGINT)
+    _, errors = process.communicate(timeout=60)
+    assert process.returncode == 130
+    assert "Traceback" not in errors and errors.strip().splitlines()[-1].startswith("interrupted: the runs resume")
+    assert "Interrupted: saving the model" in pathlib.Path(log).read_text()
+
+
 def test_a_broken_model_leaves_its_seed_out_of_the_report_and_names_its_folder(tmp_path, capsys):
     path = write(
         tmp_path,
