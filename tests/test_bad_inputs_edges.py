@@ -415,6 +415,19 @@ def test_status_and_report_name_what_is_wrong_in_a_partial_run_folder(
         assert f"left out of the report, its model in {broken} could not be evaluated" in out
 
 
+def test_ctrl_c_ends_data_generate_with_one_line(
+    tmp_path: pathlib.Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+) -> None:
+    def interrupted(*args: Any, **kwargs: Any) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(data_cli, "build_dataset", interrupted)
+    out = str(tmp_path / "demos.npz")
+    assert data_cli.main(["generate", "--env", ENV, "--expert", "pilag", "--n", "1", "--out", out]) == 130
+    errors = capsys.readouterr().err
+    assert "Traceback" not in errors and errors.strip().splitlines()[-1].startswith("interrupted: `generate` stopped")
+
+
 @pytest.mark.parametrize("content", ['{"suite": "partial"', "[1, 2]"])
 def test_report_update_names_a_summary_json_that_is_cut_short_or_overwritten(
     suite_runs: tuple[pathlib.Path, pathlib.Path], tmp_path: pathlib.Path, content: str
