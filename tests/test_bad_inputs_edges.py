@@ -300,6 +300,37 @@ def test_a_typo_in_a_users_env_id_lists_what_its_module_registered(
     assert f"Did you mean {name}:edges/Corridor-v0?" in str(raised.value)
 
 
+@pytest.mark.parametrize(
+    "code, error",
+    [
+        ("raise RuntimeError('no licence file')", "raised RuntimeError: no licence file (at {path}, line 1)"),
+        ("def broken(:\n", "raised SyntaxError: invalid syntax (at {path}, line 1)"),
+    ],
+)
+def test_a_users_module_that_fails_as_it_is_imported_is_named_with_its_line(
+    tmp_path: pathlib.Path, monkeypatch: pytest.MonkeyPatch, code: str, error: str
+) -> None:
+    name = f"failing_envs_{tmp_path.name.replace('-', '_')}"
+    path = tmp_path / f"{name}.py"
+    path.write_text(code)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    expected = f"importing {name!r} {error.format(path=path)}: fix the module."
+    with pytest.raises(CLIError, match=re.escape(f"--gym-packages: {expected}")):
+        run_cli(train_module.main, ["--algo", "ppolag", "--env", ENV, "-n", "16", "-f", str(tmp_path), "--gym-packages", name])
+    with pytest.raises(ValueError, match=re.escape(f"Env '{name}:My-v0': {expected}")):
+        resolve_env_id(f"{name}:My-v0")
+
+
+def test_an_env_whose_entry_point_cannot_be_imported_is_named(tmp_path: pathlib.Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    name = f"entry_envs_{tmp_path.name.replace('-', '_')}"
+    register = "gym.register('edges/Broken-v0', entry_point='no_such_module_xyz:Env')"
+    (tmp_path / f"{name}.py").write_text(f"import gymnasium as gym\n{register}\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    message = "Cannot make edges/Broken-v0: its entry point 'no_such_module_xyz:Env' cannot be imported (No module named"
+    with pytest.raises(CLIError, match=re.escape(message)):
+        run_cli(train_module.main, ["--algo", "ppolag", "--env", f"{name}:edges/Broken-v0", "-n", "16", "-f", str(tmp_path)])
+
+
 # -------------------------------------------------------------------- partial run folders
 
 
