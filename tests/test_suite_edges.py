@@ -67,6 +67,18 @@ def write(tmp_path, text: str) -> str:
         ),
         ("envs: [CartPole-v1]\nalgos: [ppolag]\nseeds: [0]\n", 1, r"CartPole-v1 reports no true cost \(its step's info"),
         (HEAD + "eval_episodes: -1\n", 4, "`eval_episodes` must be an integer >= 1, got -1"),
+        (HEAD + "train_args: {device: tpu9}\n", 4, "`device` 'tpu9' is not a torch device: use auto, cpu, cuda or cuda:N"),
+        # The env as each run makes it: its keywords and values, and whether noise can be added to its states
+        (
+            HEAD + "variants:\n  a: {env_kwargs: {map_nam: wall}}\n",
+            5,
+            "variant 'a': GridWorldWall-v0 cannot be made with these env_kwargs .*unexpected keyword argument 'map_nam'",
+        ),
+        (
+            HEAD + "variants:\n  a: {transition_noise: 0.1}\n",
+            5,
+            "variant 'a' cannot run on GridWorldWall-v0: TransitionNoiseWrapper adds Gaussian noise to continuous states",
+        ),
         # Values only the algorithm refuses: the checker makes each run's model (a dry build) to find them
         (
             HEAD + "variants:\n  a:\n    hyperparams:\n      n_steps: 128\n      cost_budget: -1\n",
