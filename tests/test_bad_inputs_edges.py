@@ -584,6 +584,9 @@ def test_damaged_statistics_and_training_state_are_named(run: pathlib.Path, tmp_
     argv = ["--algo", "ppolag", "--env", ENV, "-n", "16", "-i", str(copy / f"{ENV}.zip"), *TRAIN_TINY]
     with pytest.raises(CLIError, match=re.escape(f"The training state {state} cannot be read (UnpicklingError")):
         run_cli(train_module.main, argv)
+    state.write_bytes(pickle.dumps([1, 2]))  # a whole pickle of something else
+    with pytest.raises(CLIError, match=re.escape(f"{state} is not a training state of this sb3-icrl version (format 1): it")):
+        run_cli(train_module.main, argv)
     statistics = tmp_path / "vecnormalize.pkl"
     venv = DummyVecEnv([lambda: gym.make("Pendulum-v1")])
     VecNormalize(venv).save(str(statistics))

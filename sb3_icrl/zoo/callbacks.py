@@ -528,7 +528,11 @@ def load_training_state(model: Any, path: str, evaluation: ConstraintEvalCallbac
         return False
     state = _unpickle_state(path)
     if not isinstance(state, dict) or state.get("format") != TRAINING_STATE_FORMAT:
-        raise ValueError(f"{path} is not a training state of this sb3-icrl version (format {TRAINING_STATE_FORMAT}).")
+        raise ValueError(
+            f"{path} is not a training state of this sb3-icrl version (format {TRAINING_STATE_FORMAT}): it was overwritten, "
+            "or written by another version; continue from another checkpoint of the run, or delete the file to continue "
+            "without it (the ICRL trainer and the model selection then start afresh)."
+        )
     if state["num_timesteps"] != model.num_timesteps:
         warnings.warn(
             f"{path} was saved at {state['num_timesteps']} steps, the model at {model.num_timesteps}: not used (the ICRL "
