@@ -67,6 +67,7 @@ def write(tmp_path, text: str) -> str:
         ),
         ("envs: [CartPole-v1]\nalgos: [ppolag]\nseeds: [0]\n", 1, r"CartPole-v1 reports no true cost \(its step's info"),
         (HEAD + "eval_episodes: -1\n", 4, "`eval_episodes` must be an integer >= 1, got -1"),
+        (HEAD + "description: [MECL, VICRL]\n", 4, r"`description` is one line of text .*got \['MECL', 'VICRL'\]"),
         (HEAD + "train_args: {device: tpu9}\n", 4, "`device` 'tpu9' is not a torch device: use auto, cpu, cuda or cuda:N"),
         # The env as each run makes it: its keywords and values, and whether noise can be added to its states
         (

@@ -851,6 +851,11 @@ def load_suite(name_or_path: str | os.PathLike, dry_build: bool = True) -> Suite
             f"`forward_recipe` sets the forward learner of the reference rows ({', '.join(REFERENCE_ALGOS)}), and the "
             "suite's algos have none: add them, or leave it out.",
         )
+    description = content.get("description") or ""
+    if not isinstance(description, str):
+        raise reader.error(
+            ("description",), f"`description` is one line of text ({SUITE_KEYS['description']}), got {description!r}."
+        )
     recipe_version = content.get("recipe_version")
     if recipe_version is not None and (not isinstance(recipe_version, (str, int)) or not str(recipe_version).strip()):
         raise reader.error(("recipe_version",), f"`recipe_version` is a name or a number, got {recipe_version!r}.")
@@ -861,7 +866,7 @@ def load_suite(name_or_path: str | os.PathLike, dry_build: bool = True) -> Suite
     suite = Suite(
         name=path.stem,
         path=str(path),
-        description=str(content.get("description", "")),
+        description=description,
         envs=envs,
         algos=algos,
         seeds=seeds,
