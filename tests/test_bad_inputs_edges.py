@@ -586,7 +586,7 @@ def test_damaged_statistics_and_training_state_are_named(run: pathlib.Path, tmp_
         run_cli(train_module.main, argv)
     state.write_bytes(pickle.dumps([1, 2]))  # a whole pickle of something else
     with pytest.raises(CLIError, match=re.escape(f"{state} is not a training state of this sb3-icrl version (format 1): it")):
-        run_cli(train_module.main, argv)
+        run_cli(train_module.main, argv[: argv.index("-params")])  # (-i keeps the model's own hyper-parameters)
     statistics = tmp_path / "vecnormalize.pkl"
     venv = DummyVecEnv([lambda: gym.make("Pendulum-v1")])
     VecNormalize(venv).save(str(statistics))
