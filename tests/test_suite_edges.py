@@ -187,6 +187,15 @@ def test_sigint_to_the_engine_alone_stops_its_runs_and_ends_with_one_line(tmp_pa
     assert "Interrupted: saving the model" in pathlib.Path(log).read_text()
 
 
+def test_status_into_a_pipe_closed_early_ends_quietly(tmp_path):
+    # As `sb3-icrl benchmark status SUITE | head -1` does once head has its line
+    command = [sys.executable, "-m", "sb3_icrl.benchmark", "status", "smoke", "-f", str(tmp_path)]
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    process.stdout.close()  # before the command writes anything
+    errors = process.stderr.read()
+    assert process.wait(timeout=60) == 0 and errors == ""
+
+
 def test_a_broken_model_leaves_its_seed_out_of_the_report_and_names_its_folder(tmp_path, capsys):
     path = write(
         tmp_path,
