@@ -40,6 +40,7 @@ enjoy_module = importlib.import_module("sb3_icrl.zoo.enjoy")
 compare_module = importlib.import_module("sb3_icrl.zoo.compare")
 data_cli = importlib.import_module("sb3_icrl.data.__main__")
 benchmark_cli = importlib.import_module("sb3_icrl.benchmark.cli")
+plots_cli = importlib.import_module("sb3_icrl.plots.__main__")
 
 ENV = "GridWorldWall-v0"
 #: How each damaged copy of a model zip is made, and the words the error uses for it
@@ -229,6 +230,39 @@ def test_a_read_only_folder_is_refused_before_anything_runs(
         run_cli(train_module.main, ["--algo", "ppolag", "--env", ENV, "-n", "16", "-f", str(read_only)])
 
 
+def test_enjoy_record_and_figures_into_folders_that_cannot_be_written_end_with_one_line(
+    run: pathlib.Path, tmp_path: pathlib.Path, monkeypatch: pytest.MonkeyPatch, full_disk: None
+) -> None:
+    copy = _copy(run, tmp_path)
+    access = os.access
+    monkeypatch.setattr(os, "access", lambda path, mode: not str(path).startswith(str(copy)) and access(path, mode))
+    with pytest.raises(
+        CLIError, match=re.escape(f"--record writes into {copy}/videos, which cannot be written (not writable)")
+    ):
+        run_cli(
+            enjoy_module.main, ["--algo", "ppolag", "--env", ENV, "--run", str(copy), "--no-render", "--record", "-n", "10"]
+        )
+    figure = tmp_path / "curves.png"
+    with pytest.raises(CLIError, match=re.escape(f"cannot write {figure}: No space left on device")):
+        run_cli(plots_cli.main, ["curves", "-f", str(run.parent.parent), "--algos", "ppolag", "--env", ENV, "-o", str(figure)])
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--load-best", "--load-checkpoint", "16"], "argument --load-checkpoint: not allowed with argument --load-best"),
+        (["--load-last-checkpoint", "--load-best"], "argument --load-best: not allowed with argument --load-last-checkpoint"),
+        (["--exp-id", "1"], "--run names the run folder itself: leave out --exp-id (or give -f and --exp-id instead)"),
+        (["--load-checkpoint", "-16"], "argument --load-checkpoint: expected an integer >= 0, got '-16'"),
+    ],
+)
+def test_enjoy_refuses_flags_it_would_ignore(run: pathlib.Path, extra: list[str], message: str) -> None:
+    with pytest.raises(CLIError, match=re.escape(message)):
+        run_cli(enjoy_module.main, ["--algo", "ppolag", "--env", ENV, "--run", str(run), "--no-render", "-n", "10", *extra])
+    with pytest.raises(CLIError, match=re.escape("argument --exp-id: expected an integer >= 0, got '-1'")):
+        run_cli(enjoy_module.main, ["--algo", "ppolag", "--env", ENV, "-f", str(run.parent.parent), "--exp-id", "-1"])
+
+
 # -------------------------------------------------------------------- MODULE:EnvId
 
 
@@ -266,6 +300,37 @@ def test_a_typo_in_a_users_env_id_lists_what_its_module_registered(
     assert f"Did you mean {name}:edges/Corridor-v0?" in str(raised.value)
 
 
+@pytest.mark.parametrize(
+    "code, error",
+    [
+        ("raise RuntimeError('no licence file')", "raised RuntimeError: no licence file (at {path}, line 1)"),
+        ("def broken(:\n", "raised SyntaxError: invalid syntax (at {path}, line 1)"),
+    ],
+)
+def test_a_users_module_that_fails_as_it_is_imported_is_named_with_its_line(
+    tmp_path: pathlib.Path, monkeypatch: pytest.MonkeyPatch, code: str, error: str
+) -> None:
+    name = f"failing_envs_{tmp_path.name.replace('-', '_')}"
+    path = tmp_path / f"{name}.py"
+    path.write_text(code)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    expected = f"importing {name!r} {error.format(path=path)}: fix the module."
+    with pytest.raises(CLIError, match=re.escape(f"--gym-packages: {expected}")):
+        run_cli(train_module.main, ["--algo", "ppolag", "--env", ENV, "-n", "16", "-f", str(tmp_path), "--gym-packages", name])
+    with pytest.raises(ValueError, match=re.escape(f"Env '{name}:My-v0': {expected}")):
+        resolve_env_id(f"{name}:My-v0")
+
+
+def test_an_env_whose_entry_point_cannot_be_imported_is_named(tmp_path: pathlib.Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    name = f"entry_envs_{tmp_path.name.replace('-', '_')}"
+    register = "gym.register('edges/Broken-v0', entry_point='no_such_module_xyz:Env')"
+    (tmp_path / f"{name}.py").write_text(f"import gymnasium as gym\n{register}\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    message = "Cannot make edges/Broken-v0: its entry point 'no_such_module_xyz:Env' cannot be imported (No module named"
+    with pytest.raises(CLIError, match=re.escape(message)):
+        run_cli(train_module.main, ["--algo", "ppolag", "--env", f"{name}:edges/Broken-v0", "-n", "16", "-f", str(tmp_path)])
+
+
 # -------------------------------------------------------------------- partial run folders
 
 
@@ -284,6 +349,42 @@ def test_a_damaged_evaluations_npz_is_named_and_skipped(run: pathlib.Path, tmp_p
     with pytest.warns(UserWarning, match=re.escape(message) + ".*evaluations start afresh at step 32"):
         run_cli(train_module.main, [*argv, "--eval-freq", "16", "--eval-episodes", "1", *TRAIN_TINY[2:]])
     assert load_evaluations(copy)["timesteps"].tolist() == [32]  # written anew: no evaluation of the lost file is kept
+
+
+def test_an_evaluations_npz_of_other_arrays_is_named_on_resume(run: pathlib.Path, tmp_path: pathlib.Path) -> None:
+    copy = _copy(run, tmp_path)
+    (copy / FINISHED_FILE).unlink()
+    evaluations = copy / "evaluations.npz"
+    np.savez(evaluations, foo=np.arange(3))  # an npz written by something else
+    argv = ["--algo", "ppolag", "--env", ENV, "-n", "32", "--seed", "0", "-f", str(tmp_path), "--exp-id", "1", "--resume"]
+    message = f"{evaluations} holds no 'timesteps' array (keys: ['foo']): it was not written by train.py."
+    with pytest.warns(UserWarning, match=re.escape(message) + ".*evaluations start afresh at step 32"):
+        run_cli(train_module.main, [*argv, "--eval-freq", "16", "--eval-episodes", "1", *TRAIN_TINY[2:]])
+    (copy / FINISHED_FILE).unlink()
+    np.savez(evaluations, timesteps=np.array([16, 32]), results=np.zeros((3, 1)))  # rows that do not match
+    with pytest.warns(UserWarning, match=re.escape(f"{evaluations} has 2 timesteps, but not as many rows in ['results']")):
+        run_cli(train_module.main, [*argv, "--eval-freq", "16", "--eval-episodes", "1", *TRAIN_TINY[2:]])
+
+
+def test_compare_names_a_damaged_finished_json(
+    run: pathlib.Path, tmp_path: pathlib.Path, capsys: pytest.CaptureFixture
+) -> None:
+    copy = _copy(run, tmp_path)
+    (copy / FINISHED_FILE).write_text('{"num_timesteps": 3')
+    compare_module.check_runs([str(copy)])
+    assert f"{copy}/finished.json is not a JSON mapping (cut short or overwritten)" in capsys.readouterr().err
+
+
+def test_ctrl_c_ends_compare_with_one_line(
+    run: pathlib.Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+) -> None:
+    def interrupted(*args: Any, **kwargs: Any) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(compare_module, "evaluate_run", interrupted)
+    assert compare_module.main([str(run), "-n", "50"]) == 130
+    errors = capsys.readouterr().err
+    assert "Traceback" not in errors and errors.strip().splitlines()[-1].startswith("interrupted: no table")
 
 
 @pytest.fixture(scope="module")
@@ -345,6 +446,34 @@ def test_status_and_report_name_what_is_wrong_in_a_partial_run_folder(
         assert f"left out of the report, its model in {broken} could not be evaluated" in out
 
 
+def test_ctrl_c_ends_data_generate_with_one_line(
+    tmp_path: pathlib.Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+) -> None:
+    def interrupted(*args: Any, **kwargs: Any) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(data_cli, "build_dataset", interrupted)
+    out = str(tmp_path / "demos.npz")
+    assert data_cli.main(["generate", "--env", ENV, "--expert", "pilag", "--n", "1", "--out", out]) == 130
+    errors = capsys.readouterr().err
+    assert "Traceback" not in errors and errors.strip().splitlines()[-1].startswith("interrupted: `generate` stopped")
+
+
+@pytest.mark.parametrize("content", ['{"suite": "partial"', "[1, 2]"])
+def test_report_update_names_a_summary_json_that_is_cut_short_or_overwritten(
+    suite_runs: tuple[pathlib.Path, pathlib.Path], tmp_path: pathlib.Path, content: str
+) -> None:
+    path, logs = suite_runs
+    summary = tmp_path / "report" / "summary.json"
+    summary.parent.mkdir()
+    summary.write_text(content)
+    message = f"--update: {summary} is not a report's summary (cut short or overwritten): write the report anew without"
+    with pytest.raises(CLIError, match=re.escape(message)):
+        run_cli(
+            benchmark_cli.main, ["report", str(path), "-f", str(logs), "-o", str(summary.parent), "--no-figures", "--update"]
+        )
+
+
 # -------------------------------------------------------------------- importers
 
 
@@ -372,6 +501,22 @@ IMPORTER_CASES: list[tuple[str, Any, str]] = [
     ("arrays-negative-cost", lambda t: from_arrays(_steps(5), _steps(5), costs=-np.ones(5)), "`costs` holds negative"),
     ("arrays-single-value", lambda t: from_arrays(np.float32(1.0), _steps(5)), "`observations` must be an array with one"),
     ("arrays-single-reward", lambda t: from_arrays(_steps(5), _steps(5), rewards=1.0), "`rewards` must be an array"),
+    (
+        "arrays-next-observations-shape",
+        lambda t: from_arrays(_steps(5), _steps(5), next_observations=np.zeros((5, 3))),
+        "`next_observations` have shape (3,) per step, `observations` (2,)",
+    ),
+    # Observations or actions of another env's shape: refused before the replay, which would fail inside MuJoCo
+    (
+        "arrays-observations-of-another-env",
+        lambda t: from_arrays(_steps(5), _steps(5)[:, :1], env_id="sb3_icrl/BiasedPendulum-v0"),
+        "from_arrays: the observations have shape (2,) per step, but sb3_icrl/BiasedPendulum-v0's are (4,)",
+    ),
+    (
+        "arrays-actions-of-another-env",
+        lambda t: from_arrays(np.zeros((5, 4)), _steps(5), env_id="sb3_icrl/BiasedPendulum-v0"),
+        "from_arrays: the actions have shape (2,) per step, but sb3_icrl/BiasedPendulum-v0's are (1,)",
+    ),
     (
         "malik-nan-observation",
         lambda t: from_malik_rollouts(_pickles(t / "m", {"0.pkl": {"observations": _steps(5, 2), "actions": _steps(5)}})),
@@ -439,9 +584,26 @@ def test_damaged_statistics_and_training_state_are_named(run: pathlib.Path, tmp_
     argv = ["--algo", "ppolag", "--env", ENV, "-n", "16", "-i", str(copy / f"{ENV}.zip"), *TRAIN_TINY]
     with pytest.raises(CLIError, match=re.escape(f"The training state {state} cannot be read (UnpicklingError")):
         run_cli(train_module.main, argv)
+    state.write_bytes(pickle.dumps([1, 2]))  # a whole pickle of something else
+    with pytest.raises(CLIError, match=re.escape(f"{state} is not a training state of this sb3-icrl version (format 1): it")):
+        run_cli(train_module.main, argv[: argv.index("-params")])  # (-i keeps the model's own hyper-parameters)
     statistics = tmp_path / "vecnormalize.pkl"
     venv = DummyVecEnv([lambda: gym.make("Pendulum-v1")])
     VecNormalize(venv).save(str(statistics))
     statistics.write_bytes(statistics.read_bytes()[:50])
     with pytest.raises(ValueError, match=re.escape(f"The VecNormalize statistics {statistics} cannot be read")):
         load_vec_normalize(str(statistics), venv)
+
+
+def test_statistics_of_something_else_or_of_another_env_are_named(tmp_path: pathlib.Path) -> None:
+    venv = DummyVecEnv([lambda: gym.make("Pendulum-v1")])
+    overwritten = tmp_path / "overwritten.pkl"
+    overwritten.write_bytes(pickle.dumps({"obs_rms": None}))
+    with pytest.raises(
+        ValueError, match=re.escape(f"The VecNormalize statistics {overwritten} hold a dict, not VecNormalize")
+    ):
+        load_vec_normalize(str(overwritten), venv)
+    other = tmp_path / "other.pkl"
+    VecNormalize(DummyVecEnv([lambda: gym.make("CartPole-v1")])).save(str(other))
+    with pytest.raises(ValueError, match=re.escape(f"The VecNormalize statistics {other} were saved for another env")):
+        load_vec_normalize(str(other), venv)

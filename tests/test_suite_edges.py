@@ -67,6 +67,19 @@ def write(tmp_path, text: str) -> str:
         ),
         ("envs: [CartPole-v1]\nalgos: [ppolag]\nseeds: [0]\n", 1, r"CartPole-v1 reports no true cost \(its step's info"),
         (HEAD + "eval_episodes: -1\n", 4, "`eval_episodes` must be an integer >= 1, got -1"),
+        (HEAD + "description: [MECL, VICRL]\n", 4, r"`description` is one line of text .*got \['MECL', 'VICRL'\]"),
+        (HEAD + "train_args: {device: tpu9}\n", 4, "`device` 'tpu9' is not a torch device: use auto, cpu, cuda or cuda:N"),
+        # The env as each run makes it: its keywords and values, and whether noise can be added to its states
+        (
+            HEAD + "variants:\n  a: {env_kwargs: {map_nam: wall}}\n",
+            5,
+            "variant 'a': GridWorldWall-v0 cannot be made with these env_kwargs .*unexpected keyword argument 'map_nam'",
+        ),
+        (
+            HEAD + "variants:\n  a: {transition_noise: 0.1}\n",
+            5,
+            "variant 'a' cannot run on GridWorldWall-v0: TransitionNoiseWrapper adds Gaussian noise to continuous states",
+        ),
         # Values only the algorithm refuses: the checker makes each run's model (a dry build) to find them
         (
             HEAD + "variants:\n  a:\n    hyperparams:\n      n_steps: 128\n      cost_budget: -1\n",
@@ -155,6 +168,32 @@ def test_ctrl_c_ends_a_suite_with_one_line(tmp_path):
     _, errors = process.communicate(timeout=60)
     assert process.returncode == 130
     assert "Traceback" not in errors and errors.strip().splitlines()[-1].startswith("interrupted: the runs resume")
+
+
+def test_sigint_to_the_engine_alone_stops_its_runs_and_ends_with_one_line(tmp_path):
+    path = write(tmp_path, HEAD + "steps: 100000\ntrain_args: {eval_freq: 50000, save_freq: 0}\n")
+    root = str(tmp_path / "logs")
+    command = [sys.executable, "-m", "sb3_icrl.benchmark", "run", path, "-f", root, "--jobs", "1", "--no-report"]
+    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    log = load_suite(path).runs()[0].log_file(root)
+    deadline = time.time() + 60
+    while not (os.path.isfile(log) and "step" in pathlib.Path(log).read_text()) and time.time() < deadline:
+        time.sleep(0.2)
+    # As `kill -INT` or a job scheduler sends it: the engine's process only, which passes it on to its runs
+    os.kill(process.pid, signal.SIGINT)
+    _, errors = process.communicate(timeout=60)
+    assert process.returncode == 130
+    assert "Traceback" not in errors and errors.strip().splitlines()[-1].startswith("interrupted: the runs resume")
+    assert "Interrupted: saving the model" in pathlib.Path(log).read_text()
+
+
+def test_status_into_a_pipe_closed_early_ends_quietly(tmp_path):
+    # As `sb3-icrl benchmark status SUITE | head -1` does once head has its line
+    command = [sys.executable, "-m", "sb3_icrl.benchmark", "status", "smoke", "-f", str(tmp_path)]
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    process.stdout.close()  # before the command writes anything
+    errors = process.stderr.read()
+    assert process.wait(timeout=60) == 0 and errors == ""
 
 
 def test_a_broken_model_leaves_its_seed_out_of_the_report_and_names_its_folder(tmp_path, capsys):

@@ -16,6 +16,7 @@ again skips the finished runs and resumes the others from their last checkpoint.
 """
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import os
@@ -232,8 +233,16 @@ def _with_earlier_report(
     path = os.path.join(output, "summary.json")
     if not os.path.isfile(path):
         raise SuiteError(f"--update: no report in {output!r} (no summary.json): pass its folder with -o, or drop --update.")
-    with open(path) as file:
-        earlier = json.load(file)
+    try:
+        with open(path) as file:
+            earlier = json.load(file)
+    except ValueError as error:
+        earlier = error
+    if not isinstance(earlier, dict):
+        raise SuiteError(
+            f"--update: {path} is not a report's summary (cut short or overwritten): write the report anew without "
+            "--update, or pass the folder of an intact report with -o."
+        )
     earlier_model = earlier.get("model", "final")
     if earlier_model != model:
         raise SuiteError(
@@ -302,6 +311,12 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     except (SuiteError, ValueError, RuntimeError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
+    except BrokenPipeError:
+        # The reader of the output left (`status ... | head`): the rest is not wanted. Stdout goes to /dev/null so that
+        # Python's own flush at exit finds no broken pipe either
+        with contextlib.suppress(OSError, ValueError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except OSError as error:
         message = write_error_message(error)  # a report or log that cannot be written
         if message is None:

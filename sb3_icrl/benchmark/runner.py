@@ -12,6 +12,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
@@ -29,6 +30,13 @@ MAX_ATTEMPTS = 2
 #: Lines of a failed run's log shown in the summary
 LOG_TAIL_LINES = 15
 BACKENDS = ("local", "ray")
+#: Seconds an interrupted engine gives its runs to stop on their own (a terminal's Ctrl-C reaches them too) before it
+#: sends them SIGINT, and then to save their models and end before it kills them
+STOP_GRACE_S = 5.0
+STOP_TIMEOUT_S = 60.0
+#: The training processes of this engine that still run (see :func:`stop_runs`)
+_RUNNING: set[subprocess.Popen] = set()
+_RUNNING_LOCK = threading.Lock()
 #: The git revision :func:`~sb3_icrl.zoo.train.versions` records outside a git checkout (then only versions are compared)
 UNKNOWN_REVISION = "unknown"
 
@@ -131,10 +139,44 @@ def execute_run(
                 except OSError as error:  # a full disk: say which file, as the run's own writes do
                     raise OSError(error.errno, error.strerror, log_file) from error
                 env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-                process = subprocess.run(command, stdout=log, stderr=subprocess.STDOUT, env=env, preexec_fn=_die_with_parent)
+                process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=env, preexec_fn=_die_with_parent)
+                with _RUNNING_LOCK:
+                    _RUNNING.add(process)
+                try:
+                    process.wait()
+                finally:
+                    with _RUNNING_LOCK:
+                        _RUNNING.discard(process)
             if process.returncode != 0 or not is_finished(run_folder):
                 return "failed", time.time() - start
         return ("done" if complete() else "failed"), time.time() - start
+
+
+def stop_runs(grace_s: float = STOP_GRACE_S, timeout_s: float = STOP_TIMEOUT_S) -> None:
+    """
+    Stop the training processes this engine still runs, as a Ctrl-C at a terminal does. A SIGINT sent to the engine
+    alone (``kill -INT``, a job scheduler) does not reach them: each that has not ended ``grace_s`` seconds later gets
+    one (it saves its model and ends); one still running ``timeout_s`` seconds after that is killed. Each resumes from
+    its last checkpoint on the next ``benchmark run``.
+
+    :param grace_s: Seconds to wait for the runs to end on their own first
+    :param timeout_s: Seconds to wait for each run to end after its SIGINT
+    """
+    with _RUNNING_LOCK:
+        processes = list(_RUNNING)
+    deadline = time.monotonic() + grace_s
+    for process in processes:
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            process.wait(max(deadline - time.monotonic(), 0.0))
+    for process in processes:
+        if process.poll() is None:
+            with contextlib.suppress(ProcessLookupError):
+                process.send_signal(signal.SIGINT)
+    for process in processes:
+        try:
+            process.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            process.kill()
 
 
 def log_tail(log_file: str, lines: int = LOG_TAIL_LINES) -> list[str]:
@@ -212,6 +254,9 @@ class Backend:
     def result(self, handle: Any) -> tuple[str, float]:
         raise NotImplementedError
 
+    def stop(self) -> None:
+        """Stop the runs under way (the engine was interrupted)."""
+
     def close(self) -> None:
         pass
 
@@ -234,6 +279,9 @@ class LocalBackend(Backend):
 
     def result(self, handle: Any) -> tuple[str, float]:
         return handle.result()
+
+    def stop(self) -> None:
+        stop_runs()
 
     def close(self) -> None:
         self.executor.shutdown(wait=True, cancel_futures=True)
@@ -418,6 +466,9 @@ def run_all(
                     outcome.log_tail = outcome.log_tail or log_tail(run.log_file(root))
                 if on_event:
                     on_event("end", outcome, counts())
+    except KeyboardInterrupt:
+        backend.stop()
+        raise
     finally:
         backend.close()
     return [outcomes[run] for run in runs]

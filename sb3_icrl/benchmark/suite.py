@@ -23,7 +23,7 @@ import yaml
 from sb3_icrl.data.registry import DEMONSTRATIONS_DIR, available_demonstrations, dataset_file_name
 from sb3_icrl.envs import NAMESPACE, REWARD_TRANSFER_TASKS
 from sb3_icrl.envs.constraint_spec import get_constraint_spec
-from sb3_icrl.envs.wrappers import TRANSITION_NOISE_MODELS
+from sb3_icrl.envs.wrappers import TRANSITION_NOISE_MODELS, TransitionNoiseWrapper
 from sb3_icrl.hyperparams import (
     ZOO_KEYS,
     algo_kwargs,
@@ -511,6 +511,42 @@ class _SuiteReader:
                     "env, or sb3_icrl.envs.constraint_spec.declare_constraint in a module of `gym_packages`).",
                 )
 
+    def check_envs(self, envs: list[str], variants: dict[str, dict[str, Any]]) -> None:
+        """
+        Every env made with each variant's ``env_kwargs`` and transition noise, as its runs make it: a keyword the env
+        does not take or a value it refuses, or noise on an env without continuous states, is named at its line. An env
+        that fails otherwise (a dependency missing here) is left to its runs, which say why.
+        """
+        for variant, settings in variants.items():
+            env_kwargs = _as_train_reads(settings.get("env_kwargs") or {})
+            noise = settings.get("transition_noise") or 0.0
+            noise_model = settings.get("transition_noise_model", "component")
+            if not env_kwargs and not noise:
+                continue
+            for env_id in envs:
+                try:
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore")
+                        env = gym.make(env_id, **env_kwargs)
+                except (TypeError, ValueError) as error:
+                    message = " ".join(f"{type(error).__name__}: {error}".split())
+                    raise self.error(
+                        ("variants", variant, "env_kwargs"),
+                        f"variant {variant!r}: {env_name(env_id)} cannot be made with these env_kwargs ({message}).",
+                    ) from None
+                except Exception:
+                    continue
+                try:
+                    if noise:
+                        TransitionNoiseWrapper(env, sigma=float(noise), model=noise_model)
+                except (TypeError, ValueError) as error:
+                    raise self.error(
+                        ("variants", variant, "transition_noise"),
+                        f"variant {variant!r} cannot run on {env_name(env_id)}: {error}",
+                    ) from None
+                finally:
+                    env.close()
+
     def check_builds(
         self, envs: list[str], algos: list[str], variants: dict[str, dict[str, Any]], forward_recipe: str | None
     ) -> None:
@@ -574,6 +610,13 @@ class _SuiteReader:
                     raise self.error(
                         ("train_args", key), f"`device` is a torch device name ('cpu', 'cuda', 'auto'), got {value!r}."
                     )
+                if value != "auto":
+                    try:
+                        th.device(value)
+                    except RuntimeError:
+                        raise self.error(
+                            ("train_args", key), f"`device` {value!r} is not a torch device: use auto, cpu, cuda or cuda:N."
+                        ) from None
             elif isinstance(value, bool) or not isinstance(value, int):
                 raise self.error(("train_args", key), f"`{key}` is an integer, got {value!r}.")
             elif key in ("eval_episodes", "num_threads") and value < 1:
@@ -808,6 +851,11 @@ def load_suite(name_or_path: str | os.PathLike, dry_build: bool = True) -> Suite
             f"`forward_recipe` sets the forward learner of the reference rows ({', '.join(REFERENCE_ALGOS)}), and the "
             "suite's algos have none: add them, or leave it out.",
         )
+    description = content.get("description") or ""
+    if not isinstance(description, str):
+        raise reader.error(
+            ("description",), f"`description` is one line of text ({SUITE_KEYS['description']}), got {description!r}."
+        )
     recipe_version = content.get("recipe_version")
     if recipe_version is not None and (not isinstance(recipe_version, (str, int)) or not str(recipe_version).strip()):
         raise reader.error(("recipe_version",), f"`recipe_version` is a name or a number, got {recipe_version!r}.")
@@ -818,7 +866,7 @@ def load_suite(name_or_path: str | os.PathLike, dry_build: bool = True) -> Suite
     suite = Suite(
         name=path.stem,
         path=str(path),
-        description=str(content.get("description", "")),
+        description=description,
         envs=envs,
         algos=algos,
         seeds=seeds,
@@ -838,5 +886,6 @@ def load_suite(name_or_path: str | os.PathLike, dry_build: bool = True) -> Suite
         headline_envs=reader.headline_envs(envs),
     )
     if dry_build:  # last: each cheaper check has passed
+        reader.check_envs(envs, variants)
         reader.check_builds(envs, algos, variants, forward_recipe)
     return suite

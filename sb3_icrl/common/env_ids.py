@@ -7,12 +7,30 @@ Only gymnasium is imported here, so that the envs themselves can resolve ids.
 
 import difflib
 import importlib
+import traceback
 from collections.abc import Sequence
 
 import gymnasium as gym
 
 #: The gymnasium namespace of sb3-icrl's envs
 NAMESPACE = "sb3_icrl"
+
+
+def module_error(module: str, error: Exception) -> str:
+    """
+    What went wrong inside a user's module as it was imported, in one line: the error and where it was raised (a
+    traceback would show the import machinery's frames first).
+
+    :param module: The module's name
+    :param error: What its import raised (not an ``ImportError``)
+    :return: ``importing 'module' raised ... at FILE, line N: fix the module``
+    """
+    if isinstance(error, SyntaxError):
+        what, where = error.msg, f"{error.filename}, line {error.lineno}"
+    else:
+        frames = traceback.extract_tb(error.__traceback__)
+        what, where = str(error), f"{frames[-1].filename}, line {frames[-1].lineno}" if frames else "an unknown place"
+    return f"importing {module!r} raised {type(error).__name__}: {what} (at {where}): fix the module"
 
 
 def import_gym_packages(packages: Sequence[str] | None) -> None:
@@ -29,6 +47,8 @@ def import_gym_packages(packages: Sequence[str] | None) -> None:
             raise ValueError(
                 f"--gym-packages: cannot import {package!r} ({error}); is it installed or on PYTHONPATH?"
             ) from error
+        except Exception as error:  # the module's own code failed
+            raise ValueError(f"--gym-packages: {module_error(package, error)}.") from error
 
 
 def resolve_env_id(env_id: str) -> str:
@@ -65,6 +85,8 @@ def _resolve_module_env_id(text: str) -> str:
         raise ValueError(
             f"Env {text!r}: cannot import its module {module!r} ({error}); is it installed or on PYTHONPATH?"
         ) from error
+    except Exception as error:  # the module's own code failed
+        raise ValueError(f"Env {text!r}: {module_error(module, error)}.") from error
     for candidate in (env_id, f"{NAMESPACE}/{env_id}"):
         if candidate in gym.registry:
             return candidate

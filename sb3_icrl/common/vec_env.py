@@ -41,17 +41,32 @@ class ShallowCopyDummyVecEnv(DummyVecEnv):
 
 def load_vec_normalize(path: str, venv: VecEnv) -> VecNormalize:
     """
-    ``VecNormalize.load``, whose error on a damaged file (a pickle cut short) names neither the file nor the cause.
+    ``VecNormalize.load``, whose errors on a damaged file (a pickle cut short), on a pickle of something else and on
+    the statistics of another env (observations of another shape) name neither the file nor the cause.
 
     :param path: The saved statistics
     :param venv: The env to wrap
     :return: The wrapper, with the statistics
-    :raises ValueError: When the file does not unpickle
+    :raises ValueError: When the file does not unpickle, holds no ``VecNormalize``, or was saved for other spaces
     """
     try:
-        return VecNormalize.load(path, venv)
+        with open(path, "rb") as file:
+            saved = pickle.load(file)
     except (pickle.UnpicklingError, EOFError) as error:
         raise ValueError(
             f"The VecNormalize statistics {path} cannot be read ({type(error).__name__}: {error}): the file is cut short "
             "or damaged; restore it, or use a checkpoint of the run with its own rl_model_vecnormalize_<steps>_steps.pkl."
         ) from error
+    if not isinstance(saved, VecNormalize):
+        raise ValueError(
+            f"The VecNormalize statistics {path} hold a {type(saved).__name__}, not VecNormalize statistics: the file was "
+            "overwritten; restore it, or use a checkpoint of the run with its own rl_model_vecnormalize_<steps>_steps.pkl."
+        )
+    try:
+        saved.set_venv(venv)  # (which asserts that the observations have the shape of the statistics)
+    except AssertionError as error:
+        raise ValueError(
+            f"The VecNormalize statistics {path} were saved for another env (observations {saved.observation_space}, "
+            f"this env's are {venv.observation_space}): use the statistics saved with this model."
+        ) from error
+    return saved

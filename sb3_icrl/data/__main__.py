@@ -232,6 +232,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         message = write_error_message(error) if isinstance(error, OSError) else None
         print(f"error: {message or error}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        # Each file is written whole (atomically): what an interrupted command leaves is complete or absent
+        print(f"\ninterrupted: `{args.command}` stopped before its end; run it again to finish it.", file=sys.stderr)
+        return 130
     return 0
 
 

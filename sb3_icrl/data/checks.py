@@ -277,6 +277,23 @@ def _buildable_env(env_id: str) -> gym.Env | None:
     return None
 
 
+def _check_shapes(demonstrations: Demonstrations, environment: gym.Env, env_id: str | None, importer: str) -> None:
+    """
+    :raises DemonstrationError: When the observations or actions of a step have another shape than the Box spaces of
+        ``environment`` (data of another env; the replay would fail deep in the simulator)
+    """
+    trajectory = demonstrations.trajectories[0]
+    for what, space, values in (
+        ("observations", environment.observation_space, trajectory.obs),
+        ("actions", environment.action_space, trajectory.acts),
+    ):
+        if isinstance(space, gym.spaces.Box) and np.shape(values)[1:] != space.shape:
+            raise DemonstrationError(
+                f"{importer}: the {what} have shape {np.shape(values)[1:]} per step, but {env_id}'s are {space.shape}: the "
+                f"data is not from {env_id}; give the env it was recorded on (or none)."
+            )
+
+
 def import_replay_check(demonstrations: Demonstrations, env_id: str | None, importer: str) -> DynamicsReport | None:
     """
     The check the importers run by default: :func:`dynamics_replay_check` on the env the data is said to come from,
@@ -293,6 +310,11 @@ def import_replay_check(demonstrations: Demonstrations, env_id: str | None, impo
     if environment is None:
         return None
     opt_out = f"pass `check_replay=False` to {importer} to import the data as it is"
+    try:
+        _check_shapes(demonstrations, environment, env_id, importer)
+    except DemonstrationError:
+        environment.close()
+        raise
     try:
         if not _is_mujoco(environment):
             return None

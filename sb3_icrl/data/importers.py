@@ -202,6 +202,11 @@ def from_arrays(
     for name, values in named.items():
         if values is not None and len(values) != n_steps:
             raise DemonstrationError(f"`{name}` has {len(values)} rows, `actions` {n_steps}: give one row per step.")
+    if next_observations is not None and np.shape(next_observations)[1:] != observations.shape[1:]:
+        raise DemonstrationError(
+            f"`next_observations` have shape {np.shape(next_observations)[1:]} per step, `observations` "
+            f"{observations.shape[1:]}: give the observation after each action, of the same shape."
+        )
     bounds = _split_points(n_steps, episode_starts, episode_lengths)
     n_episodes = len(bounds) - 1
     terminal_flags = np.zeros(n_episodes, dtype=bool) if terminals is None else np.asarray(terminals, dtype=bool)

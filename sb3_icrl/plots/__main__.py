@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from sb3_icrl.common.utils import plain_docstring
+from sb3_icrl.common.utils import plain_docstring, write_error_message
 from sb3_icrl.common.vec_env import load_vec_normalize
 from sb3_icrl.data import load_demonstrations
 from sb3_icrl.envs.wrappers import recorded_transition_noise, transition_noise_wrapper
@@ -306,6 +306,12 @@ def main(argv: list[str] | None = None) -> int:
         path = commands[args.command](args)
     except (FileNotFoundError, ValueError, TypeError) as error:
         print(f"error: {error}", file=sys.stderr)
+        return 2
+    except OSError as error:
+        message = write_error_message(error)  # -o in a folder that cannot be written
+        if message is None:
+            raise
+        print(f"error: {message}", file=sys.stderr)
         return 2
     print(f"Saved {path}")
     return 0

@@ -152,6 +152,22 @@ def split_evaluation_history(
     return evaluations, current
 
 
+def _check_rows(arrays: dict[str, np.ndarray], path: str) -> None:
+    """
+    :param arrays: The arrays of an evaluation history (``{}``: none)
+    :param path: Its file, for the message
+    :raises ValueError: Unless it has ``timesteps`` and one row per evaluation in every array (another npz file)
+    """
+    if not arrays:
+        return
+    if "timesteps" not in arrays:
+        raise ValueError(f"{path} holds no 'timesteps' array (keys: {sorted(arrays)}): it was not written by train.py.")
+    n_eval = len(np.atleast_1d(arrays["timesteps"]))
+    ragged = sorted(key for key, value in arrays.items() if len(np.atleast_1d(value)) != n_eval)
+    if ragged:
+        raise ValueError(f"{path} has {n_eval} timesteps, but not as many rows in {ragged}: it was not written by train.py.")
+
+
 def _rows_up_to(arrays: dict[str, np.ndarray], up_to_timesteps: int) -> dict[str, list]:
     """The rows of the evaluations made up to ``up_to_timesteps``, as lists (of each key) to append to."""
     keep = np.asarray(arrays.get("timesteps", []), dtype=float) <= up_to_timesteps
@@ -222,6 +238,8 @@ class ConstraintEvalCallback(EvalCallback):
         try:
             arrays = read_npz(path)
             selection = read_npz(selection_path) if os.path.isfile(selection_path) else {}
+            _check_rows(arrays, path)
+            _check_rows(selection, selection_path)
         except ValueError as error:
             # The run goes on (a suite retries it as it is): its curves then start at the checkpoint
             warnings.warn(f"{error} The resumed run's evaluations start afresh at step {up_to_timesteps}.", stacklevel=2)
@@ -510,7 +528,11 @@ def load_training_state(model: Any, path: str, evaluation: ConstraintEvalCallbac
         return False
     state = _unpickle_state(path)
     if not isinstance(state, dict) or state.get("format") != TRAINING_STATE_FORMAT:
-        raise ValueError(f"{path} is not a training state of this sb3-icrl version (format {TRAINING_STATE_FORMAT}).")
+        raise ValueError(
+            f"{path} is not a training state of this sb3-icrl version (format {TRAINING_STATE_FORMAT}): it was overwritten, "
+            "or written by another version; continue from another checkpoint of the run, or delete the file to continue "
+            "without it (the ICRL trainer and the model selection then start afresh)."
+        )
     if state["num_timesteps"] != model.num_timesteps:
         warnings.warn(
             f"{path} was saved at {state['num_timesteps']} steps, the model at {model.num_timesteps}: not used (the ICRL "

@@ -40,7 +40,15 @@ from sb3_icrl.run_evaluation import (
     summarise,
     training_wall_time,
 )
-from sb3_icrl.run_folder import FINISHED_FILE, failure, is_finished, load_run_yaml, made_by_rl_zoo3, run_env_name
+from sb3_icrl.run_folder import (
+    FINISHED_FILE,
+    failure,
+    is_finished,
+    load_run_yaml,
+    made_by_rl_zoo3,
+    run_env_name,
+    unreadable_finished,
+)
 from sb3_icrl.zoo.arguments import non_negative_int, positive_int
 
 
@@ -71,10 +79,8 @@ def check_runs(runs: list[str]) -> None:
                 file=sys.stderr,
             )
         elif not is_finished(run):
-            print(
-                f"warning: {run} did not finish its training (no {FINISHED_FILE}): it is compared as it stands",
-                file=sys.stderr,
-            )
+            why = unreadable_finished(run) or f"no {FINISHED_FILE}"
+            print(f"warning: {run} did not finish its training ({why}): it is compared as it stands", file=sys.stderr)
 
 
 def check_reference(runs: list[str], reference: str | None) -> None:
@@ -288,6 +294,9 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     except (FileNotFoundError, RunFolderError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("\ninterrupted: no table (every run is evaluated first); run it again, with a smaller -n.", file=sys.stderr)
+        return 130
     print(format_table(results, summary, args.reference))
     for warning in wilcoxon_warnings(summary, args.reference):
         print(f"warning: {warning}", file=sys.stderr)

@@ -70,11 +70,13 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
         "--gym-packages", type=str, nargs="+", default=[], help="Modules to import first: they register your own envs"
     )
     parser.add_argument("-f", "--folder", type=str, default="logs", help="Log folder (train.py's -f)")
-    parser.add_argument("--exp-id", type=int, default=0, help="Run id N of <EnvName>_N (0: the latest)")
+    parser.add_argument("--exp-id", type=non_negative_int, default=None, help="Run id N of <EnvName>_N (0: the latest)")
     parser.add_argument("--run", type=str, default=None, help="The run folder itself (instead of -f and --exp-id)")
-    parser.add_argument("--load-best", action="store_true", default=False, help="Load best_model.zip")
-    parser.add_argument("--load-checkpoint", type=int, help="Load the checkpoint rl_model_<N>_steps.zip")
-    parser.add_argument("--load-last-checkpoint", action="store_true", default=False, help="Load the latest checkpoint")
+    # One model at a time: a second flag would be ignored without a word
+    which = parser.add_mutually_exclusive_group()
+    which.add_argument("--load-best", action="store_true", default=False, help="Load best_model.zip")
+    which.add_argument("--load-checkpoint", type=non_negative_int, help="Load the checkpoint rl_model_<N>_steps.zip")
+    which.add_argument("--load-last-checkpoint", action="store_true", default=False, help="Load the latest checkpoint")
     parser.add_argument("-n", "--n-timesteps", type=positive_int, default=1000, help="Steps to run")
     group = parser.add_mutually_exclusive_group()
     group.add_argument("--deterministic", dest="deterministic", action="store_true", help="Deterministic actions (default)")
@@ -88,6 +90,26 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
     parser.add_argument("--device", type=str, default="auto", help="torch device")
     parser.add_argument("--verbose", type=int, default=1, help="Verbose mode (0: summary only, 1: every episode)")
     return parser
+
+
+def check_videos_folder(run: str) -> None:
+    """
+    Fail before the run starts unless ``<run>/videos`` (where ``--record`` writes) is, or can be made, a writable folder.
+
+    :param run: The run folder
+    :raises ValueError: When it cannot be written
+    """
+    videos = os.path.join(run, "videos")
+    try:
+        os.makedirs(videos, exist_ok=True)
+        why = None if os.access(videos, os.W_OK | os.X_OK) else "not writable"
+    except OSError as error:
+        why = error.strerror or str(error)
+    if why is not None:
+        raise ValueError(
+            f"--record writes into {videos}, which cannot be written ({why}): copy the run folder to a place you can "
+            "write to and pass it with --run, or leave out --record."
+        )
 
 
 def run_folder(folder: str, algo: str, name: str, exp_id: int) -> str:
@@ -167,12 +189,16 @@ def enjoy(args: argparse.Namespace) -> ConstraintEvaluation:
     if args.num_threads > 0:
         th.set_num_threads(args.num_threads)
     if args.run:
+        if args.exp_id is not None:
+            raise ValueError("--run names the run folder itself: leave out --exp-id (or give -f and --exp-id instead).")
         run = args.run
         if not os.path.isdir(run):
             raise FileNotFoundError(f"No run folder {run}.")
     else:
-        run = _run_folder_ours_or_rl_zoo3(args.folder, args.algo, env_id, args.exp_id)
+        run = _run_folder_ours_or_rl_zoo3(args.folder, args.algo, env_id, args.exp_id or 0)
     name = run_env_name(run, env_id)  # (rl_zoo3 names its files after the whole id)
+    if args.record:
+        check_videos_folder(run)
     path = model_path(run, name, args.load_best, args.load_checkpoint, args.load_last_checkpoint)
     check_trained_agent(path, args.algo)
     params, env_kwargs, stats_path, transition_noise, noise_model = saved_settings(run, name, path, args.env_kwargs)

@@ -570,6 +570,11 @@ def _setup(
         )
     except TypeError as error:  # an env keyword it does not take, or a wrong type
         raise ValueError(f"Cannot make {env_id} with --env-kwargs {env_kwargs} and the yml's wrappers: {error}") from error
+    except ImportError as error:  # a registration whose entry point names a module that is not there
+        raise ValueError(
+            f"Cannot make {env_id}: its entry point {gym.spec(env_id).entry_point!r} cannot be imported ({error}); fix the "
+            "registration, or install what it needs."
+        ) from error
     if resuming:
         _continue_monitor_clocks(env)
     demonstrations = _demonstrations(args.algo, env_id, args, env)
