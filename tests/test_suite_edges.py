@@ -227,3 +227,10 @@ def test_resume_falls_back_past_a_checkpoint_whose_pickles_are_broken(tmp_path):
     broken.write_bytes(broken.read_bytes()[:5])  # cut short
     with pytest.warns(UserWarning, match=f"{broken} cannot be read: resuming from an earlier checkpoint"):
         assert latest_checkpoint(str(tmp_path)).endswith("rl_model_100_steps.zip")
+
+
+def test_only_that_matches_nothing_names_the_suites_values() -> None:
+    suite = load_suite("table3", dry_build=False)
+    with pytest.raises(SuiteError, match=r"it has seed: 123, 321, 456, 654, 666; algo: .*mecl") as error:
+        suite.select({"seed": ["7"], "algo": ["mecll"]})
+    assert "env:" not in str(error.value)  # only the keys filtered on

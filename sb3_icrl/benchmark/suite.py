@@ -310,7 +310,17 @@ class Suite:
             )
         ]
         if not selected:
-            raise SuiteError(f"--only {only} matches none of the {len(self.runs())} runs of suite {self.name!r}.")
+            # Name the values the suite has for each filtered key: a typo or a seed it does not run shows at once
+            available = {
+                "env": [env_name(env_id) for env_id in self.envs],
+                "algo": list(self.algos),
+                "seed": [str(seed) for seed in self.seeds],
+                "variant": list(self.variants),
+            }
+            offered = "; ".join(f"{key}: {', '.join(available[key])}" for key in wanted)
+            raise SuiteError(
+                f"--only {only} matches none of the {len(self.runs())} runs of suite {self.name!r}; it has {offered}."
+            )
         return selected
 
     def as_dict(self) -> dict[str, Any]:
