@@ -187,21 +187,20 @@ def test_generate_from_a_run_records_a_command_that_regenerates_it(declared_runs
 
 
 def test_plot_of_a_namespaced_run_uses_its_normalisation_statistics(declared_runs, monkeypatch, capsys):
-    from stable_baselines3.common.vec_env import VecNormalize
-
+    import sb3_icrl.plots.__main__ as plots_module
     from sb3_icrl.plots.__main__ import main as plots_main
 
     run = declared_runs["logs"] / "mecl" / "myns-ShortCorridor-v0_1"
     statistics = run / "myns-ShortCorridor-v0" / "vecnormalize.pkl"
     assert statistics.is_file()
     loaded = []
-    original = VecNormalize.load
+    original = plots_module.load_vec_normalize
 
     def recording_load(path, venv):
         loaded.append(os.path.abspath(path))
         return original(path, venv)
 
-    monkeypatch.setattr(VecNormalize, "load", staticmethod(recording_load))
+    monkeypatch.setattr(plots_module, "load_vec_normalize", recording_load)
     output = declared_runs["root"] / "constraint.png"
     assert plots_main(["constraint", str(run), "--episodes", "1", "-o", str(output)]) == 0
     assert loaded == [str(statistics)] and output.is_file()
