@@ -24,6 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sb3_icrl.common.utils import atomic_write_json
+
 
 @dataclass(frozen=True)
 class RunRow:
@@ -198,10 +200,7 @@ def main(argv: list[str] | None = None) -> int:
                 for side, runs in (("before", before), ("after", after))
             },
         }
-        temporary = f"{args.json}.tmp"
-        with open(temporary, "w") as file:
-            json.dump(payload, file, indent=2)
-        os.replace(temporary, args.json)
+        atomic_write_json(args.json, payload, indent=2)
     return 0
 
 

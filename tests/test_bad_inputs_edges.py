@@ -375,13 +375,15 @@ def test_compare_names_a_damaged_finished_json(
     assert f"{copy}/finished.json is not a JSON mapping (cut short or overwritten)" in capsys.readouterr().err
 
 
+def _interrupted(*args: Any, **kwargs: Any) -> None:
+    """A stand-in for a long call that the user stops with Ctrl-C."""
+    raise KeyboardInterrupt
+
+
 def test_ctrl_c_ends_compare_with_one_line(
     run: pathlib.Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
 ) -> None:
-    def interrupted(*args: Any, **kwargs: Any) -> None:
-        raise KeyboardInterrupt
-
-    monkeypatch.setattr(compare_module, "evaluate_run", interrupted)
+    monkeypatch.setattr(compare_module, "evaluate_run", _interrupted)
     assert compare_module.main([str(run), "-n", "50"]) == 130
     errors = capsys.readouterr().err
     assert "Traceback" not in errors and errors.strip().splitlines()[-1].startswith("interrupted: no table")
@@ -449,10 +451,7 @@ def test_status_and_report_name_what_is_wrong_in_a_partial_run_folder(
 def test_ctrl_c_ends_data_generate_with_one_line(
     tmp_path: pathlib.Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
 ) -> None:
-    def interrupted(*args: Any, **kwargs: Any) -> None:
-        raise KeyboardInterrupt
-
-    monkeypatch.setattr(data_cli, "build_dataset", interrupted)
+    monkeypatch.setattr(data_cli, "build_dataset", _interrupted)
     out = str(tmp_path / "demos.npz")
     assert data_cli.main(["generate", "--env", ENV, "--expert", "pilag", "--n", "1", "--out", out]) == 130
     errors = capsys.readouterr().err

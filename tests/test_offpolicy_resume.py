@@ -13,7 +13,7 @@ import pytest
 import torch as th
 from stable_baselines3 import SAC
 from stable_baselines3.common.buffers import ReplayBuffer
-from test_irlplus import line_demonstrations, make_env
+from test_irlplus import line_demonstrations, make_env, make_irlplus
 
 from sb3_icrl import IRLPlus, PPOLagrangian, SACLagrangian
 from sb3_icrl.sac_lagrangian import CostReplayBuffer
@@ -33,19 +33,8 @@ BUFFER_ARRAYS = ("observations", "next_observations", "actions", "rewards", "don
 
 
 def _irlplus(**kwargs: Any) -> IRLPlus:
-    """IRL-Plus on the 8-step line (deterministic resets), tiny networks."""
-    kwargs = {
-        "learning_starts": 16,
-        "batch_size": 16,
-        "buffer_size": 500,
-        "update_every": 16,
-        "seed": 0,
-        "device": "cpu",
-        "policy_kwargs": {"net_arch": [16]},
-        "constraint_net_kwargs": {"hidden_sizes": [8]},
-        **kwargs,
-    }
-    return IRLPlus("MlpPolicy", make_env(), line_demonstrations(), **kwargs)
+    """IRL-Plus on the 8-step line (deterministic resets), tiny networks, on the CPU."""
+    return make_irlplus(**{"device": "cpu", "policy_kwargs": {"net_arch": [16]}, **kwargs})
 
 
 def _read_buffer(path: pathlib.Path) -> ReplayBuffer:

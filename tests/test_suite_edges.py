@@ -154,16 +154,22 @@ def test_a_finished_json_that_is_not_a_json_mapping_is_no_finished_run(tmp_path)
     assert not is_finished(str(tmp_path)) and json.dumps({}) == "{}"
 
 
-def test_ctrl_c_ends_a_suite_with_one_line(tmp_path):
+def _start_training_suite(tmp_path: pathlib.Path) -> tuple[subprocess.Popen, str]:
+    """A one-run suite started in its own session, returned once its run has logged a training step (its log file)."""
     path = write(tmp_path, HEAD + "steps: 100000\ntrain_args: {eval_freq: 50000, save_freq: 0}\n")
     root = str(tmp_path / "logs")
     command = [sys.executable, "-m", "sb3_icrl.benchmark", "run", path, "-f", root, "--jobs", "1", "--no-report"]
-    # As a terminal's Ctrl-C does: SIGINT to the whole process group, the engine and its run
     process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
     log = load_suite(path).runs()[0].log_file(root)
     deadline = time.time() + 60
     while not (os.path.isfile(log) and "step" in pathlib.Path(log).read_text()) and time.time() < deadline:
         time.sleep(0.2)
+    return process, log
+
+
+def test_ctrl_c_ends_a_suite_with_one_line(tmp_path):
+    process, _ = _start_training_suite(tmp_path)
+    # As a terminal's Ctrl-C does: SIGINT to the whole process group, the engine and its run
     os.killpg(process.pid, signal.SIGINT)
     _, errors = process.communicate(timeout=60)
     assert process.returncode == 130
@@ -171,14 +177,7 @@ def test_ctrl_c_ends_a_suite_with_one_line(tmp_path):
 
 
 def test_sigint_to_the_engine_alone_stops_its_runs_and_ends_with_one_line(tmp_path):
-    path = write(tmp_path, HEAD + "steps: 100000\ntrain_args: {eval_freq: 50000, save_freq: 0}\n")
-    root = str(tmp_path / "logs")
-    command = [sys.executable, "-m", "sb3_icrl.benchmark", "run", path, "-f", root, "--jobs", "1", "--no-report"]
-    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
-    log = load_suite(path).runs()[0].log_file(root)
-    deadline = time.time() + 60
-    while not (os.path.isfile(log) and "step" in pathlib.Path(log).read_text()) and time.time() < deadline:
-        time.sleep(0.2)
+    process, log = _start_training_suite(tmp_path)
     # As `kill -INT` or a job scheduler sends it: the engine's process only, which passes it on to its runs
     os.kill(process.pid, signal.SIGINT)
     _, errors = process.communicate(timeout=60)
