@@ -49,3 +49,13 @@ def test_help_reads_as_text(command: str) -> None:
 def test_the_command_lists_every_benchmark_verb() -> None:
     shown = subprocess.run([*SB3_ICRL, "--help"], capture_output=True, text=True, cwd=ROOT)
     assert "benchmark run|status|report|list" in shown.stdout + shown.stderr
+
+
+@pytest.mark.parametrize("module", ["sb3_icrl.zoo.compare", "sb3_icrl.zoo.enjoy"])
+def test_command_modules_run_with_python_m_without_a_warning(module: str) -> None:
+    # The package must not import the module before ``runpy`` runs it (RuntimeWarning "found in sys.modules")
+    shown = subprocess.run(
+        [sys.executable, "-W", "error::RuntimeWarning", "-m", module, "--help"], capture_output=True, text=True, cwd=ROOT
+    )
+    assert shown.returncode == 0, shown.stderr
+    assert "RuntimeWarning" not in shown.stderr

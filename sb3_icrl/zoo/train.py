@@ -91,7 +91,6 @@ from sb3_icrl.run_folder import (
     load_run_yaml,
     trim_monitors,
 )
-from sb3_icrl.zoo import compare, enjoy
 from sb3_icrl.zoo.arguments import (
     StoreDict,
     algo_help,
@@ -879,6 +878,9 @@ def cli(argv: list[str] | None = None) -> int:
     :return: Exit status
     """
     argv = list(sys.argv[1:] if argv is None else argv)
+    # Imported here: ``python -m sb3_icrl.zoo.compare`` (or ``.enjoy``) must not find its module imported already
+    from sb3_icrl.zoo import compare, enjoy
+
     if argv and argv[0] == "train":
         return main(argv[1:], prog="sb3-icrl train")
     if argv and argv[0] == "enjoy":
