@@ -366,6 +366,24 @@ def test_an_evaluations_npz_of_other_arrays_is_named_on_resume(run: pathlib.Path
         run_cli(train_module.main, [*argv, "--eval-freq", "16", "--eval-episodes", "1", *TRAIN_TINY[2:]])
 
 
+@pytest.mark.parametrize(
+    "arrays, message",
+    [
+        ({"results": np.zeros((2, 1))}, "has 3 timesteps, but not as many rows in ['results']: it was not written by"),
+        ({"results": np.zeros((3, 1))}, "has no 'violations' array (keys: ['results', 'timesteps']): it was not written by"),
+    ],
+    ids=["rows-do-not-match", "metric-missing"],
+)
+def test_curves_name_an_evaluations_npz_of_other_arrays(tmp_path: pathlib.Path, arrays: dict, message: str) -> None:
+    folder = tmp_path / "ppolag" / f"{ENV}_1"
+    folder.mkdir(parents=True)
+    np.savez(folder / "evaluations.npz", timesteps=np.arange(3), **arrays)
+    argv = ["curves", "-f", str(tmp_path), "--algos", "ppolag", "--env", ENV, "-o", str(tmp_path / "x.png")]
+    expected = f"error: {folder / 'evaluations.npz'} {message}"
+    with pytest.raises(CLIError, match=re.escape(expected) + ".*Pass --skip-missing to plot the other runs"):
+        run_cli(plots_cli.main, argv)
+
+
 def test_compare_names_a_damaged_finished_json(
     run: pathlib.Path, tmp_path: pathlib.Path, capsys: pytest.CaptureFixture
 ) -> None:
