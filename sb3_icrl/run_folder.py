@@ -86,6 +86,13 @@ def check_trained_agent(path: str, algo: str) -> None:
     :param algo: Command-line algorithm name
     :raises TrainedAgentError: When the file is missing, not a zip, damaged, not an SB3 model or another algorithm's
     """
+    if os.path.isdir(path):
+        models = sorted(entry for entry in os.listdir(path) if entry.endswith(".zip"))
+        inside = f" (models in it: {', '.join(models)})" if models else ""
+        raise TrainedAgentError(
+            f"The trained agent {path!r} is a folder{inside}: expected a model .zip file saved by stable-baselines3, "
+            "such as a run's <EnvName>.zip or one of its rl_model_<N>_steps.zip checkpoints."
+        )
     if not os.path.isfile(path):
         raise TrainedAgentError(f"The trained agent {path!r} does not exist.")
     if not path.endswith(".zip"):

@@ -640,6 +640,18 @@ BAD_INPUTS: list[tuple[str, Callable[[dict[str, str]], Any], type[BaseException]
         "does not exist",
     ),
     (
+        "train-agent-is-a-run-folder",
+        lambda r: _train(r["root"], "-n", "16", "-i", r["run0"]),
+        CLIError,
+        "is a folder (models in it: GridWorldWall-v0.zip",
+    ),
+    (
+        "train-agent-is-a-folder",
+        lambda r: _train(r["root"], "-n", "16", "-i", r["root"]),
+        CLIError,
+        "is a folder: expected a model .zip file saved by stable-baselines3, such as a run's <EnvName>.zip or one of",
+    ),
+    (
         "train-agent-of-another-algo",
         lambda r: _train_icrl(r["root"], "-i", f"{r['run0']}/GridWorldWall-v0.zip"),
         CLIError,
