@@ -505,8 +505,8 @@ def load_run_yaml(path: str | os.PathLike) -> dict[str, Any]:
     ``yaml.safe_load`` refuses); nothing else that a YAML file could ask to build is built.
 
     :param path: The file
-    :return: Its mapping (empty for an empty file)
-    :raises ValueError: When it is not YAML, or not a mapping (naming the file)
+    :return: Its mapping
+    :raises ValueError: When it is empty, not YAML, or not a mapping (naming the file)
     """
     try:
         with open(path) as file:
@@ -518,9 +518,11 @@ def load_run_yaml(path: str | os.PathLike) -> dict[str, Any]:
             f"{path} is not valid YAML ({where}): the run folder is damaged; restore the file from a copy, or train the "
             "run again."
         ) from error
-    if content is not None and not isinstance(content, dict):
+    if content is None:  # train.py and rl_zoo3 never write an empty one: it was cut short or emptied
+        raise ValueError(f"{path} is empty: the run folder is damaged; restore the file from a copy, or train the run again.")
+    if not isinstance(content, dict):
         raise ValueError(f"{path} holds a {type(content).__name__}, not a mapping: the run folder is damaged.")
-    return content or {}
+    return content
 
 
 def rl_zoo3_env_name(env_id: str) -> str:

@@ -581,11 +581,16 @@ def test_an_imitation_dataset_with_nan_rewards_is_refused(tmp_path: pathlib.Path
 
 
 @pytest.mark.parametrize("name", ["args.yml", "config.yml"])
-def test_a_damaged_run_yml_is_named(run: pathlib.Path, tmp_path: pathlib.Path, name: str) -> None:
+@pytest.mark.parametrize(
+    "content, problem",
+    [("n_timesteps: [32\n", "is not valid YAML (expected ',' or ']', but got '<stream end>', line 2)"), ("", "is empty")],
+    ids=["invalid", "empty"],
+)
+def test_a_damaged_run_yml_is_named(run: pathlib.Path, tmp_path: pathlib.Path, name: str, content: str, problem: str) -> None:
     copy = _copy(run, tmp_path)
     broken = copy / ENV / name
-    broken.write_text("n_timesteps: [32\n")
-    expected = f"{broken} is not valid YAML (expected ',' or ']', but got '<stream end>', line 2): the run folder is damaged"
+    broken.write_text(content)
+    expected = f"{broken} {problem}: the run folder is damaged; restore the file from a copy, or train the run again."
     with pytest.raises(CLIError) as raised:
         run_cli(enjoy_module.main, ["--algo", "ppolag", "--env", ENV, "--run", str(copy), "--no-render", "-n", "10"])
     assert expected in str(raised.value)
