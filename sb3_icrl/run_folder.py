@@ -14,7 +14,7 @@ import os
 import pickle
 import re
 import warnings
-from typing import Any
+from typing import Any, TypeGuard
 
 import yaml
 from stable_baselines3.common.save_util import load_from_zip_file
@@ -327,8 +327,26 @@ def finished_wall_time(finished: dict[str, Any] | None) -> float | None:
     """
     for key in WALL_TIME_KEYS:
         value = finished.get(key) if finished is not None else None
-        if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value >= 0:
+        if _is_seconds(value):
             return float(value)
+    return None
+
+
+def _is_seconds(value: Any) -> TypeGuard[int | float]:
+    """Whether ``value`` is a time in seconds (a finite number >= 0)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value >= 0
+
+
+def unusable_wall_time(run: str | os.PathLike) -> str | None:
+    """
+    :param run: A run folder
+    :return: Why a training time its ``finished.json`` records is not read (a key of :data:`WALL_TIME_KEYS` that holds
+        text, say), naming the file and the key; ``None`` when each recorded time reads, or none is recorded
+    """
+    finished = read_finished(run)
+    for key in WALL_TIME_KEYS:
+        if finished is not None and key in finished and not _is_seconds(finished[key]):
+            return f"{os.path.join(run, FINISHED_FILE)} records {key} as {finished[key]!r}, not a number of seconds"
     return None
 
 

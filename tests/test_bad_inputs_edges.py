@@ -393,6 +393,26 @@ def test_compare_names_a_damaged_finished_json(
     assert f"{copy}/finished.json is not a JSON mapping (cut short or overwritten)" in capsys.readouterr().err
 
 
+def test_compare_names_a_wall_time_it_cannot_read(
+    run: pathlib.Path, tmp_path: pathlib.Path, capsys: pytest.CaptureFixture
+) -> None:
+    copy = _copy(run, tmp_path)
+    finished = json.loads((copy / FINISHED_FILE).read_text())
+    (copy / FINISHED_FILE).write_text(json.dumps({**finished, "wall_time_s": "abc", "wall_time_total_s": "abc"}))
+    compare_module.check_runs([str(copy)])
+    expected = f"warning: {copy}/finished.json records wall_time_total_s as 'abc', not a number of seconds: the wall time"
+    assert expected + " comes from the training monitor instead" in capsys.readouterr().err
+    monitor = copy / "0.monitor.csv"
+    for content, problem in [("garbage,,\n", "has no 't' column (header 'garbage,,')"), ("", "is empty")]:
+        monitor.write_text(content)
+        compare_module.check_runs([str(copy)])
+        assert f"{monitor} {problem}: it is not an SB3 Monitor file, so the wall time shows as nan" in capsys.readouterr().err
+        assert np.isnan(compare_module.training_wall_time(str(copy)))
+    monitor.write_text('#{"t_start": 0.0}\nr,l,t\n1.0,5,12.5\n1.0,5,x\n')
+    compare_module.check_runs([str(copy)])
+    assert f"{monitor}: its last row's time 'x' is not a number (cut short or overwritten)" in capsys.readouterr().err
+
+
 def _interrupted(*args: Any, **kwargs: Any) -> None:
     """A stand-in for a long call that the user stops with Ctrl-C."""
     raise KeyboardInterrupt
