@@ -486,6 +486,58 @@ def test_status_and_report_name_what_is_wrong_in_a_partial_run_folder(
         assert f"left out of the report, its model in {broken} could not be evaluated" in out
 
 
+def _status_lines(suite: pathlib.Path, root: pathlib.Path, capsys: pytest.CaptureFixture) -> list[str]:
+    capsys.readouterr()
+    assert benchmark_cli.main(["status", str(suite), "-f", str(root), "-v"]) == 0
+    return capsys.readouterr().out.splitlines()
+
+
+def test_status_names_checkpoints_that_do_not_read(
+    run: pathlib.Path, tmp_path: pathlib.Path, capsys: pytest.CaptureFixture
+) -> None:
+    suite = tmp_path / "s.yml"
+    suite.write_text(f"envs: [{ENV}]\nalgos: [ppolag]\nseeds: [0, 1]\nsteps: 64\n")
+    only_junk, one_good = (tmp_path / "logs" / "s" / "base" / "ppolag" / f"{ENV}_{seed}" for seed in (0, 1))
+    for folder in (only_junk, one_good):
+        folder.mkdir(parents=True)
+        (folder / "rl_model_48_steps.zip").write_text("junk")  # not a zip at all
+    shutil.copy(run / "rl_model_16_steps.zip", one_good)
+    damage(run / "rl_model_32_steps.zip", one_good / "rl_model_32_steps.zip", "broken-tensor")
+    lines = _status_lines(suite, tmp_path / "logs", capsys)
+    first, second = (
+        next(line for line in lines if line.endswith(f"seed {seed}") or f"seed {seed} (" in line) for seed in (0, 1)
+    )
+    assert first.startswith("interrupted") and " - / 64 " in first
+    assert (
+        f"(its checkpoint {only_junk}/rl_model_48_steps.zip is not a zip archive: no checkpoint loads, so the suite" in first
+    )
+    assert second.startswith("interrupted") and " 16 / 64 " in second
+    assert f"(its checkpoint {one_good}/rl_model_32_steps.zip is damaged (its tensor entry 'policy.pth' is cut short" in second
+    assert "(and 1 newer one): the suite resumes the run from its checkpoint at 16 steps)" in second
+
+
+def test_status_names_a_log_folder_without_the_suite_and_a_file_in_place_of_a_run_folder(
+    tmp_path: pathlib.Path, capsys: pytest.CaptureFixture
+) -> None:
+    suite = tmp_path / "s.yml"
+    suite.write_text(f"envs: [{ENV}]\nalgos: [ppolag]\nseeds: [0]\nsteps: 64\n")
+    missing = tmp_path / "no" / "such"
+    assert _status_lines(suite, missing, capsys)[-1] == (
+        f"note: -f/--log-folder {missing} does not exist: no run has started there; check -f"
+    )
+    (tmp_path / "ppolag").mkdir()  # train.py's runs, not a suite's
+    assert _status_lines(suite, tmp_path, capsys)[-1] == (
+        f"note: -f/--log-folder {tmp_path} has no folder s of this suite (it holds ppolag, s.yml): no run has started "
+        "there; check -f"
+    )
+    file = tmp_path / "logs" / "s" / "base" / "ppolag" / f"{ENV}_0"
+    file.parent.mkdir(parents=True)
+    file.write_text("x")
+    line = next(line for line in _status_lines(suite, tmp_path / "logs", capsys) if "seed 0" in line)
+    assert line.startswith("not started")
+    assert line.endswith(f"seed 0 ({file} is a file, not a run folder: move it away, or the suite cannot train the run)")
+
+
 def test_ctrl_c_ends_data_generate_with_one_line(
     tmp_path: pathlib.Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
 ) -> None:
