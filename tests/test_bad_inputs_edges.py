@@ -595,6 +595,24 @@ IMPORTER_CASES: list[tuple[str, Any, str]] = [
         lambda t: from_arrays(_steps(5), _steps(5), next_observations=np.zeros((5, 3))),
         "`next_observations` have shape (3,) per step, `observations` (2,)",
     ),
+    (
+        "arrays-first-step-not-an-episode-start",
+        lambda t: from_arrays(_steps(5), _steps(5), episode_starts=[False, False, True, False, False]),
+        "`episode_starts[0]` is False, but the first step always starts an episode (SB3's convention",
+    ),
+    # Each next observation is the next row inside an episode: not so when the boundaries are wrong or a row is shifted
+    (
+        "arrays-next-observations-disagree",
+        lambda t: from_arrays(
+            np.arange(6.0)[:, None], _steps(6), next_observations=np.arange(6.0)[:, None] + 5, episode_lengths=[3, 3]
+        ),
+        "`next_observations[0]` differs from `observations[1]` inside episode 0 (4 such steps in all): the observation",
+    ),
+    (
+        "arrays-next-observations-across-an-unmarked-start",
+        lambda t: from_arrays(np.array([[0.0], [1.0], [9.0]]), _steps(3), next_observations=np.array([[1.0], [2.0], [10.0]])),
+        "`next_observations[1]` differs from `observations[2]` inside episode 0 (1 such step in all)",
+    ),
     # Observations or actions of another env's shape: refused before the replay, which would fail inside MuJoCo
     (
         "arrays-observations-of-another-env",
