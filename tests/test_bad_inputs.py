@@ -451,6 +451,12 @@ BAD_INPUTS: list[tuple[str, Callable[[dict[str, str]], Any], type[BaseException]
         CLIError,
         "is a file, not a folder",
     ),
+    (
+        "data-cli-out-not-npz",
+        lambda r: _generate(r["root"], "--out", f"{r['root']}/d.txt"),
+        CLIError,
+        "d.txt' does not end in .npz: the demonstrations are an .npz archive (with a .json sidecar beside it); pass --out",
+    ),
     ("data-cli-negative-seed", lambda r: _generate(r["root"], "--seed", "-3"), CLIError, "--seed must be an integer >= 0"),
     ("data-cli-env-kwargs", lambda r: _generate(r["root"], "--env-kwargs", "{bad"), CLIError, "argument --env-kwargs"),
     (
