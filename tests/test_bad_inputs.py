@@ -670,6 +670,12 @@ BAD_INPUTS: list[tuple[str, Callable[[dict[str, str]], Any], type[BaseException]
         "are for the ICRL algorithms",
     ),
     (
+        "train-allow-env-mismatch-for-ppolag",
+        lambda r: _train(r["root"], "-n", "16", "--allow-env-mismatch"),
+        CLIError,
+        "--allow-env-mismatch accepts demonstrations recorded on another env: it is for the ICRL algorithms (gacl,",
+    ),
+    (
         "train-demonstrations-of-another-env",
         lambda r: _train_icrl(r["root"], "--demonstrations", "GridWorldSquare-v0"),
         CLIError,

@@ -241,6 +241,11 @@ def _demonstrations(algo: str, env_id: str, args: argparse.Namespace, env: VecEn
             raise ValueError(
                 f"--demonstrations and --violating-fraction are for the ICRL algorithms ({', '.join(ICRL_ALGOS)}), not {algo}."
             )
+        if getattr(args, "allow_env_mismatch", False):
+            raise ValueError(
+                f"--allow-env-mismatch accepts demonstrations recorded on another env: it is for the ICRL algorithms "
+                f"({', '.join(ICRL_ALGOS)}), which learn from demonstrations; {algo} learns from none, so leave it out."
+            )
         return None
     name = args.demonstrations if args.demonstrations is not None else env_name(env_id)
     allow = getattr(args, "allow_env_mismatch", False)
