@@ -676,6 +676,12 @@ BAD_INPUTS: list[tuple[str, Callable[[dict[str, str]], Any], type[BaseException]
         "--allow-env-mismatch accepts demonstrations recorded on another env: it is for the ICRL algorithms (gacl,",
     ),
     (
+        "train-noise-model-without-noise",
+        lambda r: _train(r["root"], "-n", "16", "--transition-noise-model", "shared"),
+        CLIError,
+        "--transition-noise-model shared says how the next-state noise of --transition-noise is drawn, and there is none",
+    ),
+    (
         "train-demonstrations-of-another-env",
         lambda r: _train_icrl(r["root"], "--demonstrations", "GridWorldSquare-v0"),
         CLIError,
