@@ -27,6 +27,7 @@ from sb3_icrl.run_folder import (
     rl_zoo3_env_name,
     run_env_name,
     run_wall_time,
+    unusable_wall_time,
 )
 
 
@@ -214,15 +215,45 @@ def training_wall_time(run: str) -> float:
     time spent training, whole across resumes), else the training monitor's time from its start to its last finished
     episode (which also counts the time a resumed run was stopped), ``nan`` with neither.
     """
+    return _training_wall_time(run)[0]
+
+
+def wall_time_notes(run: str) -> list[str]:
+    """
+    :param run: A run folder
+    :return: What keeps :func:`training_wall_time` from the run's own record (a ``finished.json`` time that is not a
+        number, a monitor file that does not read), one sentence each, naming the file
+    """
+    return _training_wall_time(run)[1]
+
+
+def _training_wall_time(run: str) -> tuple[float, list[str]]:
+    """:func:`training_wall_time` and :func:`wall_time_notes` of ``run``."""
     seconds = run_wall_time(run)
     if seconds is not None:
-        return seconds / 60.0
+        return seconds / 60.0, []
+    unusable = unusable_wall_time(run)
+    notes = [f"{unusable}: the wall time comes from the training monitor instead"] if unusable else []
     path = os.path.join(run, "0.monitor.csv")
     if not os.path.isfile(path):
-        return float("nan")
-    with open(path) as file:
-        rows = list(csv.DictReader(line for line in file if not line.startswith("#")))
-    return float(rows[-1]["t"]) / 60.0 if rows else float("nan")
+        return float("nan"), notes
+    problem = None
+    try:
+        with open(path) as file:
+            reader = csv.DictReader(line for line in file if not line.startswith("#"))
+            rows = list(reader)
+        fields = list(reader.fieldnames or [])
+        if "t" not in fields:
+            problem = f"has no 't' column (header {','.join(fields)!r})" if fields else "is empty"
+    except (csv.Error, UnicodeDecodeError) as error:  # binary garbage
+        problem = f"cannot be read ({type(error).__name__}: {error})"
+    if problem is not None:
+        return float("nan"), [*notes, f"{path} {problem}: it is not an SB3 Monitor file, so the wall time shows as nan"]
+    try:
+        return (float(rows[-1]["t"]) / 60.0 if rows else float("nan")), notes
+    except (TypeError, ValueError):
+        problem = f"its last row's time {rows[-1]['t']!r} is not a number (cut short or overwritten)"
+        return float("nan"), [*notes, f"{path}: {problem}, so the wall time shows as nan"]
 
 
 def evaluate_run(

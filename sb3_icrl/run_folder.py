@@ -14,7 +14,7 @@ import os
 import pickle
 import re
 import warnings
-from typing import Any
+from typing import Any, TypeGuard
 
 import yaml
 from stable_baselines3.common.save_util import load_from_zip_file
@@ -86,6 +86,13 @@ def check_trained_agent(path: str, algo: str) -> None:
     :param algo: Command-line algorithm name
     :raises TrainedAgentError: When the file is missing, not a zip, damaged, not an SB3 model or another algorithm's
     """
+    if os.path.isdir(path):
+        models = sorted(entry for entry in os.listdir(path) if entry.endswith(".zip"))
+        inside = f" (models in it: {', '.join(models)})" if models else ""
+        raise TrainedAgentError(
+            f"The trained agent {path!r} is a folder{inside}: expected a model .zip file saved by stable-baselines3, "
+            "such as a run's <EnvName>.zip or one of its rl_model_<N>_steps.zip checkpoints."
+        )
     if not os.path.isfile(path):
         raise TrainedAgentError(f"The trained agent {path!r} does not exist.")
     if not path.endswith(".zip"):
@@ -320,8 +327,26 @@ def finished_wall_time(finished: dict[str, Any] | None) -> float | None:
     """
     for key in WALL_TIME_KEYS:
         value = finished.get(key) if finished is not None else None
-        if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value >= 0:
+        if _is_seconds(value):
             return float(value)
+    return None
+
+
+def _is_seconds(value: Any) -> TypeGuard[int | float]:
+    """Whether ``value`` is a time in seconds (a finite number >= 0)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value >= 0
+
+
+def unusable_wall_time(run: str | os.PathLike) -> str | None:
+    """
+    :param run: A run folder
+    :return: Why a training time its ``finished.json`` records is not read (a key of :data:`WALL_TIME_KEYS` that holds
+        text, say), naming the file and the key; ``None`` when each recorded time reads, or none is recorded
+    """
+    finished = read_finished(run)
+    for key in WALL_TIME_KEYS:
+        if finished is not None and key in finished and not _is_seconds(finished[key]):
+            return f"{os.path.join(run, FINISHED_FILE)} records {key} as {finished[key]!r}, not a number of seconds"
     return None
 
 
@@ -498,8 +523,8 @@ def load_run_yaml(path: str | os.PathLike) -> dict[str, Any]:
     ``yaml.safe_load`` refuses); nothing else that a YAML file could ask to build is built.
 
     :param path: The file
-    :return: Its mapping (empty for an empty file)
-    :raises ValueError: When it is not YAML, or not a mapping (naming the file)
+    :return: Its mapping
+    :raises ValueError: When it is empty, not YAML, or not a mapping (naming the file)
     """
     try:
         with open(path) as file:
@@ -511,9 +536,11 @@ def load_run_yaml(path: str | os.PathLike) -> dict[str, Any]:
             f"{path} is not valid YAML ({where}): the run folder is damaged; restore the file from a copy, or train the "
             "run again."
         ) from error
-    if content is not None and not isinstance(content, dict):
+    if content is None:  # train.py and rl_zoo3 never write an empty one: it was cut short or emptied
+        raise ValueError(f"{path} is empty: the run folder is damaged; restore the file from a copy, or train the run again.")
+    if not isinstance(content, dict):
         raise ValueError(f"{path} holds a {type(content).__name__}, not a mapping: the run folder is damaged.")
-    return content or {}
+    return content
 
 
 def rl_zoo3_env_name(env_id: str) -> str:

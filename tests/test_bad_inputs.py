@@ -451,6 +451,12 @@ BAD_INPUTS: list[tuple[str, Callable[[dict[str, str]], Any], type[BaseException]
         CLIError,
         "is a file, not a folder",
     ),
+    (
+        "data-cli-out-not-npz",
+        lambda r: _generate(r["root"], "--out", f"{r['root']}/d.txt"),
+        CLIError,
+        "d.txt' does not end in .npz: the demonstrations are an .npz archive (with a .json sidecar beside it); pass --out",
+    ),
     ("data-cli-negative-seed", lambda r: _generate(r["root"], "--seed", "-3"), CLIError, "--seed must be an integer >= 0"),
     ("data-cli-env-kwargs", lambda r: _generate(r["root"], "--env-kwargs", "{bad"), CLIError, "argument --env-kwargs"),
     (
@@ -640,6 +646,18 @@ BAD_INPUTS: list[tuple[str, Callable[[dict[str, str]], Any], type[BaseException]
         "does not exist",
     ),
     (
+        "train-agent-is-a-run-folder",
+        lambda r: _train(r["root"], "-n", "16", "-i", r["run0"]),
+        CLIError,
+        "is a folder (models in it: GridWorldWall-v0.zip",
+    ),
+    (
+        "train-agent-is-a-folder",
+        lambda r: _train(r["root"], "-n", "16", "-i", r["root"]),
+        CLIError,
+        "is a folder: expected a model .zip file saved by stable-baselines3, such as a run's <EnvName>.zip or one of",
+    ),
+    (
         "train-agent-of-another-algo",
         lambda r: _train_icrl(r["root"], "-i", f"{r['run0']}/GridWorldWall-v0.zip"),
         CLIError,
@@ -650,6 +668,18 @@ BAD_INPUTS: list[tuple[str, Callable[[dict[str, str]], Any], type[BaseException]
         lambda r: _train(r["root"], "-n", "16", "--demonstrations", "GridWorldWall-v0"),
         CLIError,
         "are for the ICRL algorithms",
+    ),
+    (
+        "train-allow-env-mismatch-for-ppolag",
+        lambda r: _train(r["root"], "-n", "16", "--allow-env-mismatch"),
+        CLIError,
+        "--allow-env-mismatch accepts demonstrations recorded on another env: it is for the ICRL algorithms (gacl,",
+    ),
+    (
+        "train-noise-model-without-noise",
+        lambda r: _train(r["root"], "-n", "16", "--transition-noise-model", "shared"),
+        CLIError,
+        "--transition-noise-model shared says how the next-state noise of --transition-noise is drawn, and there is none",
     ),
     (
         "train-demonstrations-of-another-env",

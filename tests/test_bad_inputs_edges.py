@@ -366,6 +366,24 @@ def test_an_evaluations_npz_of_other_arrays_is_named_on_resume(run: pathlib.Path
         run_cli(train_module.main, [*argv, "--eval-freq", "16", "--eval-episodes", "1", *TRAIN_TINY[2:]])
 
 
+@pytest.mark.parametrize(
+    "arrays, message",
+    [
+        ({"results": np.zeros((2, 1))}, "has 3 timesteps, but not as many rows in ['results']: it was not written by"),
+        ({"results": np.zeros((3, 1))}, "has no 'violations' array (keys: ['results', 'timesteps']): it was not written by"),
+    ],
+    ids=["rows-do-not-match", "metric-missing"],
+)
+def test_curves_name_an_evaluations_npz_of_other_arrays(tmp_path: pathlib.Path, arrays: dict, message: str) -> None:
+    folder = tmp_path / "ppolag" / f"{ENV}_1"
+    folder.mkdir(parents=True)
+    np.savez(folder / "evaluations.npz", timesteps=np.arange(3), **arrays)
+    argv = ["curves", "-f", str(tmp_path), "--algos", "ppolag", "--env", ENV, "-o", str(tmp_path / "x.png")]
+    expected = f"error: {folder / 'evaluations.npz'} {message}"
+    with pytest.raises(CLIError, match=re.escape(expected) + ".*Pass --skip-missing to plot the other runs"):
+        run_cli(plots_cli.main, argv)
+
+
 def test_compare_names_a_damaged_finished_json(
     run: pathlib.Path, tmp_path: pathlib.Path, capsys: pytest.CaptureFixture
 ) -> None:
@@ -373,6 +391,26 @@ def test_compare_names_a_damaged_finished_json(
     (copy / FINISHED_FILE).write_text('{"num_timesteps": 3')
     compare_module.check_runs([str(copy)])
     assert f"{copy}/finished.json is not a JSON mapping (cut short or overwritten)" in capsys.readouterr().err
+
+
+def test_compare_names_a_wall_time_it_cannot_read(
+    run: pathlib.Path, tmp_path: pathlib.Path, capsys: pytest.CaptureFixture
+) -> None:
+    copy = _copy(run, tmp_path)
+    finished = json.loads((copy / FINISHED_FILE).read_text())
+    (copy / FINISHED_FILE).write_text(json.dumps({**finished, "wall_time_s": "abc", "wall_time_total_s": "abc"}))
+    compare_module.check_runs([str(copy)])
+    expected = f"warning: {copy}/finished.json records wall_time_total_s as 'abc', not a number of seconds: the wall time"
+    assert expected + " comes from the training monitor instead" in capsys.readouterr().err
+    monitor = copy / "0.monitor.csv"
+    for content, problem in [("garbage,,\n", "has no 't' column (header 'garbage,,')"), ("", "is empty")]:
+        monitor.write_text(content)
+        compare_module.check_runs([str(copy)])
+        assert f"{monitor} {problem}: it is not an SB3 Monitor file, so the wall time shows as nan" in capsys.readouterr().err
+        assert np.isnan(compare_module.training_wall_time(str(copy)))
+    monitor.write_text('#{"t_start": 0.0}\nr,l,t\n1.0,5,12.5\n1.0,5,x\n')
+    compare_module.check_runs([str(copy)])
+    assert f"{monitor}: its last row's time 'x' is not a number (cut short or overwritten)" in capsys.readouterr().err
 
 
 def _interrupted(*args: Any, **kwargs: Any) -> None:
@@ -448,6 +486,58 @@ def test_status_and_report_name_what_is_wrong_in_a_partial_run_folder(
         assert f"left out of the report, its model in {broken} could not be evaluated" in out
 
 
+def _status_lines(suite: pathlib.Path, root: pathlib.Path, capsys: pytest.CaptureFixture) -> list[str]:
+    capsys.readouterr()
+    assert benchmark_cli.main(["status", str(suite), "-f", str(root), "-v"]) == 0
+    return capsys.readouterr().out.splitlines()
+
+
+def test_status_names_checkpoints_that_do_not_read(
+    run: pathlib.Path, tmp_path: pathlib.Path, capsys: pytest.CaptureFixture
+) -> None:
+    suite = tmp_path / "s.yml"
+    suite.write_text(f"envs: [{ENV}]\nalgos: [ppolag]\nseeds: [0, 1]\nsteps: 64\n")
+    only_junk, one_good = (tmp_path / "logs" / "s" / "base" / "ppolag" / f"{ENV}_{seed}" for seed in (0, 1))
+    for folder in (only_junk, one_good):
+        folder.mkdir(parents=True)
+        (folder / "rl_model_48_steps.zip").write_text("junk")  # not a zip at all
+    shutil.copy(run / "rl_model_16_steps.zip", one_good)
+    damage(run / "rl_model_32_steps.zip", one_good / "rl_model_32_steps.zip", "broken-tensor")
+    lines = _status_lines(suite, tmp_path / "logs", capsys)
+    first, second = (
+        next(line for line in lines if line.endswith(f"seed {seed}") or f"seed {seed} (" in line) for seed in (0, 1)
+    )
+    assert first.startswith("interrupted") and " - / 64 " in first
+    assert (
+        f"(its checkpoint {only_junk}/rl_model_48_steps.zip is not a zip archive: no checkpoint loads, so the suite" in first
+    )
+    assert second.startswith("interrupted") and " 16 / 64 " in second
+    assert f"(its checkpoint {one_good}/rl_model_32_steps.zip is damaged (its tensor entry 'policy.pth' is cut short" in second
+    assert "(and 1 newer one): the suite resumes the run from its checkpoint at 16 steps)" in second
+
+
+def test_status_names_a_log_folder_without_the_suite_and_a_file_in_place_of_a_run_folder(
+    tmp_path: pathlib.Path, capsys: pytest.CaptureFixture
+) -> None:
+    suite = tmp_path / "s.yml"
+    suite.write_text(f"envs: [{ENV}]\nalgos: [ppolag]\nseeds: [0]\nsteps: 64\n")
+    missing = tmp_path / "no" / "such"
+    assert _status_lines(suite, missing, capsys)[-1] == (
+        f"note: -f/--log-folder {missing} does not exist: no run has started there; check -f"
+    )
+    (tmp_path / "ppolag").mkdir()  # train.py's runs, not a suite's
+    assert _status_lines(suite, tmp_path, capsys)[-1] == (
+        f"note: -f/--log-folder {tmp_path} has no folder s of this suite (it holds ppolag, s.yml): no run has started "
+        "there; check -f"
+    )
+    file = tmp_path / "logs" / "s" / "base" / "ppolag" / f"{ENV}_0"
+    file.parent.mkdir(parents=True)
+    file.write_text("x")
+    line = next(line for line in _status_lines(suite, tmp_path / "logs", capsys) if "seed 0" in line)
+    assert line.startswith("not started")
+    assert line.endswith(f"seed 0 ({file} is a file, not a run folder: move it away, or the suite cannot train the run)")
+
+
 def test_ctrl_c_ends_data_generate_with_one_line(
     tmp_path: pathlib.Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
 ) -> None:
@@ -504,6 +594,24 @@ IMPORTER_CASES: list[tuple[str, Any, str]] = [
         "arrays-next-observations-shape",
         lambda t: from_arrays(_steps(5), _steps(5), next_observations=np.zeros((5, 3))),
         "`next_observations` have shape (3,) per step, `observations` (2,)",
+    ),
+    (
+        "arrays-first-step-not-an-episode-start",
+        lambda t: from_arrays(_steps(5), _steps(5), episode_starts=[False, False, True, False, False]),
+        "`episode_starts[0]` is False, but the first step always starts an episode (SB3's convention",
+    ),
+    # Each next observation is the next row inside an episode: not so when the boundaries are wrong or a row is shifted
+    (
+        "arrays-next-observations-disagree",
+        lambda t: from_arrays(
+            np.arange(6.0)[:, None], _steps(6), next_observations=np.arange(6.0)[:, None] + 5, episode_lengths=[3, 3]
+        ),
+        "`next_observations[0]` differs from `observations[1]` inside episode 0 (4 such steps in all): the observation",
+    ),
+    (
+        "arrays-next-observations-across-an-unmarked-start",
+        lambda t: from_arrays(np.array([[0.0], [1.0], [9.0]]), _steps(3), next_observations=np.array([[1.0], [2.0], [10.0]])),
+        "`next_observations[1]` differs from `observations[2]` inside episode 0 (1 such step in all)",
     ),
     # Observations or actions of another env's shape: refused before the replay, which would fail inside MuJoCo
     (
@@ -563,11 +671,16 @@ def test_an_imitation_dataset_with_nan_rewards_is_refused(tmp_path: pathlib.Path
 
 
 @pytest.mark.parametrize("name", ["args.yml", "config.yml"])
-def test_a_damaged_run_yml_is_named(run: pathlib.Path, tmp_path: pathlib.Path, name: str) -> None:
+@pytest.mark.parametrize(
+    "content, problem",
+    [("n_timesteps: [32\n", "is not valid YAML (expected ',' or ']', but got '<stream end>', line 2)"), ("", "is empty")],
+    ids=["invalid", "empty"],
+)
+def test_a_damaged_run_yml_is_named(run: pathlib.Path, tmp_path: pathlib.Path, name: str, content: str, problem: str) -> None:
     copy = _copy(run, tmp_path)
     broken = copy / ENV / name
-    broken.write_text("n_timesteps: [32\n")
-    expected = f"{broken} is not valid YAML (expected ',' or ']', but got '<stream end>', line 2): the run folder is damaged"
+    broken.write_text(content)
+    expected = f"{broken} {problem}: the run folder is damaged; restore the file from a copy, or train the run again."
     with pytest.raises(CLIError) as raised:
         run_cli(enjoy_module.main, ["--algo", "ppolag", "--env", ENV, "--run", str(copy), "--no-render", "-n", "10"])
     assert expected in str(raised.value)

@@ -29,6 +29,12 @@ steps: 1000
 """
 
 
+def _whole_zip(path: str) -> None:
+    """A model zip as status sees it: it reads only whether the zip is whole."""
+    with zipfile.ZipFile(path, "w") as archive:
+        archive.writestr("data", "{}")
+
+
 @pytest.fixture
 def suite_in_five_states(tmp_path):
     """Seed 0 finished (1000 steps in 500 s), 1 failed at 200, 2 interrupted at 400, 3 training now at 600, 4 not
@@ -43,11 +49,10 @@ def suite_in_five_states(tmp_path):
         os.makedirs(folder)
     with open(os.path.join(folders[0], FINISHED_FILE), "w") as file:
         json.dump({"num_timesteps": 1000, "wall_time_total_s": 500.0}, file)
-    with zipfile.ZipFile(os.path.join(folders[0], "GridWorldWall-v0.zip"), "w") as archive:
-        archive.writestr("data", "{}")  # its final model (status reads only whether the zip is whole)
+    _whole_zip(os.path.join(folders[0], "GridWorldWall-v0.zip"))  # its final model
     for folder, steps in zip(folders[1:4], (200, 400, 600), strict=True):
-        open(os.path.join(folder, f"rl_model_{steps}_steps.zip"), "w").close()
-        open(os.path.join(folder, f"rl_model_{steps // 2}_steps.zip"), "w").close()
+        _whole_zip(os.path.join(folder, f"rl_model_{steps}_steps.zip"))
+        _whole_zip(os.path.join(folder, f"rl_model_{steps // 2}_steps.zip"))
     with open(os.path.join(folders[1], FAILED_FILE), "w") as file:
         json.dump({"error": "ValueError: bad things"}, file)
     return suite, root, runs

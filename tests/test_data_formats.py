@@ -315,7 +315,7 @@ def test_pickles_are_read_without_running_code(tmp_path):
 def test_from_arrays_splits_episodes():
     observations = np.arange(6, dtype=np.float64)[:, None]
     actions = np.arange(6, dtype=np.float32)[:, None] + 100
-    next_observations = observations + 0.5
+    next_observations = np.array([1, 2, 2.5, 4, 5, 5.5])[:, None]  # the next row, inside each episode
     starts = np.array([True, False, False, True, False, False])
     demonstrations = from_arrays(
         observations, actions, next_observations=next_observations, episode_starts=starts, env_id="X-v0"

@@ -43,6 +43,11 @@ def write(tmp_path, text: str) -> str:
             5,
             "`transition_noise_model` is one of component, shared .*got 'scalar'",
         ),
+        (
+            HEAD + "variants:\n  quiet: {transition_noise: 0, transition_noise_model: shared}\n",
+            5,
+            "`transition_noise_model` says how the noise of `transition_noise` is drawn, and the variant has none",
+        ),
         (HEAD + "train_args: {eval_episodes: -1}\n", 4, "`eval_episodes` is at least 1"),
         (
             "envs: [GridWorld-v0]\nalgos: [bc2l]\nseeds: [0]\n",

@@ -209,10 +209,20 @@ def status_command(args: argparse.Namespace) -> int:
     runs = suite.select(_only(args.only))
     folder = os.path.join(args.log_folder, suite.name)
     print(f"suite {suite.name}: {len(runs)} runs in {folder}")
-    if not os.path.isdir(folder):
-        print(f"(no folder {folder} yet: no run has started there; check -f)")
     print("\n".join(status_lines(suite_status(runs, args.log_folder), verbose=args.verbose)))
+    if not os.path.isdir(folder):  # last, where it is read: every run above is "not started"
+        print(f"note: {_no_suite_folder(args.log_folder, suite.name)}: no run has started there; check -f")
     return 0
+
+
+def _no_suite_folder(log_folder: str, name: str) -> str:
+    """Why ``<log_folder>/<name>`` holds no run: the log folder does not exist, or it holds other things (named)."""
+    if not os.path.isdir(log_folder):
+        return f"-f/--log-folder {log_folder} does not exist"
+    there = sorted(entry for entry in os.listdir(log_folder) if not entry.startswith("."))
+    shown = ", ".join(there[:8]) + (f" and {len(there) - 8} more" if len(there) > 8 else "")
+    holds = f"it holds {shown}" if there else "it is empty"
+    return f"-f/--log-folder {log_folder} has no folder {name} of this suite ({holds})"
 
 
 def _with_earlier_report(

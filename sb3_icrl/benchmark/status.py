@@ -135,12 +135,42 @@ def run_status(
     lock = folder + ".lock"
     if locked_inodes is not None and os.path.exists(lock) and os.stat(lock).st_ino in locked_inodes:
         return RunStatus(run, "running", newest, total)
+    resumed, damaged = _resumable_checkpoint(saved)
     error = failure(folder)
     if error is not None:
-        return RunStatus(run, "failed", newest, total, error=error)
+        return RunStatus(run, "failed", resumed, total, error=error, note=damaged)
     if os.path.isdir(folder):
-        return RunStatus(run, "interrupted", newest, total, note=unreadable_finished(folder))
+        notes = [note for note in (unreadable_finished(folder), damaged) if note]
+        return RunStatus(run, "interrupted", resumed, total, note="; ".join(notes) or None)
+    if os.path.exists(folder):
+        note = f"{folder} is a file, not a run folder: move it away, or the suite cannot train the run"
+        return RunStatus(run, "not started", None, total, note=note)
     return RunStatus(run, "not started", None, total)
+
+
+def _resumable_checkpoint(saved: list[tuple[int, str]]) -> tuple[int | None, str | None]:
+    """
+    :param saved: The run's checkpoints, the most steps first (:func:`~sb3_icrl.run_folder.checkpoints`)
+    :return: The steps of the newest checkpoint whose zip reads (``None``: none does), and what is wrong with the newer
+        ones that do not (``None`` when there are none), as the note of the run
+    """
+    damaged: list[str] = []
+    steps: int | None = None
+    for saved_steps, path in saved:
+        what = model_damage(path, load=False)  # (as quick as for the final models: no tensor is built)
+        if what is None:
+            steps = saved_steps
+            break
+        damaged.append(f"{path} {what}")
+    if not damaged:
+        return steps, None
+    more = f" (and {len(damaged) - 1} newer one{'s' if len(damaged) > 2 else ''})" if len(damaged) > 1 else ""
+    then = (
+        f"the suite resumes the run from its checkpoint at {steps:,} steps"
+        if steps is not None
+        else "no checkpoint loads, so the suite trains the run again from the start"
+    )
+    return steps, f"its checkpoint {damaged[-1]}{more}: {then}"
 
 
 def _final_model_note(run: RunSpec, folder: str) -> str | None:

@@ -457,6 +457,13 @@ class _SuiteReader:
                     raise self.error(
                         (*where, key), f"`violating_fraction` is a share of trajectories, within [0, 1], got {value!r}."
                     )
+                if key == "transition_noise_model" and not settings.get("transition_noise"):
+                    raise self.error(
+                        (*where, key),
+                        f"variant {variant!r}: `transition_noise_model` says how the noise of `transition_noise` is drawn, "
+                        "and the variant has none: give `transition_noise` (a number > 0), or leave out "
+                        "`transition_noise_model`.",
+                    )
         return {str(name): dict(settings) for name, settings in variants.items()}
 
     def check_demonstrations(self, envs: list[str], algos: list[str], variants: dict[str, dict[str, Any]]) -> None:

@@ -175,6 +175,24 @@ def read_npz(path: str | pathlib.Path) -> dict[str, np.ndarray]:
         raise ValueError(f"{path} cannot be read ({type(error).__name__}: {error}): it is cut short or damaged.") from error
 
 
+def check_evaluation_rows(arrays: Mapping[str, np.ndarray], path: str | os.PathLike) -> None:
+    """
+    Refuse an evaluation history (``evaluations.npz``, ``model_selection.npz``) that train.py did not write.
+
+    :param arrays: The arrays of the file (``{}``: none)
+    :param path: The file, for the message
+    :raises ValueError: Unless it has ``timesteps`` and one row per evaluation in every array (another npz file)
+    """
+    if not arrays:
+        return
+    if "timesteps" not in arrays:
+        raise ValueError(f"{path} holds no 'timesteps' array (keys: {sorted(arrays)}): it was not written by train.py.")
+    n_eval = len(np.atleast_1d(arrays["timesteps"]))
+    ragged = sorted(key for key, value in arrays.items() if len(np.atleast_1d(value)) != n_eval)
+    if ragged:
+        raise ValueError(f"{path} has {n_eval} timesteps, but not as many rows in {ragged}: it was not written by train.py.")
+
+
 def atomic_save_npz(path: str | pathlib.Path, arrays: Mapping[str, Any], compressed: bool = False) -> str:
     """
     ``np.savez`` (or ``np.savez_compressed``) atomically.

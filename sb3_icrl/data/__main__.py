@@ -164,7 +164,18 @@ def regeneration_command(args: argparse.Namespace, argv: Sequence[str]) -> str:
 
 
 def _check_output_folder(out: str) -> None:
-    """Fail before any rollout when ``--out`` cannot be written: a file where a folder should be, or a read-only folder."""
+    """
+    Fail before any rollout when ``--out`` is not an ``.npz`` path (numpy would write ``d.txt`` as ``d.txt.npz``, this
+    command as ``d.txt``: neither is what was meant) or cannot be written: a file where a folder should be, or a
+    read-only folder.
+    """
+    if not out.endswith(".npz"):
+        stem, suffix = os.path.splitext(out)
+        fixed = (stem if suffix else out) + ".npz"
+        raise ValueError(
+            f"--out {out!r} does not end in .npz: the demonstrations are an .npz archive (with a .json sidecar beside it); "
+            f"pass --out {fixed}."
+        )
     folder = os.path.dirname(os.path.abspath(out))
     while not os.path.exists(folder):
         folder = os.path.dirname(folder)

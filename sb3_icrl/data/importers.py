@@ -143,9 +143,44 @@ def _split_points(
     starts = np.asarray(episode_starts)
     if starts.shape != (n_steps,) or starts.dtype.kind not in "bi":
         raise DemonstrationError(f"`episode_starts` must be {n_steps} bools (one per step), got shape {starts.shape}.")
-    starts = starts.astype(bool).copy()
-    starts[0] = True
+    starts = starts.astype(bool)
+    if not starts[0]:
+        raise DemonstrationError(
+            "`episode_starts[0]` is False, but the first step always starts an episode (SB3's convention: true on the "
+            "first step of each episode): set it to True, or drop the steps before the first start if the arrays begin "
+            "in the middle of an episode."
+        )
     return np.concatenate([np.flatnonzero(starts), [n_steps]])
+
+
+def _check_next_observations(observations: np.ndarray, next_observations: Any, bounds: np.ndarray) -> None:
+    """
+    Refuse ``next_observations`` that are not the observations that follow inside each episode (the data is
+    misaligned, or the episode boundaries are wrong).
+
+    :param observations: ``(N,) + obs_shape``
+    :param next_observations: ``(N,) + obs_shape``, the observation after each action
+    :param bounds: The episode boundaries ``[0, ..., N]``
+    """
+    following = np.asarray(next_observations)
+    if len(observations) < 2 or observations.dtype.kind not in "biuf" or following.dtype.kind not in "biuf":
+        return  # no step follows another; or not numbers, refused with the field's name later
+    inside = np.ones(len(observations) - 1, dtype=bool)  # step i -> i + 1 inside an episode
+    inside[bounds[1:-1] - 1] = False
+    pairs = len(inside)
+    same = np.isclose(
+        following[:-1].reshape(pairs, -1), observations[1:].reshape(pairs, -1), rtol=1e-5, atol=1e-6, equal_nan=True
+    ).all(axis=1)
+    differ = inside & ~same
+    if differ.any():
+        first, count = int(np.argmax(differ)), int(differ.sum())
+        episode = int(np.searchsorted(bounds, first, side="right")) - 1
+        raise DemonstrationError(
+            f"`next_observations[{first}]` differs from `observations[{first + 1}]` inside episode {episode} "
+            f"({count} such step{'s' if count > 1 else ''} in all): the observation after a step is the one the next step "
+            "starts from. Mark where each episode starts (`episode_starts` or `episode_lengths`), or check that the "
+            "arrays are aligned (a row of one shifted against the other)."
+        )
 
 
 def from_arrays(
@@ -173,8 +208,9 @@ def from_arrays(
     :param actions: ``(N,) + action_shape``
     :param rewards: ``(N,)``; ``None``: unknown (zeros, ``rewards_known`` false in the metadata)
     :param costs: True costs ``(N,)`` or ``(N, n_costs)``; ``None``: unknown (zeros, ``true_costs_known`` false)
-    :param next_observations: Optional ``(N,) + obs_shape``, the observation after each action
-    :param episode_starts: ``N`` bools, true on the first step of each episode (SB3's convention)
+    :param next_observations: Optional ``(N,) + obs_shape``, the observation after each action: inside an episode,
+        the next row of ``observations``
+    :param episode_starts: ``N`` bools, true on the first step of each episode (SB3's convention; so ``True`` first)
     :param episode_lengths: Or the length of each episode, in order; neither: a single episode
     :param terminals: One bool per episode: whether it ended in a terminal state (default: none did)
     :param env_id: The env the data was recorded on (stored as ``env_id`` in the metadata)
@@ -208,6 +244,8 @@ def from_arrays(
             f"{observations.shape[1:]}: give the observation after each action, of the same shape."
         )
     bounds = _split_points(n_steps, episode_starts, episode_lengths)
+    if next_observations is not None:
+        _check_next_observations(observations, next_observations, bounds)
     n_episodes = len(bounds) - 1
     terminal_flags = np.zeros(n_episodes, dtype=bool) if terminals is None else np.asarray(terminals, dtype=bool)
     if terminal_flags.shape != (n_episodes,):

@@ -103,10 +103,12 @@ def plot_curves(args: argparse.Namespace) -> pathlib.Path:
     try:
         with warnings.catch_warnings(record=True) as skipped:
             warnings.simplefilter("always")
-            runs = load_runs(args.log_folder, args.algos, args.env, skip_missing=args.skip_missing)
+            runs = load_runs(args.log_folder, args.algos, args.env, skip_missing=args.skip_missing, metrics=args.metrics)
     except FileNotFoundError as error:
         hint = " Pass --skip-missing to plot the other runs." if "No evaluations.npz" in str(error) else ""
         raise FileNotFoundError(f"{error}{hint}") from error
+    except ValueError as error:  # an evaluations.npz that is damaged or was not written by train.py (named)
+        raise ValueError(f"{error} Pass --skip-missing to plot the other runs.") from error
     for warning in skipped:
         print(f"warning: {warning.message}", file=sys.stderr)
     title = args.title if args.title is not None else env_name(args.env)

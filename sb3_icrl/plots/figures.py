@@ -24,7 +24,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import EngFormatter, MaxNLocator
 
 from sb3_icrl.common.env_ids import env_name
-from sb3_icrl.common.utils import atomic_write_bytes, read_npz
+from sb3_icrl.common.utils import atomic_write_bytes, check_evaluation_rows, read_npz
 from sb3_icrl.constraints.networks import BetaFeasibilityNet, _ConstraintNet
 from sb3_icrl.envs.constraint_spec import get_constraint_spec
 from sb3_icrl.envs.grid_world import GridWorldEnv
@@ -535,15 +535,17 @@ def methods_partial_dependence_figure(
 # ---------------------------------------------------------------------------------------------------- training curves
 
 
-def load_evaluations(run_folder: str | os.PathLike) -> dict[str, np.ndarray]:
+def load_evaluations(run_folder: str | os.PathLike, metrics: Sequence[str] = ()) -> dict[str, np.ndarray]:
     """
     The arrays of a run's ``evaluations.npz`` (written by :class:`~sb3_icrl.zoo.callbacks.ConstraintEvalCallback`).
 
     :param run_folder: A run folder (``logs/<algo>/<EnvName>_<N>``) or the ``.npz`` file itself
+    :param metrics: Keys of :data:`CURVE_METRICS` whose arrays the file must hold
     :return: ``timesteps`` (n_evals,) and per-episode arrays ``results``, ``feasible_rewards``, ``violations``... of
         shape (n_evals, n_episodes)
     :raises FileNotFoundError: When the folder or its ``evaluations.npz`` does not exist
-    :raises ValueError: When the file is damaged, or holds no ``timesteps``
+    :raises ValueError: When the file is damaged, holds no ``timesteps``, not one row per evaluation in each array, or
+        not the arrays of ``metrics`` (each naming the file)
     """
     path = pathlib.Path(run_folder)
     if path.suffix != ".npz":
@@ -558,8 +560,9 @@ def load_evaluations(run_folder: str | os.PathLike) -> dict[str, np.ndarray]:
         arrays = read_npz(path)
     except ValueError as error:
         raise ValueError(f"{error} Train the run again, or delete the file to leave the run out of the curves.") from error
-    if "timesteps" not in arrays:
-        raise ValueError(f"{path} holds no 'timesteps' array (keys: {sorted(arrays)}).")
+    check_evaluation_rows(arrays, path)
+    for metric in metrics:
+        _metric_key(arrays, metric, str(path))
     return arrays
 
 
@@ -595,7 +598,7 @@ def find_runs(log_folder: str | os.PathLike, algo: str, env: str) -> list[pathli
 
 
 def load_runs(
-    log_folder: str | os.PathLike, algos: Sequence[str], env: str, skip_missing: bool = False
+    log_folder: str | os.PathLike, algos: Sequence[str], env: str, skip_missing: bool = False, metrics: Sequence[str] = ()
 ) -> dict[str, list[dict[str, np.ndarray]]]:
     """
     The ``evaluations.npz`` arrays of every seed of each algorithm, ready for :func:`training_curves_figure`.
@@ -604,6 +607,7 @@ def load_runs(
     :param algos: Algorithm names (``["mecl", "vicrl"]``)
     :param env: Env name or id
     :param skip_missing: Skip (with a warning) runs without a readable ``evaluations.npz`` instead of raising
+    :param metrics: Keys of :data:`CURVE_METRICS` to be drawn: a file without their arrays is named here
     :return: ``{ALGO: [arrays of each run]}``
     :raises FileNotFoundError: For a missing folder, an algorithm without runs, or a run without evaluations
     """
@@ -612,7 +616,7 @@ def load_runs(
         seeds = []
         for folder in find_runs(log_folder, algo, env):
             try:
-                seeds.append(load_evaluations(folder))
+                seeds.append(load_evaluations(folder, metrics))
             except (FileNotFoundError, ValueError) as error:  # (ValueError: a damaged file)
                 if not skip_missing:
                     raise
@@ -623,7 +627,8 @@ def load_runs(
     return runs
 
 
-def _metric_series(arrays: dict[str, np.ndarray], metric: str, source: str) -> np.ndarray:
+def _metric_key(arrays: Mapping[str, np.ndarray], metric: str, source: str) -> str:
+    """The key of ``metric``'s array, once ``arrays`` (of the file ``source``) are known to hold it."""
     if metric not in CURVE_METRICS:
         raise ValueError(f"Unknown metric {metric!r}: choose from {', '.join(CURVE_METRICS)}.")
     key = CURVE_METRICS[metric][0]
@@ -631,7 +636,11 @@ def _metric_series(arrays: dict[str, np.ndarray], metric: str, source: str) -> n
         raise ValueError(
             f"{source} has no {key!r} array (keys: {sorted(arrays)}): it was not written by ConstraintEvalCallback."
         )
-    values = np.asarray(arrays[key], dtype=float)
+    return key
+
+
+def _metric_series(arrays: dict[str, np.ndarray], metric: str, source: str) -> np.ndarray:
+    values = np.asarray(arrays[_metric_key(arrays, metric, source)], dtype=float)
     return values.reshape(len(values), -1).mean(axis=1)
 
 

@@ -22,6 +22,7 @@ from sb3_icrl.common.utils import (
     atomic_save_npz,
     atomic_save_pickle,
     atomic_save_replay_buffer,
+    check_evaluation_rows,
     read_npz,
 )
 from sb3_icrl.run_env import LearnedCostRecorder, RecordedEpisode
@@ -152,22 +153,6 @@ def split_evaluation_history(
     return evaluations, current
 
 
-def _check_rows(arrays: dict[str, np.ndarray], path: str) -> None:
-    """
-    :param arrays: The arrays of an evaluation history (``{}``: none)
-    :param path: Its file, for the message
-    :raises ValueError: Unless it has ``timesteps`` and one row per evaluation in every array (another npz file)
-    """
-    if not arrays:
-        return
-    if "timesteps" not in arrays:
-        raise ValueError(f"{path} holds no 'timesteps' array (keys: {sorted(arrays)}): it was not written by train.py.")
-    n_eval = len(np.atleast_1d(arrays["timesteps"]))
-    ragged = sorted(key for key, value in arrays.items() if len(np.atleast_1d(value)) != n_eval)
-    if ragged:
-        raise ValueError(f"{path} has {n_eval} timesteps, but not as many rows in {ragged}: it was not written by train.py.")
-
-
 def _rows_up_to(arrays: dict[str, np.ndarray], up_to_timesteps: int) -> dict[str, list]:
     """The rows of the evaluations made up to ``up_to_timesteps``, as lists (of each key) to append to."""
     keep = np.asarray(arrays.get("timesteps", []), dtype=float) <= up_to_timesteps
@@ -238,8 +223,8 @@ class ConstraintEvalCallback(EvalCallback):
         try:
             arrays = read_npz(path)
             selection = read_npz(selection_path) if os.path.isfile(selection_path) else {}
-            _check_rows(arrays, path)
-            _check_rows(selection, selection_path)
+            check_evaluation_rows(arrays, path)
+            check_evaluation_rows(selection, selection_path)
         except ValueError as error:
             # The run goes on (a suite retries it as it is): its curves then start at the checkpoint
             warnings.warn(f"{error} The resumed run's evaluations start afresh at step {up_to_timesteps}.", stacklevel=2)

@@ -39,6 +39,7 @@ from sb3_icrl.run_evaluation import (
     same_seed_error,
     summarise,
     training_wall_time,
+    wall_time_notes,
 )
 from sb3_icrl.run_folder import (
     FINISHED_FILE,
@@ -81,6 +82,8 @@ def check_runs(runs: list[str]) -> None:
         elif not is_finished(run):
             why = unreadable_finished(run) or f"no {FINISHED_FILE}"
             print(f"warning: {run} did not finish its training ({why}): it is compared as it stands", file=sys.stderr)
+        for note in wall_time_notes(run):
+            print(f"warning: {note}", file=sys.stderr)
 
 
 def check_reference(runs: list[str], reference: str | None) -> None:

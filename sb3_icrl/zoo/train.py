@@ -240,6 +240,11 @@ def _demonstrations(algo: str, env_id: str, args: argparse.Namespace, env: VecEn
             raise ValueError(
                 f"--demonstrations and --violating-fraction are for the ICRL algorithms ({', '.join(ICRL_ALGOS)}), not {algo}."
             )
+        if getattr(args, "allow_env_mismatch", False):
+            raise ValueError(
+                f"--allow-env-mismatch accepts demonstrations recorded on another env: it is for the ICRL algorithms "
+                f"({', '.join(ICRL_ALGOS)}), which learn from demonstrations; {algo} learns from none, so leave it out."
+            )
         return None
     name = args.demonstrations if args.demonstrations is not None else env_name(env_id)
     allow = getattr(args, "allow_env_mismatch", False)
@@ -252,6 +257,28 @@ def _demonstrations(algo: str, env_id: str, args: argparse.Namespace, env: VecEn
                 f"--demonstrations PATH.npz (see `python -m sb3_icrl.data generate --help`). ({error})"
             ) from error
         raise
+
+
+def _check_noise_model_has_noise(args: argparse.Namespace, argv: list[str] | None) -> None:
+    """
+    Refuse ``--transition-noise-model`` given without noise to draw (no ``--transition-noise``, or 0): it would do
+    nothing. Its default is left as it is (runs record it, and resume compares it), so ``argv`` tells whether it was
+    given.
+
+    :param args: The parsed arguments
+    :param argv: The command line they were parsed from (``None``: not known, nothing is checked)
+    """
+    if argv is None or args.transition_noise:
+        return
+    probe = get_parser()
+    probe.set_defaults(transition_noise_model=None)
+    with contextlib.suppress(SystemExit):  # (argv parsed already: it parses again)
+        if probe.parse_known_args(argv)[0].transition_noise_model is not None:
+            raise ValueError(
+                f"--transition-noise-model {args.transition_noise_model} says how the next-state noise of "
+                "--transition-noise is drawn, and there is none (--transition-noise is 0): give its level with "
+                "--transition-noise SIGMA, or leave out --transition-noise-model."
+            )
 
 
 def _warn_without_constraint_updates(args: argparse.Namespace, params: dict[str, Any], n_timesteps: int, source: str) -> None:
@@ -744,6 +771,7 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
 
     if args.resume and args.trained_agent:
         raise ValueError("--resume continues a run from its own checkpoints: leave out -i/--trained-agent.")
+    _check_noise_model_has_noise(args, argv)
     if args.trained_agent:
         check_trained_agent(args.trained_agent, args.algo)
     raw_params, source = load_hyperparams(
