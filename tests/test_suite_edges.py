@@ -159,12 +159,26 @@ def test_a_finished_json_that_is_not_a_json_mapping_is_no_finished_run(tmp_path)
     assert not is_finished(str(tmp_path)) and json.dumps({}) == "{}"
 
 
-def _start_training_suite(tmp_path: pathlib.Path) -> tuple[subprocess.Popen, str]:
-    """A one-run suite started in its own session, returned once its run has logged a training step (its log file)."""
+def _ignore_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _start_training_suite(tmp_path: pathlib.Path, in_background: bool = False) -> tuple[subprocess.Popen, str]:
+    """
+    A one-run suite started in its own session, returned once its run has logged a training step (its log file);
+    ``in_background``: with SIGINT ignored, as a shell starts ``nohup ... &`` (its runs inherit that).
+    """
     path = write(tmp_path, HEAD + "steps: 100000\ntrain_args: {eval_freq: 50000, save_freq: 0}\n")
     root = str(tmp_path / "logs")
     command = [sys.executable, "-m", "sb3_icrl.benchmark", "run", path, "-f", root, "--jobs", "1", "--no-report"]
-    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    process = subprocess.Popen(
+        command,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        preexec_fn=_ignore_sigint if in_background else None,
+    )
     log = load_suite(path).runs()[0].log_file(root)
     deadline = time.time() + 60
     while not (os.path.isfile(log) and "step" in pathlib.Path(log).read_text()) and time.time() < deadline:
@@ -186,6 +200,16 @@ def test_sigint_to_the_engine_alone_stops_its_runs_and_ends_with_one_line(tmp_pa
     # As `kill -INT` or a job scheduler sends it: the engine's process only, which passes it on to its runs
     os.kill(process.pid, signal.SIGINT)
     _, errors = process.communicate(timeout=60)
+    assert process.returncode == 130
+    assert "Traceback" not in errors and errors.strip().splitlines()[-1].startswith("interrupted: the runs resume")
+    assert "Interrupted: saving the model" in pathlib.Path(log).read_text()
+
+
+def test_sigterm_stops_a_suite_started_in_the_background_and_its_runs_save(tmp_path):
+    process, log = _start_training_suite(tmp_path, in_background=True)
+    # As `kill PID` on `nohup sb3-icrl benchmark run ... &` does, or a job scheduler's time limit: SIGINT is ignored there
+    os.kill(process.pid, signal.SIGTERM)
+    _, errors = process.communicate(timeout=90)
     assert process.returncode == 130
     assert "Traceback" not in errors and errors.strip().splitlines()[-1].startswith("interrupted: the runs resume")
     assert "Interrupted: saving the model" in pathlib.Path(log).read_text()

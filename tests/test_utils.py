@@ -1,8 +1,9 @@
 import os
+import signal
 
 import pytest
 
-from sb3_icrl.common.utils import atomic_write_bytes, atomic_write_json
+from sb3_icrl.common.utils import atomic_write_bytes, atomic_write_json, sigterm_interrupts
 
 
 def test_atomic_write_json_leaves_old_file_on_failure(tmp_path):
@@ -48,3 +49,10 @@ def test_atomic_save_model_and_pickle_round_trip_and_keep_the_old_file_on_failur
         atomic_save_model(model, tmp_path / "model.zip")
     assert (tmp_path / "model.zip").read_bytes() == before
     assert sorted(path.name for path in tmp_path.iterdir()) == ["model.zip", "stats.pkl"]  # no temporary file left
+
+
+def test_sigterm_interrupts_raises_keyboard_interrupt_inside_and_restores_the_handler_after():
+    before = signal.getsignal(signal.SIGTERM)
+    with pytest.raises(KeyboardInterrupt), sigterm_interrupts():
+        os.kill(os.getpid(), signal.SIGTERM)
+    assert signal.getsignal(signal.SIGTERM) is before

@@ -37,7 +37,7 @@ from sb3_icrl.benchmark.report import (
 from sb3_icrl.benchmark.runner import BACKENDS, RunOutcome, load_runtime_env, make_backend, run_all
 from sb3_icrl.benchmark.status import status_lines, suite_status
 from sb3_icrl.benchmark.suite import SUITES_DIR, RunSpec, Suite, SuiteError, load_suite
-from sb3_icrl.common.utils import check_writable_folder, plain_docstring, write_error_message
+from sb3_icrl.common.utils import check_writable_folder, plain_docstring, sigterm_interrupts, write_error_message
 from sb3_icrl.registry import import_gym_packages
 from sb3_icrl.run_evaluation import RunResult
 
@@ -314,7 +314,8 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
         if os.path.exists(args.log_folder) and not os.path.isdir(args.log_folder):
             raise SuiteError(f"-f/--log-folder {args.log_folder!r} is a file, not a folder: pass the log root folder.")
         if args.command == "run":
-            return run_command(args)
+            with sigterm_interrupts():
+                return run_command(args)
         if args.command == "status":
             return status_command(args)
         return report_command(args)

@@ -31,7 +31,7 @@ MAX_ATTEMPTS = 2
 LOG_TAIL_LINES = 15
 BACKENDS = ("local", "ray")
 #: Seconds an interrupted engine gives its runs to stop on their own (a terminal's Ctrl-C reaches them too) before it
-#: sends them SIGINT, and then to save their models and end before it kills them
+#: sends them SIGTERM, and then to save their models and end before it kills them
 STOP_GRACE_S = 5.0
 STOP_TIMEOUT_S = 60.0
 #: The training processes of this engine that still run (see :func:`stop_runs`)
@@ -154,13 +154,13 @@ def execute_run(
 
 def stop_runs(grace_s: float = STOP_GRACE_S, timeout_s: float = STOP_TIMEOUT_S) -> None:
     """
-    Stop the training processes this engine still runs, as a Ctrl-C at a terminal does. A SIGINT sent to the engine
-    alone (``kill -INT``, a job scheduler) does not reach them: each that has not ended ``grace_s`` seconds later gets
-    one (it saves its model and ends); one still running ``timeout_s`` seconds after that is killed. Each resumes from
-    its last checkpoint on the next ``benchmark run``.
+    Stop the training processes this engine still runs, as a Ctrl-C at a terminal does. A SIGINT or SIGTERM sent to
+    the engine alone (``kill``, a job scheduler) does not reach them: each that has not ended ``grace_s`` seconds later
+    gets a SIGTERM (it saves its model and ends); one still running ``timeout_s`` seconds after that is killed. Each
+    resumes from its last checkpoint on the next ``benchmark run``.
 
     :param grace_s: Seconds to wait for the runs to end on their own first
-    :param timeout_s: Seconds to wait for each run to end after its SIGINT
+    :param timeout_s: Seconds to wait for each run to end after its SIGTERM
     """
     with _RUNNING_LOCK:
         processes = list(_RUNNING)
@@ -171,7 +171,8 @@ def stop_runs(grace_s: float = STOP_GRACE_S, timeout_s: float = STOP_TIMEOUT_S) 
     for process in processes:
         if process.poll() is None:
             with contextlib.suppress(ProcessLookupError):
-                process.send_signal(signal.SIGINT)
+                # Not SIGINT: runs started from a shell's background command (`nohup ... &`) ignore it
+                process.send_signal(signal.SIGTERM)
     for process in processes:
         try:
             process.wait(timeout_s)

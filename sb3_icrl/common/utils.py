@@ -1,5 +1,6 @@
 """Small helpers shared by the package, its benchmarks and its scripts."""
 
+import contextlib
 import errno
 import io
 import json
@@ -7,9 +8,11 @@ import os
 import pathlib
 import pickle
 import re
+import signal
 import tempfile
+import threading
 import zipfile
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from typing import IO, Any, cast
 
 import numpy as np
@@ -264,6 +267,28 @@ def atomic_save_pickle(obj: Any, path: str | pathlib.Path) -> None:
 
 #: A Sphinx cross-reference: ``:role:`~module.Name``` or ``:role:`text <target>```
 _SPHINX_ROLE = re.compile(r":(?:py:)?(?:class|func|meth|mod|data|attr|obj|exc|ref|doc):`(~?)([^`<]*?)(?:\s*<[^>]*>)?`")
+
+
+def _interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
+
+
+@contextlib.contextmanager
+def sigterm_interrupts() -> Iterator[None]:
+    """
+    Inside the block, SIGTERM stops the program as a Ctrl-C does (``KeyboardInterrupt``): a run saves its model and
+    ends. ``kill PID``, a job scheduler's time limit and the benchmark engine's stop send it; SIGINT cannot serve for
+    them, since a shell starts background commands (``nohup ... &``) with SIGINT ignored. Outside the main thread
+    (where Python cannot set handlers) the block changes nothing. The previous handler comes back after the block.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def plain_docstring(text: str | None) -> str:

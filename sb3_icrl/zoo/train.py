@@ -58,6 +58,7 @@ from sb3_icrl.common.utils import (
     check_writable_folder,
     plain_docstring,
     remove_temporaries,
+    sigterm_interrupts,
     write_error_message,
 )
 from sb3_icrl.common.versions import versions
@@ -881,7 +882,8 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     if args is None:
         return 2
     try:
-        train(args, argv)
+        with sigterm_interrupts():
+            train(args, argv)
     except (ValueError, HyperparameterError) as error:
         ours = [key.split("/", 1)[1] for key in gym.registry if key.startswith("sb3_icrl/")]
         hint = did_you_mean(args.env, ours) if "Unknown env" in str(error) else ""
