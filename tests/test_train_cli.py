@@ -507,16 +507,20 @@ def test_resume_from_a_checkpoint(algo: str, tmp_path: pathlib.Path) -> None:
     assert recorded["trained_agent"] == str(checkpoint)
 
 
-def test_a_resumed_run_counts_the_wall_time_of_its_earlier_segments(tmp_path: pathlib.Path) -> None:
-    """finished.json's wall_time_total_s: the time saved with the checkpoint resumed from, plus the new segment's."""
+def test_a_resumed_run_counts_the_wall_and_cpu_time_of_its_earlier_segments(tmp_path: pathlib.Path) -> None:
+    """finished.json's wall_time_total_s and cpu_time_total_s: the times saved with the checkpoint resumed from, plus
+    the new segment's."""
     import json
+    import pickle
 
-    from sb3_icrl.zoo.callbacks import training_state_wall_time
+    from sb3_icrl.zoo.callbacks import training_state_cpu_time, training_state_wall_time
 
     args = [*_resume_args("ppolag", tmp_path), "-n", "384", "--exp-id", "1", "--resume"]
     assert main(args) == 0
     run = tmp_path / "ppolag" / "ConstrainedCorridor-v0_1"
-    saved = [training_state_wall_time(str(run / f"rl_model_training_state_{steps}_steps.pkl")) for steps in (128, 256, 384)]
+    states = [str(run / f"rl_model_training_state_{steps}_steps.pkl") for steps in (128, 256, 384)]
+    saved = [training_state_wall_time(path) for path in states]
+    saved_cpu = [training_state_cpu_time(path) for path in states]
     assert 0 < saved[0] < saved[1] < saved[2]  # each checkpoint carries the run's time so far
     # Interrupted after the 256-step checkpoint: the later files never were
     for path in [run / "ConstrainedCorridor-v0.zip", run / "finished.json", *run.glob("rl_model*_384_steps.*")]:
@@ -526,6 +530,19 @@ def test_a_resumed_run_counts_the_wall_time_of_its_earlier_segments(tmp_path: pa
     assert finished["resumed_from"].endswith("rl_model_256_steps.zip")
     assert finished["wall_time_total_s"] == pytest.approx(saved[1] + finished["wall_time_s"], abs=0.5)
     assert finished["wall_time_total_s"] > finished["wall_time_s"]
+    # CPU time the same way
+    assert 0 < saved_cpu[0] < saved_cpu[1] < saved_cpu[2]
+    assert finished["cpu_time_total_s"] == pytest.approx(saved_cpu[1] + finished["cpu_time_s"], abs=0.5)
+    # A checkpoint that recorded no CPU time (an earlier version's): the whole run's is unknown, not undercounted
+    state_path = run / "rl_model_training_state_256_steps.pkl"
+    state = pickle.loads(state_path.read_bytes())
+    del state["cpu_time_s"]
+    state_path.write_bytes(pickle.dumps(state))
+    for path in [run / "ConstrainedCorridor-v0.zip", run / "finished.json", *run.glob("rl_model*_384_steps.*")]:
+        path.unlink()
+    assert main(args) == 0
+    finished = json.loads((run / "finished.json").read_text())
+    assert finished["cpu_time_total_s"] is None and finished["cpu_time_s"] > 0
 
 
 def test_a_run_does_not_resume_with_another_recipe(tmp_path: pathlib.Path, capsys) -> None:

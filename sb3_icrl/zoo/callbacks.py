@@ -410,19 +410,30 @@ def training_state_path(model_path: str, name: str) -> str:
 
 class WallClock:
     """
-    The wall time a run has taken to reach where it is, across resumed segments: the time saved with the checkpoint
-    it resumed from (``offset``) plus this segment's. Work lost after a run's last checkpoint is not counted.
+    The wall time and the CPU time (of the training process) a run has taken to reach where it is, across resumed
+    segments: the times saved with the checkpoint it resumed from (the offsets) plus this segment's. Work lost after a
+    run's last checkpoint is not counted.
 
-    :param offset: Seconds taken before this segment
+    :param offset: Wall seconds taken before this segment
+    :param cpu_offset: CPU seconds taken before this segment (``None``: not recorded by the checkpoint, so that the
+        whole run's CPU time is unknown)
     """
 
-    def __init__(self, offset: float = 0.0):
+    def __init__(self, offset: float = 0.0, cpu_offset: float | None = 0.0):
         self.offset = float(offset)
+        self.cpu_offset = None if cpu_offset is None else float(cpu_offset)
         self.start = time.time()
+        self.cpu_start = time.process_time()
 
     def elapsed(self) -> float:
-        """Seconds so far, earlier segments included."""
+        """Wall seconds so far, earlier segments included."""
         return self.offset + time.time() - self.start
+
+    def cpu_elapsed(self) -> float | None:
+        """CPU seconds so far, earlier segments included (``None`` when an earlier segment's are unknown)."""
+        if self.cpu_offset is None:
+            return None
+        return self.cpu_offset + time.process_time() - self.cpu_start
 
 
 def save_training_state(
@@ -431,6 +442,7 @@ def save_training_state(
     evaluation: ConstraintEvalCallback | None = None,
     wall_time_s: float | None = None,
     monitor_rows: dict[str, int] | None = None,
+    cpu_time_s: float | None = None,
 ) -> None:
     """
     Save, atomically, what a resumed run needs beyond the model zip: the ICRL trainer's state
@@ -443,6 +455,7 @@ def save_training_state(
     :param wall_time_s: The run's wall time so far (:class:`WallClock`), for the resumed run to count on from
     :param monitor_rows: Episodes in each Monitor file of the run so far
         (:func:`~sb3_icrl.run_folder.monitor_row_counts`), for the resumed run to drop those recorded after this point
+    :param cpu_time_s: The run's CPU time so far (:meth:`WallClock.cpu_elapsed`), for the resumed run to count on from
     """
     trainer = getattr(model, "icrl_trainer", None)
     state = {
@@ -452,6 +465,7 @@ def save_training_state(
         "evaluation": evaluation.state_dict() if evaluation is not None else None,
         "wall_time_s": wall_time_s,
         "monitor_rows": monitor_rows,
+        "cpu_time_s": cpu_time_s,
     }
     atomic_save_pickle(state, path)
 
@@ -486,6 +500,18 @@ def training_state_wall_time(path: str) -> float:
     """
     value = _saved_state(path).get("wall_time_s")
     return float(value) if value is not None else 0.0
+
+
+def training_state_cpu_time(path: str) -> float | None:
+    """
+    The run's CPU time saved in a :func:`save_training_state` file (``None`` when the file or the value is missing:
+    a checkpoint of an earlier version, whose run's CPU time before it is unknown).
+
+    :param path: The state file
+    :return: Seconds
+    """
+    value = _saved_state(path).get("cpu_time_s")
+    return float(value) if value is not None else None
 
 
 def training_state_monitor_rows(path: str) -> dict[str, int] | None:
@@ -655,10 +681,17 @@ class AtomicCheckpointCallback(CheckpointCallback):
         if self.save_vecnormalize and vec_normalize is not None:
             atomic_save_pickle(vec_normalize, self._checkpoint_path("vecnormalize_", extension="pkl"))
         if self.save_training_state:
-            wall_time = self.wall_clock.elapsed() if self.wall_clock is not None else None
+            clock = self.wall_clock
             path = self._checkpoint_path("training_state_", extension="pkl")
             rows = monitor_row_counts(self.save_path)
-            save_training_state(self.model, path, self.evaluation, wall_time_s=wall_time, monitor_rows=rows)
+            save_training_state(
+                self.model,
+                path,
+                self.evaluation,
+                wall_time_s=clock.elapsed() if clock is not None else None,
+                monitor_rows=rows,
+                cpu_time_s=clock.cpu_elapsed() if clock is not None else None,
+            )
         model_path = atomic_save_model(self.model, self._checkpoint_path(extension="zip"))
         if buffer_path is not None:
             # Only now: a run killed before its model was written resumes from the previous checkpoint, with its buffer

@@ -111,6 +111,7 @@ from sb3_icrl.zoo.callbacks import (
     load_training_state,
     replay_buffer_path,
     save_training_state,
+    training_state_cpu_time,
     training_state_monitor_rows,
     training_state_path,
     training_state_wall_time,
@@ -474,13 +475,15 @@ def _go_on(args: argparse.Namespace, model: BaseAlgorithm, callbacks: list[BaseC
 
 def _wall_clock(args: argparse.Namespace, callbacks: list[BaseCallback], name: str, resuming: bool) -> WallClock:
     """
-    The run's wall clock, given to its checkpoints: a resumed run counts on from the wall time saved with the
-    checkpoint it resumed from, so that ``finished.json`` holds the whole run's (``wall_time_total_s``).
+    The run's clock, given to its checkpoints: a resumed run counts on from the wall and CPU times saved with the
+    checkpoint it resumed from, so that ``finished.json`` holds the whole run's (``wall_time_total_s``,
+    ``cpu_time_total_s``).
     """
-    earlier = 0.0
+    earlier, earlier_cpu = 0.0, 0.0
     if resuming and args.trained_agent:
-        earlier = training_state_wall_time(training_state_path(args.trained_agent, name))
-    clock = WallClock(earlier)
+        state = training_state_path(args.trained_agent, name)
+        earlier, earlier_cpu = training_state_wall_time(state), training_state_cpu_time(state)
+    clock = WallClock(earlier, earlier_cpu)
     for callback in callbacks:
         if isinstance(callback, AtomicCheckpointCallback):
             callback.wall_clock = clock
@@ -845,7 +848,9 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
         raise
     final_model = os.path.join(save_path, f"{name}.zip")
     # Before the model it goes with
-    save_training_state(model, training_state_path(final_model, name), evaluation, wall_time_s=clock.elapsed())
+    save_training_state(
+        model, training_state_path(final_model, name), evaluation, wall_time_s=clock.elapsed(), cpu_time_s=clock.cpu_elapsed()
+    )
     atomic_save_model(model, final_model)
     vec_normalize = model.get_vec_normalize_env()
     if vec_normalize is not None:
@@ -860,6 +865,8 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
                 # CPU time of this process's training (this segment of a resumed run): the machine's load does not
                 # stretch it as it stretches wall time
                 "cpu_time_s": time.process_time() - cpu_start,
+                # The whole run's, earlier segments included (null when a checkpoint resumed from did not record it)
+                "cpu_time_total_s": clock.cpu_elapsed(),
                 **({"evaluation_cpu_time_s": evaluation.eval_seconds} if evaluation is not None else {}),
                 "resumed_from": args.trained_agent if resuming else None,
             },
