@@ -479,7 +479,8 @@ def _wall_clock(args: argparse.Namespace, callbacks: list[BaseCallback], name: s
     checkpoint it resumed from, so that ``finished.json`` holds the whole run's (``wall_time_total_s``,
     ``cpu_time_total_s``).
     """
-    earlier, earlier_cpu = 0.0, 0.0
+    earlier: float = 0.0
+    earlier_cpu: float | None = 0.0
     if resuming and args.trained_agent:
         state = training_state_path(args.trained_agent, name)
         earlier, earlier_cpu = training_state_wall_time(state), training_state_cpu_time(state)
