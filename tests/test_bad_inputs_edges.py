@@ -719,3 +719,18 @@ def test_statistics_of_something_else_or_of_another_env_are_named(tmp_path: path
     VecNormalize(DummyVecEnv([lambda: gym.make("CartPole-v1")])).save(str(other))
     with pytest.raises(ValueError, match=re.escape(f"The VecNormalize statistics {other} were saved for another env")):
         load_vec_normalize(str(other), venv)
+
+
+def test_statistics_of_another_env_of_the_same_shape_are_refused(tmp_path: pathlib.Path) -> None:
+    cart_pole = tmp_path / "cart_pole.pkl"  # (4,) observations, as BiasedPendulum's, but bounded where its are not
+    VecNormalize(DummyVecEnv([lambda: gym.make("CartPole-v1")])).save(str(cart_pole))
+    pendulum = DummyVecEnv([lambda: gym.make("sb3_icrl/BiasedPendulum-v0")])
+    expected = f"The VecNormalize statistics {cart_pole} were saved for another env (observations Box([-4.8"
+    with pytest.raises(ValueError, match=re.escape(expected) + ".*this env's are Box\\(-inf, inf, \\(4,\\), float64\\)"):
+        load_vec_normalize(str(cart_pole), pendulum)
+    # other finite bounds (an env argument moved a limit) and another float width are the same observations
+    saved = tmp_path / "pendulum.pkl"
+    VecNormalize(DummyVecEnv([lambda: gym.make("Pendulum-v1")])).save(str(saved))
+    moved = gym.spaces.Box(-20.0, 20.0, (3,), dtype=np.float64)
+    venv = DummyVecEnv([lambda: gym.wrappers.TransformObservation(gym.make("Pendulum-v1"), lambda obs: obs, moved)])
+    assert load_vec_normalize(str(saved), venv).venv is venv
