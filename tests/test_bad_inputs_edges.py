@@ -624,6 +624,25 @@ IMPORTER_CASES: list[tuple[str, Any, str]] = [
         lambda t: from_arrays(np.zeros((5, 4)), _steps(5), env_id="sb3_icrl/BiasedPendulum-v0"),
         "from_arrays: the actions have shape (2,) per step, but sb3_icrl/BiasedPendulum-v0's are (1,)",
     ),
+    # An env id that is not registered: a typo (the closest of ours named), or an env whose module was not imported
+    (
+        "arrays-env-not-registered",
+        lambda t: from_arrays(_steps(5), _steps(5), env_id="sb3_icrl/NoSuch-v0"),
+        "from_arrays: env_id 'sb3_icrl/NoSuch-v0' is not a registered gymnasium env. Give the id of the env the data was "
+        "recorded on, registered first: import the module that registers it (the --gym-packages MODULE of the commands)",
+    ),
+    (
+        "arrays-env-typo",
+        lambda t: from_arrays(_steps(5), _steps(5), env_id="sb3_icrl/BiasedPendulm-v0"),
+        "is not a registered gymnasium env. Did you mean 'BiasedPendulum-v0'?",
+    ),
+    (
+        "malik-env-typo",
+        lambda t: from_malik_rollouts(
+            _pickles(t / "m", {"0.pkl": {"observations": _steps(5), "actions": _steps(5)}}), env_id="BlockedSwimer-v0"
+        ),
+        "from_malik_rollouts: env_id 'BlockedSwimer-v0' is not a registered gymnasium env. Did you mean 'BlockedSwimmer-v0'?",
+    ),
     (
         "malik-nan-observation",
         lambda t: from_malik_rollouts(_pickles(t / "m", {"0.pkl": {"observations": _steps(5, 2), "actions": _steps(5)}})),
@@ -658,6 +677,11 @@ def test_importers_refuse_broken_numbers_naming_the_source(tmp_path: pathlib.Pat
     with pytest.raises(DemonstrationError) as raised:
         call(tmp_path)
     assert fragment in str(raised.value)
+
+
+def test_importers_unchecked_keep_an_env_id_not_registered_here() -> None:
+    imported = from_arrays(_steps(5), _steps(5), env_id="sb3_icrl/NoSuch-v0", check_replay=False)
+    assert imported.metadata["env_id"] == "sb3_icrl/NoSuch-v0"
 
 
 def test_an_imitation_dataset_with_nan_rewards_is_refused(tmp_path: pathlib.Path) -> None:
