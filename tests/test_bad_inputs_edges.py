@@ -263,6 +263,15 @@ def test_enjoy_refuses_flags_it_would_ignore(run: pathlib.Path, extra: list[str]
         run_cli(enjoy_module.main, ["--algo", "ppolag", "--env", ENV, "-f", str(run.parent.parent), "--exp-id", "-1"])
 
 
+def test_enjoy_refuses_a_run_of_another_env_or_algorithm(run: pathlib.Path) -> None:
+    argv = ["--run", str(run), "--no-render", "-n", "10"]
+    expected = f"{run} trained on {ENV}, not on BiasedPendulum-v0: pass --env {ENV}."
+    with pytest.raises(CLIError, match=re.escape(expected)):
+        run_cli(enjoy_module.main, ["--algo", "ppolag", "--env", "sb3_icrl/BiasedPendulum-v0", *argv])
+    with pytest.raises(CLIError, match=re.escape(f"{run} trained with ppolag, not with mecl: use --algo ppolag.")):
+        run_cli(enjoy_module.main, ["--algo", "mecl", "--env", ENV, *argv])
+
+
 # -------------------------------------------------------------------- MODULE:EnvId
 
 
