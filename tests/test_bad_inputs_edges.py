@@ -343,6 +343,22 @@ def test_an_env_whose_entry_point_cannot_be_imported_is_named(tmp_path: pathlib.
 # -------------------------------------------------------------------- partial run folders
 
 
+def test_a_folder_in_place_of_a_replay_buffer_stops_the_resume(tmp_path: pathlib.Path) -> None:
+    argv = ["--algo", "irlplus", "--env", "BiasedPendulum-v0", "-n", "128", "--seed", "0", "-f", str(tmp_path)]
+    argv += ["--exp-id", "1", "--save-freq", "64", "--eval-freq", "-1", "--verbose", "0", "-params", "learning_starts:16"]
+    argv += ["batch_size:16", "policy_kwargs:dict(net_arch=[4])", "update_every:64", "warmup_timesteps:0"]
+    run_cli(train_module.main, argv)
+    run = tmp_path / "irlplus" / "BiasedPendulum-v0_1"
+    (run / FINISHED_FILE).unlink()
+    (run / "BiasedPendulum-v0.zip").unlink()
+    buffer = run / "rl_model_replay_buffer_128_steps.pkl"
+    buffer.unlink()
+    buffer.mkdir()
+    expected = f"The replay buffer {buffer} is a folder, not a replay buffer file: remove it to continue from its checkpoint"
+    with pytest.raises(CLIError, match=re.escape(expected)):
+        run_cli(train_module.main, [*argv, "--resume"])
+
+
 def test_a_damaged_evaluations_npz_is_named_and_skipped(run: pathlib.Path, tmp_path: pathlib.Path) -> None:
     copy = _copy(run, tmp_path)
     evaluations = copy / "evaluations.npz"
