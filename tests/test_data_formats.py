@@ -410,11 +410,10 @@ def test_importers_replay_the_data_on_its_env_by_default():
     # HalfCheetah data labelled as the Walker, whose observations and actions have the same shapes
     with pytest.raises(DemonstrationError, match=r"does not follow the env's dynamics.*another robot"):
         from_arrays(flat["obs"], flat["acts"], env_id="sb3_icrl/BlockedWalker-v0", **common)
-    # Nothing to replay on: no env id, an env that is not MuJoCo; an env not registered here is refused, unless unchecked
+    # Nothing to replay on: no env id, an env of other code not registered here (said so), an env that is not MuJoCo
     assert len(from_arrays(flat["obs"], shifted, **common)) == 3
-    with pytest.raises(DemonstrationError, match=r"from_arrays: env_id 'HCWithPos-v0' is not a registered gymnasium env"):
-        from_arrays(flat["obs"], shifted, env_id="HCWithPos-v0", **common)
-    assert len(from_arrays(flat["obs"], shifted, env_id="HCWithPos-v0", check_replay=False, **common)) == 3
+    with pytest.warns(UserWarning, match=r"from_arrays: env_id 'HCWithPos-v0' is not registered here, so the data is stored"):
+        assert len(from_arrays(flat["obs"], shifted, env_id="HCWithPos-v0", **common)) == 3
     assert len(from_arrays(np.zeros((6, 2)), np.zeros((6, 1)), episode_lengths=[3, 3], env_id="GridWorldWall-v0")) == 2
 
 
