@@ -8,6 +8,8 @@ A run folder ``<folder>/<algo>/<EnvName>_<N>/`` holds ``<EnvName>.zip`` (final),
 (those of the final model).
 """
 
+import dataclasses
+import glob
 import json
 import math
 import os
@@ -22,7 +24,7 @@ from stable_baselines3.common.save_util import load_from_zip_file
 from sb3_icrl.common.saved import first_sentence, model_damage
 from sb3_icrl.common.utils import atomic_write_text
 from sb3_icrl.hyperparams import preprocess_hyperparams
-from sb3_icrl.registry import ALGOS, ICRL_ALGOS, env_name
+from sb3_icrl.registry import ALGOS, ICRL_ALGOS, env_name, import_gym_packages, resolve_env_id
 
 #: ``rl_model_<steps>_steps.zip``, as SB3's ``CheckpointCallback`` names its models
 CHECKPOINT_PATTERN = re.compile(r"^(?P<prefix>.+)_(?P<steps>\d+)_steps\.zip$")
@@ -541,6 +543,51 @@ def load_run_yaml(path: str | os.PathLike) -> dict[str, Any]:
     if not isinstance(content, dict):
         raise ValueError(f"{path} holds a {type(content).__name__}, not a mapping: the run folder is damaged.")
     return content
+
+
+@dataclasses.dataclass(frozen=True)
+class RunRecord:
+    """
+    What a run folder was trained on, as its ``<EnvName>/args.yml`` records it.
+
+    :param env: The env's registered id (``sb3_icrl/BiasedPendulum-v0``)
+    :param algo: The algorithm (``--algo``)
+    :param env_kwargs: The env's keyword arguments
+    :param gym_packages: The modules that register the env (imported by :func:`read_run_record`)
+    """
+
+    env: str
+    algo: str | None
+    env_kwargs: dict[str, Any]
+    gym_packages: list[str]
+
+
+def read_run_record(run: str) -> RunRecord:
+    """
+    The env and algorithm a ``train.py`` (or rl_zoo3) run folder trained with, from its ``<EnvName>/args.yml``; the
+    modules that register the env are imported, so that the id resolves.
+
+    :param run: The run folder ``<folder>/<algo>/<EnvName>_<N>``
+    :return: What it trained on
+    :raises FileNotFoundError: When the folder or its ``args.yml`` is missing
+    :raises ValueError: When the ``args.yml`` is damaged or names no env, or the env is not registered
+    """
+    if not os.path.isdir(run):
+        raise FileNotFoundError(f"No run folder {run}.")
+    found = sorted(glob.glob(os.path.join(glob.escape(run), "*", "args.yml")))
+    if not found:
+        raise FileNotFoundError(f"{run} is not a train.py run folder: no <EnvName>/args.yml in it.")
+    run_args = load_run_yaml(found[0])  # (a damaged file is named)
+    if not run_args.get("env"):
+        raise ValueError(f"{found[0]} names no env: the run folder is damaged; restore the file from a copy.")
+    gym_packages = list(run_args.get("gym_packages") or [])
+    import_gym_packages(gym_packages)  # a user's env registers itself on import
+    return RunRecord(
+        env=resolve_env_id(str(run_args["env"])),
+        algo=run_args.get("algo"),
+        env_kwargs=dict(run_args.get("env_kwargs") or {}),
+        gym_packages=gym_packages,
+    )
 
 
 def rl_zoo3_env_name(env_id: str) -> str:

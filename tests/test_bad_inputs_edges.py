@@ -263,6 +263,15 @@ def test_enjoy_refuses_flags_it_would_ignore(run: pathlib.Path, extra: list[str]
         run_cli(enjoy_module.main, ["--algo", "ppolag", "--env", ENV, "-f", str(run.parent.parent), "--exp-id", "-1"])
 
 
+def test_enjoy_refuses_a_run_of_another_env_or_algorithm(run: pathlib.Path) -> None:
+    argv = ["--run", str(run), "--no-render", "-n", "10"]
+    expected = f"{run} trained on {ENV}, not on BiasedPendulum-v0: pass --env {ENV}."
+    with pytest.raises(CLIError, match=re.escape(expected)):
+        run_cli(enjoy_module.main, ["--algo", "ppolag", "--env", "sb3_icrl/BiasedPendulum-v0", *argv])
+    with pytest.raises(CLIError, match=re.escape(f"{run} trained with ppolag, not with mecl: use --algo ppolag.")):
+        run_cli(enjoy_module.main, ["--algo", "mecl", "--env", ENV, *argv])
+
+
 # -------------------------------------------------------------------- MODULE:EnvId
 
 
@@ -332,6 +341,22 @@ def test_an_env_whose_entry_point_cannot_be_imported_is_named(tmp_path: pathlib.
 
 
 # -------------------------------------------------------------------- partial run folders
+
+
+def test_a_folder_in_place_of_a_replay_buffer_stops_the_resume(tmp_path: pathlib.Path) -> None:
+    argv = ["--algo", "irlplus", "--env", "BiasedPendulum-v0", "-n", "128", "--seed", "0", "-f", str(tmp_path)]
+    argv += ["--exp-id", "1", "--save-freq", "64", "--eval-freq", "-1", "--verbose", "0", "-params", "learning_starts:16"]
+    argv += ["batch_size:16", "policy_kwargs:dict(net_arch=[4])", "update_every:64", "warmup_timesteps:0"]
+    run_cli(train_module.main, argv)
+    run = tmp_path / "irlplus" / "BiasedPendulum-v0_1"
+    (run / FINISHED_FILE).unlink()
+    (run / "BiasedPendulum-v0.zip").unlink()
+    buffer = run / "rl_model_replay_buffer_128_steps.pkl"
+    buffer.unlink()
+    buffer.mkdir()
+    expected = f"The replay buffer {buffer} is a folder, not a replay buffer file: remove it to continue from its checkpoint"
+    with pytest.raises(CLIError, match=re.escape(expected)):
+        run_cli(train_module.main, [*argv, "--resume"])
 
 
 def test_a_damaged_evaluations_npz_is_named_and_skipped(run: pathlib.Path, tmp_path: pathlib.Path) -> None:
@@ -624,6 +649,25 @@ IMPORTER_CASES: list[tuple[str, Any, str]] = [
         lambda t: from_arrays(np.zeros((5, 4)), _steps(5), env_id="sb3_icrl/BiasedPendulum-v0"),
         "from_arrays: the actions have shape (2,) per step, but sb3_icrl/BiasedPendulum-v0's are (1,)",
     ),
+    # An env id that is not registered: a typo (the closest of ours named), or an env whose module was not imported
+    (
+        "arrays-env-not-registered",
+        lambda t: from_arrays(_steps(5), _steps(5), env_id="sb3_icrl/NoSuch-v0"),
+        "from_arrays: env_id 'sb3_icrl/NoSuch-v0' is not a registered gymnasium env. Give the id of the env the data was "
+        "recorded on, registered first: import the module that registers it (the --gym-packages MODULE of the commands)",
+    ),
+    (
+        "arrays-env-typo",
+        lambda t: from_arrays(_steps(5), _steps(5), env_id="sb3_icrl/BiasedPendulm-v0"),
+        "is not a registered gymnasium env. Did you mean 'BiasedPendulum-v0'?",
+    ),
+    (
+        "malik-env-typo",
+        lambda t: from_malik_rollouts(
+            _pickles(t / "m", {"0.pkl": {"observations": _steps(5), "actions": _steps(5)}}), env_id="BlockedSwimer-v0"
+        ),
+        "from_malik_rollouts: env_id 'BlockedSwimer-v0' is not a registered gymnasium env. Did you mean 'BlockedSwimmer-v0'?",
+    ),
     (
         "malik-nan-observation",
         lambda t: from_malik_rollouts(_pickles(t / "m", {"0.pkl": {"observations": _steps(5, 2), "actions": _steps(5)}})),
@@ -658,6 +702,11 @@ def test_importers_refuse_broken_numbers_naming_the_source(tmp_path: pathlib.Pat
     with pytest.raises(DemonstrationError) as raised:
         call(tmp_path)
     assert fragment in str(raised.value)
+
+
+def test_importers_unchecked_keep_an_env_id_not_registered_here() -> None:
+    imported = from_arrays(_steps(5), _steps(5), env_id="sb3_icrl/NoSuch-v0", check_replay=False)
+    assert imported.metadata["env_id"] == "sb3_icrl/NoSuch-v0"
 
 
 def test_an_imitation_dataset_with_nan_rewards_is_refused(tmp_path: pathlib.Path) -> None:
@@ -719,3 +768,18 @@ def test_statistics_of_something_else_or_of_another_env_are_named(tmp_path: path
     VecNormalize(DummyVecEnv([lambda: gym.make("CartPole-v1")])).save(str(other))
     with pytest.raises(ValueError, match=re.escape(f"The VecNormalize statistics {other} were saved for another env")):
         load_vec_normalize(str(other), venv)
+
+
+def test_statistics_of_another_env_of_the_same_shape_are_refused(tmp_path: pathlib.Path) -> None:
+    cart_pole = tmp_path / "cart_pole.pkl"  # (4,) observations, as BiasedPendulum's, but bounded where its are not
+    VecNormalize(DummyVecEnv([lambda: gym.make("CartPole-v1")])).save(str(cart_pole))
+    pendulum = DummyVecEnv([lambda: gym.make("sb3_icrl/BiasedPendulum-v0")])
+    expected = f"The VecNormalize statistics {cart_pole} were saved for another env (observations Box([-4.8"
+    with pytest.raises(ValueError, match=re.escape(expected) + ".*this env's are Box\\(-inf, inf, \\(4,\\), float64\\)"):
+        load_vec_normalize(str(cart_pole), pendulum)
+    # other finite bounds (an env argument moved a limit) and another float width are the same observations
+    saved = tmp_path / "pendulum.pkl"
+    VecNormalize(DummyVecEnv([lambda: gym.make("Pendulum-v1")])).save(str(saved))
+    moved = gym.spaces.Box(-20.0, 20.0, (3,), dtype=np.float64)
+    venv = DummyVecEnv([lambda: gym.wrappers.TransformObservation(gym.make("Pendulum-v1"), lambda obs: obs, moved)])
+    assert load_vec_normalize(str(saved), venv).venv is venv

@@ -251,7 +251,7 @@ def test_malik_rollouts_drop_the_unpaired_rows(tmp_path):
             folder / f"{index}.pkl",
             {"observations": observations, "actions": actions, "rewards": np.array([7.0]), "lengths": np.array([5])},
         )
-    demonstrations = from_malik_rollouts(folder, env_id="HCWithPos-v0")
+    demonstrations = from_malik_rollouts(folder, env_id="HCWithPos-v0", check_replay=False)
     assert len(demonstrations) == 3 and demonstrations.metadata["source"]["files"] == ["0.pkl", "1.pkl", "10.pkl"]
     trajectory = demonstrations[0]
     np.testing.assert_array_equal(trajectory.obs, states[1:5])  # s_1..s_4
@@ -279,7 +279,7 @@ def test_liu_pickles_layout(tmp_path):
     }
     _pickle(tmp_path / "scene-DEU_1_len-5_collision.pkl", content)
     _pickle(tmp_path / "scene-DEU_2_len-5_time_out.pkl", content)
-    demonstrations = from_liu_pickles(tmp_path, env_id="commonroad-v1")
+    demonstrations = from_liu_pickles(tmp_path, env_id="commonroad-v1", check_replay=False)
     assert len(demonstrations) == 2
     first = demonstrations[0]
     np.testing.assert_array_equal(first.obs, states)  # row t is the state before action t
@@ -318,7 +318,7 @@ def test_from_arrays_splits_episodes():
     next_observations = np.array([1, 2, 2.5, 4, 5, 5.5])[:, None]  # the next row, inside each episode
     starts = np.array([True, False, False, True, False, False])
     demonstrations = from_arrays(
-        observations, actions, next_observations=next_observations, episode_starts=starts, env_id="X-v0"
+        observations, actions, next_observations=next_observations, episode_starts=starts, env_id="X-v0", check_replay=False
     )
     assert [len(t) for t in demonstrations] == [3, 3]
     np.testing.assert_array_equal(demonstrations[1].obs.ravel(), [3, 4, 5, 5.5])
@@ -410,9 +410,10 @@ def test_importers_replay_the_data_on_its_env_by_default():
     # HalfCheetah data labelled as the Walker, whose observations and actions have the same shapes
     with pytest.raises(DemonstrationError, match=r"does not follow the env's dynamics.*another robot"):
         from_arrays(flat["obs"], flat["acts"], env_id="sb3_icrl/BlockedWalker-v0", **common)
-    # Nothing to replay on: no env id, an env not registered here, an env that is not MuJoCo
+    # Nothing to replay on: no env id, an env of other code not registered here (said so), an env that is not MuJoCo
     assert len(from_arrays(flat["obs"], shifted, **common)) == 3
-    assert len(from_arrays(flat["obs"], shifted, env_id="HCWithPos-v0", **common)) == 3
+    with pytest.warns(UserWarning, match=r"from_arrays: env_id 'HCWithPos-v0' is not registered here, so the data is stored"):
+        assert len(from_arrays(flat["obs"], shifted, env_id="HCWithPos-v0", **common)) == 3
     assert len(from_arrays(np.zeros((6, 2)), np.zeros((6, 1)), episode_lengths=[3, 3], env_id="GridWorldWall-v0")) == 2
 
 

@@ -1,6 +1,7 @@
 """Small helpers shared by the package, its benchmarks and its scripts."""
 
 import contextlib
+import difflib
 import errno
 import io
 import json
@@ -17,6 +18,16 @@ from typing import IO, Any, cast
 
 import numpy as np
 import yaml
+
+
+def did_you_mean(value: str, choices: list[str]) -> str:
+    """
+    :param value: A name as typed
+    :param choices: The names it may mean
+    :return: `` Did you mean 'NAME'?`` with the closest of ``choices``, or ``""`` when none is close
+    """
+    close = difflib.get_close_matches(value, choices, n=1)
+    return f" Did you mean {close[0]!r}?" if close else ""
 
 
 def atomic_write(path: str | pathlib.Path, write: Callable[[IO[bytes]], Any], mode: int = 0o644) -> None:

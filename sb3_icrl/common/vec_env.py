@@ -4,6 +4,7 @@ import pickle
 from typing import Any
 
 import numpy as np
+from gymnasium import spaces
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
 from stable_baselines3.common.vec_env.util import dict_to_obs
@@ -42,7 +43,8 @@ class ShallowCopyDummyVecEnv(DummyVecEnv):
 def load_vec_normalize(path: str, venv: VecEnv) -> VecNormalize:
     """
     ``VecNormalize.load``, whose errors on a damaged file (a pickle cut short), on a pickle of something else and on
-    the statistics of another env (observations of another shape) name neither the file nor the cause.
+    the statistics of another env (observations of another shape) name neither the file nor the cause, and which
+    takes the statistics of another env whose observations have the same shape (CartPole's for BiasedPendulum).
 
     :param path: The saved statistics
     :param venv: The env to wrap
@@ -62,11 +64,43 @@ def load_vec_normalize(path: str, venv: VecEnv) -> VecNormalize:
             f"The VecNormalize statistics {path} hold a {type(saved).__name__}, not VecNormalize statistics: the file was "
             "overwritten; restore it, or use a checkpoint of the run with its own rl_model_vecnormalize_<steps>_steps.pkl."
         )
+    another_env = ValueError(
+        f"The VecNormalize statistics {path} were saved for another env (observations {saved.observation_space}, "
+        f"this env's are {venv.observation_space}): use the statistics saved with this model."
+    )
     try:
         saved.set_venv(venv)  # (which asserts that the observations have the shape of the statistics)
     except AssertionError as error:
-        raise ValueError(
-            f"The VecNormalize statistics {path} were saved for another env (observations {saved.observation_space}, "
-            f"this env's are {venv.observation_space}): use the statistics saved with this model."
-        ) from error
+        raise another_env from error
+    if not _same_observations(saved.observation_space, venv.observation_space):
+        raise another_env
     return saved
+
+
+def _same_observations(saved: spaces.Space, current: spaces.Space) -> bool:
+    """
+    Whether statistics saved with the observation space ``saved`` fit an env with the space ``current`` of the same
+    shape: the same kind of space, values of the same kind (floats, integers), and the same bounds finite. The finite
+    bounds themselves may differ (an env argument such as a speed limit moves them), as may the float
+    width (float32 against float64): a shape that happens to match is told from another env by its bounds (CartPole's
+    observations, of BiasedPendulum's shape, have finite bounds where BiasedPendulum's have none).
+
+    :param saved: The observation space the statistics were saved with
+    :param current: The observation space of the env they are to normalize
+    :return: Whether they fit
+    """
+    if isinstance(saved, spaces.Dict) and isinstance(current, spaces.Dict):
+        return saved.spaces.keys() == current.spaces.keys() and all(
+            _same_observations(space, current.spaces[key]) for key, space in saved.spaces.items()
+        )
+    if isinstance(saved, spaces.Box) and isinstance(current, spaces.Box):
+        return (
+            saved.dtype is not None
+            and current.dtype is not None
+            and saved.dtype.kind == current.dtype.kind
+            and all(
+                np.array_equal(np.isfinite(before), np.isfinite(now))
+                for before, now in ((saved.low, current.low), (saved.high, current.high))
+            )
+        )
+    return type(saved) is type(current)

@@ -13,7 +13,6 @@ Command line for demonstrations::
 """
 
 import argparse
-import glob
 import json
 import os
 import shlex
@@ -32,7 +31,7 @@ from sb3_icrl.data.registry import (
 )
 from sb3_icrl.data.serialize import DemonstrationError
 from sb3_icrl.registry import env_name, import_gym_packages
-from sb3_icrl.run_folder import failure, load_run_yaml, run_vecnormalize
+from sb3_icrl.run_folder import failure, read_run_record, run_vecnormalize
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -91,20 +90,10 @@ def expert_of_run(run: str, model: str = "final") -> dict[str, Any]:
     :raises FileNotFoundError: When the folder, its ``args.yml``, the model or its statistics are missing
     :raises ValueError: When the run's algorithm cannot be an expert
     """
-
-    if not os.path.isdir(run):
-        raise FileNotFoundError(f"No run folder {run}.")
-    found = sorted(glob.glob(os.path.join(run, "*", "args.yml")))
-    if not found:
-        raise FileNotFoundError(f"{run} is not a train.py run folder: no <EnvName>/args.yml in it.")
-    run_args = load_run_yaml(found[0])  # (a damaged file is named)
-    algo = run_args.get("algo")
-    if algo not in EXPERT_ALGORITHMS:
-        raise ValueError(f"{run} is a {algo} run; an expert is one of {', '.join(sorted(EXPERT_ALGORITHMS))}.")
-    gym_packages = list(run_args.get("gym_packages") or [])
-    import_gym_packages(gym_packages)  # a user's env registers itself on import
-    env_id = resolve_env_id(run_args["env"])
-    name = env_name(env_id)
+    record = read_run_record(run)
+    if record.algo not in EXPERT_ALGORITHMS:
+        raise ValueError(f"{run} is a {record.algo} run; an expert is one of {', '.join(sorted(EXPERT_ALGORITHMS))}.")
+    name = env_name(record.env)
     path = os.path.join(run, f"{name}.zip" if model == "final" else "best_model.zip")
     reason = failure(run)
     if model == "final" and reason is not None:
@@ -113,12 +102,12 @@ def expert_of_run(run: str, model: str = "final") -> dict[str, Any]:
         there = sorted(entry for entry in os.listdir(run) if entry.endswith(".zip"))
         raise FileNotFoundError(f"No {os.path.basename(path)} in {run}; models there: {', '.join(there) or 'none'}.")
     return {
-        "env": env_id,
+        "env": record.env,
         "expert": path,
-        "algo": algo,
+        "algo": record.algo,
         "vecnormalize": run_vecnormalize(run, path, name),
-        "env_kwargs": dict(run_args.get("env_kwargs") or {}),
-        "gym_packages": gym_packages,
+        "env_kwargs": record.env_kwargs,
+        "gym_packages": record.gym_packages,
     }
 
 

@@ -27,6 +27,8 @@ import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_icrl.common.env_ids import resolve_env_id
+from sb3_icrl.common.utils import did_you_mean
 from sb3_icrl.data.serialize import DemonstrationError
 from sb3_icrl.data.types import Demonstrations, Trajectory
 from sb3_icrl.envs import NAMESPACE
@@ -266,15 +268,52 @@ def dynamics_replay_check(
     )
 
 
-def _buildable_env(env_id: str) -> gym.Env | None:
-    """The env of ``env_id`` (or of ``sb3_icrl/<env_id>``), ``None`` when it cannot be built here (not registered...)."""
+def _opt_out(importer: str) -> str:
+    """:return: How to import data with ``importer`` without the checks"""
+    return f"pass `check_replay=False` to {importer} to import the data as it is"
+
+
+def _registered_id(env_id: str, importer: str) -> str | None:
+    """
+    The registered id of ``env_id`` (``sb3_icrl/`` optional; ``MODULE:EnvId`` imports ``MODULE`` first).
+
+    :param env_id: The env the data is said to come from
+    :param importer: The importer's name, for the message
+    :return: The id registered with gymnasium; ``None``, with a warning, for an id of other code not registered here
+        (the data is then stored unchecked, under that id)
+    :raises DemonstrationError: When the id is one of sb3-icrl's that does not exist, or close to one (a typo), or a
+        ``MODULE:EnvId`` that does not register ``EnvId``
+    """
+    if ":" in env_id:
+        try:
+            return resolve_env_id(env_id)
+        except ValueError as error:
+            raise DemonstrationError(f"{importer}: {error} Or {_opt_out(importer)}.") from error
     for candidate in (env_id, f"{NAMESPACE}/{env_id}"):
         if candidate in gym.registry:
-            try:
-                return gym.make(candidate)
-            except Exception:  # (a registered env whose dependencies are missing: nothing to replay on)
-                return None
+            return candidate
+    ours = sorted(_bare_id(key) for key in gym.registry if key.startswith(f"{NAMESPACE}/"))
+    hint = did_you_mean(_bare_id(env_id), ours)  # (compared without the namespace, that all of ours share)
+    if hint or env_id.startswith(f"{NAMESPACE}/"):
+        raise DemonstrationError(
+            f"{importer}: env_id {env_id!r} is not a registered gymnasium env.{hint} Give the id of the env the data "
+            "was recorded on, registered first: import the module that registers it (the --gym-packages MODULE of the "
+            f"commands) before importing the data, or write the id as MODULE:EnvId; or {_opt_out(importer)}."
+        )
+    warnings.warn(
+        f"{importer}: env_id {env_id!r} is not registered here, so the data is stored under it unchecked (no replay "
+        "on its env): to check it, import the module that registers the env first, or write the id as MODULE:EnvId.",
+        stacklevel=3,
+    )
     return None
+
+
+def _buildable_env(env_id: str) -> gym.Env | None:
+    """The env of the registered ``env_id``, ``None`` when it cannot be built here (its dependencies missing...)."""
+    try:
+        return gym.make(env_id)
+    except Exception:  # (a registered env whose dependencies are missing: nothing to replay on)
+        return None
 
 
 def _check_shapes(demonstrations: Demonstrations, environment: gym.Env, env_id: str | None, importer: str) -> None:
@@ -302,14 +341,19 @@ def import_replay_check(demonstrations: Demonstrations, env_id: str | None, impo
     :param demonstrations: The imported demonstrations
     :param env_id: The env they are said to come from (``None``: nothing to check)
     :param importer: The importer's name, for the messages
-    :return: The report, or ``None`` when nothing was replayed (no env id, an env not registered here, not MuJoCo)
-    :raises DemonstrationError: When the data is off by one step, or does not follow the env's dynamics (data of
-        another robot with observations of the same shape)
+    :return: The report, or ``None`` when nothing was replayed (no env id, an env of other code not registered here, an
+        env that cannot be built here, not MuJoCo)
+    :raises DemonstrationError: When ``env_id`` is one of sb3-icrl's that does not exist or close to one, when the data
+        is off by one step, or does not follow the env's dynamics (data of another robot with observations of the
+        same shape)
     """
-    environment = None if env_id is None else _buildable_env(env_id)
+    if env_id is None:
+        return None
+    registered = _registered_id(env_id, importer)
+    environment = None if registered is None else _buildable_env(registered)
     if environment is None:
         return None
-    opt_out = f"pass `check_replay=False` to {importer} to import the data as it is"
+    opt_out = _opt_out(importer)
     try:
         _check_shapes(demonstrations, environment, env_id, importer)
     except DemonstrationError:

@@ -13,8 +13,9 @@ rest of the library loads.
 Given the ``env_id`` of a MuJoCo env that can be built here, each importer replays the data on it
 (:func:`~sb3_icrl.data.checks.import_replay_check`): data whose observations and actions are off by one step, or that
 does not follow the env's dynamics (recorded on another robot with observations of the same shape), is refused;
-aligned data that replays only roughly (other physics) passes with a warning. ``check_replay=False`` imports the data
-as it is.
+aligned data that replays only roughly (other physics) passes with a warning. An ``env_id`` of sb3-icrl's that does not
+exist (a typo) is refused; one of other code that is not registered here is stored unchecked, with a warning.
+``check_replay=False`` imports the data as it is.
 
 The pickles are read with an unpickler that only rebuilds numpy arrays and plain Python containers: a file that
 holds anything else is refused instead of running its code.

@@ -4,13 +4,13 @@ dictionaries, checked numbers, and ``--algo`` names that a ``--gym-packages`` mo
 """
 
 import argparse
-import difflib
 import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 
+from sb3_icrl.common.utils import did_you_mean
 from sb3_icrl.hyperparams import HyperparameterError, is_mapping_argument, parse_override, read_mapping
 from sb3_icrl.registry import ALGOS, import_gym_packages, unknown_algo_message
 
@@ -107,11 +107,6 @@ def import_named_packages(argv: Sequence[str]) -> None:
     parser.add_argument("--gym-packages", type=str, nargs="+", default=[])
     known, _ = parser.parse_known_args(argv)
     import_gym_packages(known.gym_packages)
-
-
-def did_you_mean(value: str, choices: list[str]) -> str:
-    close = difflib.get_close_matches(value, choices, n=1)
-    return f" Did you mean {close[0]!r}?" if close else ""
 
 
 def parse_after_packages(

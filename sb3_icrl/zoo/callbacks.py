@@ -591,10 +591,17 @@ def load_replay_buffer(model: OffPolicyAlgorithm, path: str) -> bool:
     :param model: The learner, loaded from the model the buffer was saved with
     :param path: The buffer file (:func:`replay_buffer_path`)
     :return: Whether a buffer was restored (``False``: no file; the model keeps its empty buffer)
-    :raises ValueError: When the file is cut short, damaged or holds no replay buffer (naming it)
+    :raises ValueError: When the file is cut short, damaged or holds no replay buffer, or the path is a folder (naming
+        it)
     """
-    if not os.path.isfile(path):
+    if not os.path.exists(path):
         return False
+    if not os.path.isfile(path):  # (SB3 would go on without a word, as if no buffer had been saved)
+        what = "a folder" if os.path.isdir(path) else "not a regular file"
+        raise ValueError(
+            f"The replay buffer {path} is {what}, not a replay buffer file: remove it to continue from its checkpoint "
+            "with an empty replay buffer, or continue from another checkpoint."
+        )
     previous = model.replay_buffer
     try:
         model.load_replay_buffer(path)  # as trusted as the VecNormalize pickles beside it

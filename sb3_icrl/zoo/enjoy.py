@@ -27,7 +27,7 @@ from gymnasium.envs.registration import load_env_creator
 from sb3_icrl.common.evaluation import ConstraintEvaluation
 from sb3_icrl.common.utils import plain_docstring
 from sb3_icrl.hyperparams import HyperparameterError
-from sb3_icrl.registry import env_name, import_gym_packages, resolve_env_id
+from sb3_icrl.registry import NAMESPACE, env_name, import_gym_packages, resolve_env_id
 from sb3_icrl.run_env import create_env
 from sb3_icrl.run_evaluation import load_run_model, run_episodes, saved_settings
 from sb3_icrl.run_folder import (
@@ -35,6 +35,7 @@ from sb3_icrl.run_folder import (
     check_trained_agent,
     get_latest_run_id,
     model_path,
+    read_run_record,
     rl_zoo3_env_name,
     run_env_name,
 )
@@ -110,6 +111,25 @@ def check_videos_folder(run: str) -> None:
             f"--record writes into {videos}, which cannot be written ({why}): copy the run folder to a place you can "
             "write to and pass it with --run, or leave out --record."
         )
+
+
+def check_run_matches(run: str, env_id: str, algo: str) -> None:
+    """
+    Refuse ``--run`` with an ``--env`` or ``--algo`` other than the run's own (``args.yml``): its model would be
+    looked up under the other env's name, or loaded as another algorithm's.
+
+    :param run: The run folder
+    :param env_id: ``--env``, resolved
+    :param algo: ``--algo``
+    :raises FileNotFoundError: When the folder or its ``args.yml`` is missing
+    :raises ValueError: When the run trained on another env or with another algorithm
+    """
+    record = read_run_record(run)
+    if record.env != env_id:
+        typed = record.env.removeprefix(f"{NAMESPACE}/")
+        raise ValueError(f"{run} trained on {typed}, not on {env_id.removeprefix(f'{NAMESPACE}/')}: pass --env {typed}.")
+    if record.algo is not None and record.algo != algo:
+        raise ValueError(f"{run} trained with {record.algo}, not with {algo}: use --algo {record.algo}.")
 
 
 def run_folder(folder: str, algo: str, name: str, exp_id: int) -> str:
@@ -192,8 +212,7 @@ def enjoy(args: argparse.Namespace) -> ConstraintEvaluation:
         if args.exp_id is not None:
             raise ValueError("--run names the run folder itself: leave out --exp-id (or give -f and --exp-id instead).")
         run = args.run
-        if not os.path.isdir(run):
-            raise FileNotFoundError(f"No run folder {run}.")
+        check_run_matches(run, env_id, args.algo)
     else:
         run = _run_folder_ours_or_rl_zoo3(args.folder, args.algo, env_id, args.exp_id or 0)
     name = run_env_name(run, env_id)  # (rl_zoo3 names its files after the whole id)

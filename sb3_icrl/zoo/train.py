@@ -56,6 +56,7 @@ from sb3_icrl.common.utils import (
     atomic_write_text,
     atomic_write_yaml,
     check_writable_folder,
+    did_you_mean,
     plain_docstring,
     remove_temporaries,
     sigterm_interrupts,
@@ -95,7 +96,6 @@ from sb3_icrl.run_folder import (
 from sb3_icrl.zoo.arguments import (
     StoreDict,
     algo_help,
-    did_you_mean,
     fraction,
     non_negative_float,
     non_negative_int,
