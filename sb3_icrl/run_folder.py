@@ -13,6 +13,7 @@ import glob
 import json
 import math
 import os
+import pathlib
 import pickle
 import re
 import warnings
@@ -562,6 +563,23 @@ class RunRecord:
     gym_packages: list[str]
 
 
+def load_run_args(run: str | os.PathLike) -> tuple[pathlib.Path, dict[str, Any]]:
+    """
+    The arguments a ``train.py`` (or rl_zoo3) run folder was started with, from its ``<EnvName>/args.yml``.
+
+    :param run: The run folder ``<folder>/<algo>/<EnvName>_<N>``
+    :return: The ``args.yml`` file and its content
+    :raises FileNotFoundError: When the folder or its ``args.yml`` is missing
+    :raises ValueError: When the ``args.yml`` is empty or damaged (the file is named)
+    """
+    if not os.path.isdir(run):
+        raise FileNotFoundError(f"No run folder {run}.")
+    found = sorted(glob.glob(os.path.join(glob.escape(str(run)), "*", "args.yml")))
+    if not found:
+        raise FileNotFoundError(f"{run} is not a train.py run folder: no <EnvName>/args.yml in it.")
+    return pathlib.Path(found[0]), load_run_yaml(found[0])
+
+
 def read_run_record(run: str) -> RunRecord:
     """
     The env and algorithm a ``train.py`` (or rl_zoo3) run folder trained with, from its ``<EnvName>/args.yml``; the
@@ -572,14 +590,9 @@ def read_run_record(run: str) -> RunRecord:
     :raises FileNotFoundError: When the folder or its ``args.yml`` is missing
     :raises ValueError: When the ``args.yml`` is damaged or names no env, or the env is not registered
     """
-    if not os.path.isdir(run):
-        raise FileNotFoundError(f"No run folder {run}.")
-    found = sorted(glob.glob(os.path.join(glob.escape(run), "*", "args.yml")))
-    if not found:
-        raise FileNotFoundError(f"{run} is not a train.py run folder: no <EnvName>/args.yml in it.")
-    run_args = load_run_yaml(found[0])  # (a damaged file is named)
+    path, run_args = load_run_args(run)
     if not run_args.get("env"):
-        raise ValueError(f"{found[0]} names no env: the run folder is damaged; restore the file from a copy.")
+        raise ValueError(f"{path} names no env: the run folder is damaged; restore the file from a copy.")
     gym_packages = list(run_args.get("gym_packages") or [])
     import_gym_packages(gym_packages)  # a user's env registers itself on import
     return RunRecord(

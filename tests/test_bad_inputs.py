@@ -831,7 +831,7 @@ BAD_INPUTS: list[tuple[str, Callable[[dict[str, str]], Any], type[BaseException]
         "plots-constraint-not-a-run",
         lambda r: run_cli(plots_cli.main, ["constraint", r["root"], "-o", f"{r['root']}/c.png"]),
         CLIError,
-        "is not a training run folder",
+        "is not a train.py run folder",
     ),
 ]
 

@@ -329,7 +329,7 @@ def test_cli_constraint_draws_the_grid_map(tmp_path: pathlib.Path, capsys: pytes
     assert main(["constraint", str(tmp_path / "nowhere"), "-o", str(output)]) == 2
     assert "No run folder" in capsys.readouterr().err
     assert main(["constraint", str(tmp_path), "-o", str(output)]) == 2
-    assert "not a training run folder" in capsys.readouterr().err
+    assert "not a train.py run folder" in capsys.readouterr().err
     assert main(["constraint", str(run), "--model", "best", "-o", str(output)]) == 2
     assert "best_model.zip" in capsys.readouterr().err
 

@@ -44,7 +44,7 @@ from sb3_icrl.plots.figures import (
     unsafe_side,
 )
 from sb3_icrl.registry import ALGOS, ICRL_ALGOS, env_name, import_gym_packages, resolve_env_id
-from sb3_icrl.run_folder import find_vecnormalize, is_finished
+from sb3_icrl.run_folder import find_vecnormalize, is_finished, load_run_args
 
 #: Identification results cached in each run folder (keyed by their settings)
 IDENTIFICATION_FILE = "identification.json"
@@ -687,16 +687,6 @@ def find_unconstrained_run(run_folder: str | os.PathLike) -> pathlib.Path | None
     return None
 
 
-def _read_args(run: pathlib.Path) -> dict[str, Any]:
-    import yaml
-
-    found = sorted(run.glob("*/args.yml"))
-    if not found:
-        raise FileNotFoundError(f"{run} is not a training run folder: no <EnvName>/args.yml in it.")
-    with open(found[0]) as file:
-        return yaml.safe_load(file) or {}
-
-
 def read_icrl_run(run_folder: str | os.PathLike) -> tuple[pathlib.Path, dict[str, Any]]:
     """
     The folder and saved arguments of an ICRL run, checked.
@@ -709,7 +699,7 @@ def read_icrl_run(run_folder: str | os.PathLike) -> tuple[pathlib.Path, dict[str
     run = pathlib.Path(run_folder)
     if not run.is_dir():
         raise FileNotFoundError(f"No run folder {run}.")
-    args = _read_args(run)
+    _, args = load_run_args(run)
     import_gym_packages(args.get("gym_packages"))  # a user's method registers itself on import
     if args.get("algo") not in ICRL_ALGOS:
         raise ValueError(f"{run} is a {args.get('algo')} run: only ICRL runs ({', '.join(ICRL_ALGOS)}) learn a constraint.")
@@ -729,7 +719,7 @@ def run_model_path(run: pathlib.Path, args: dict[str, Any], which: str = "final"
 
 def _load_run_policy(run: pathlib.Path, which: str = "final") -> tuple[Any, dict[str, Any], str | None]:
     """The model saved in a run folder, its arguments and its VecNormalize statistics."""
-    args = _read_args(run)
+    _, args = load_run_args(run)
     import_gym_packages(args.get("gym_packages"))
     name = env_name(resolve_env_id(args["env"]))
     path = run_model_path(run, args, which)

@@ -18,7 +18,6 @@ import warnings
 from typing import Any
 
 import numpy as np
-import yaml
 
 from sb3_icrl.common.utils import plain_docstring, write_error_message
 from sb3_icrl.common.vec_env import load_vec_normalize
@@ -37,7 +36,7 @@ from sb3_icrl.plots.figures import (
     training_curves_figure,
 )
 from sb3_icrl.registry import ALGOS, ICRL_ALGOS, env_name, import_gym_packages, resolve_env_id
-from sb3_icrl.run_folder import run_vecnormalize
+from sb3_icrl.run_folder import load_run_args, run_vecnormalize
 
 
 def get_parser() -> argparse.ArgumentParser:
@@ -122,18 +121,11 @@ def read_run(run_folder: str) -> tuple[pathlib.Path, dict[str, Any]]:
     :param run_folder: The run folder
     :return: The folder and its arguments
     """
-    folder = pathlib.Path(run_folder)
-    if not folder.is_dir():
-        raise FileNotFoundError(f"No run folder {folder}.")
-    found = sorted(folder.glob("*/args.yml"))
-    if not found:
-        raise FileNotFoundError(f"{folder} is not a training run folder: no <EnvName>/args.yml in it.")
-    with open(found[0]) as file:
-        run_args = yaml.safe_load(file) or {}
+    path, run_args = load_run_args(run_folder)
     for key in ("algo", "env"):
         if key not in run_args:
-            raise ValueError(f"{found[0]} has no {key!r}.")
-    return folder, run_args
+            raise ValueError(f"{path} has no {key!r}.")
+    return pathlib.Path(run_folder), run_args
 
 
 def _model_path(folder: pathlib.Path, name: str, choice: str | None) -> pathlib.Path:
