@@ -195,21 +195,21 @@ def test_ctrl_c_ends_a_suite_with_one_line(tmp_path):
     assert "Traceback" not in errors and errors.strip().splitlines()[-1].startswith("interrupted: the runs resume")
 
 
-def test_sigint_to_the_engine_alone_stops_its_runs_and_ends_with_one_line(tmp_path):
-    process, log = _start_training_suite(tmp_path)
-    # As `kill -INT` or a job scheduler sends it: the engine's process only, which passes it on to its runs
-    os.kill(process.pid, signal.SIGINT)
+@pytest.mark.parametrize(
+    ("stop", "in_background"),
+    [
+        # As `kill -INT` sends it: the engine's process only, which passes it on to its runs
+        (signal.SIGINT, False),
+        # As `kill PID` on `nohup sb3-icrl benchmark run ... &` does, or a job scheduler's time limit: SIGINT is
+        # ignored there
+        (signal.SIGTERM, True),
+    ],
+    ids=["sigint", "sigterm-in-background"],
+)
+def test_a_signal_to_the_engine_alone_stops_its_runs_which_save_and_ends_with_one_line(tmp_path, stop, in_background):
+    process, log = _start_training_suite(tmp_path, in_background=in_background)
+    os.kill(process.pid, stop)
     _, errors = process.communicate(timeout=60)
-    assert process.returncode == 130
-    assert "Traceback" not in errors and errors.strip().splitlines()[-1].startswith("interrupted: the runs resume")
-    assert "Interrupted: saving the model" in pathlib.Path(log).read_text()
-
-
-def test_sigterm_stops_a_suite_started_in_the_background_and_its_runs_save(tmp_path):
-    process, log = _start_training_suite(tmp_path, in_background=True)
-    # As `kill PID` on `nohup sb3-icrl benchmark run ... &` does, or a job scheduler's time limit: SIGINT is ignored there
-    os.kill(process.pid, signal.SIGTERM)
-    _, errors = process.communicate(timeout=90)
     assert process.returncode == 130
     assert "Traceback" not in errors and errors.strip().splitlines()[-1].startswith("interrupted: the runs resume")
     assert "Interrupted: saving the model" in pathlib.Path(log).read_text()
