@@ -23,7 +23,7 @@ import yaml
 from sb3_icrl.data.registry import DEMONSTRATIONS_DIR, available_demonstrations, dataset_file_name
 from sb3_icrl.envs import NAMESPACE, REWARD_TRANSFER_TASKS
 from sb3_icrl.envs.constraint_spec import get_constraint_spec
-from sb3_icrl.envs.wrappers import TRANSITION_NOISE_MODELS, TransitionNoiseWrapper
+from sb3_icrl.envs.wrappers import COMPONENT_NOISE, TRANSITION_NOISE_MODELS, TransitionNoiseWrapper
 from sb3_icrl.hyperparams import (
     ZOO_KEYS,
     algo_kwargs,
@@ -537,7 +537,7 @@ class _SuiteReader:
         for variant, settings in variants.items():
             env_kwargs = _as_train_reads(settings.get("env_kwargs") or {})
             noise = settings.get("transition_noise") or 0.0
-            noise_model = settings.get("transition_noise_model", "component")
+            noise_model = settings.get("transition_noise_model", COMPONENT_NOISE)
             if not env_kwargs and not noise:
                 continue
             for env_id in envs:

@@ -356,16 +356,13 @@ def import_replay_check(demonstrations: Demonstrations, env_id: str | None, impo
     opt_out = _opt_out(importer)
     try:
         _check_shapes(demonstrations, environment, env_id, importer)
-    except DemonstrationError:
-        environment.close()
-        raise
-    try:
         if not _is_mujoco(environment):
             return None
-        report = dynamics_replay_check(demonstrations, environment)
-    except DemonstrationError as error:  # (observations without the full state, trajectories too short)
-        warnings.warn(f"{importer}: the data was not replayed on {env_id}: {error}", stacklevel=3)
-        return None
+        try:
+            report = dynamics_replay_check(demonstrations, environment)
+        except DemonstrationError as error:  # (observations without the full state, trajectories too short)
+            warnings.warn(f"{importer}: the data was not replayed on {env_id}: {error}", stacklevel=3)
+            return None
     finally:
         environment.close()
     if report.ok:

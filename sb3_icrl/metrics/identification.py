@@ -697,9 +697,7 @@ def read_icrl_run(run_folder: str | os.PathLike) -> tuple[pathlib.Path, dict[str
     :raises ValueError: When the run is not an ICRL run
     """
     run = pathlib.Path(run_folder)
-    if not run.is_dir():
-        raise FileNotFoundError(f"No run folder {run}.")
-    _, args = load_run_args(run)
+    _, args = load_run_args(run)  # (names a missing folder)
     import_gym_packages(args.get("gym_packages"))  # a user's method registers itself on import
     if args.get("algo") not in ICRL_ALGOS:
         raise ValueError(f"{run} is a {args.get('algo')} run: only ICRL runs ({', '.join(ICRL_ALGOS)}) learn a constraint.")

@@ -425,15 +425,23 @@ class WallClock:
         self.start = time.time()
         self.cpu_start = time.process_time()
 
+    def segment_elapsed(self) -> float:
+        """Wall seconds of this segment."""
+        return time.time() - self.start
+
+    def segment_cpu_elapsed(self) -> float:
+        """CPU seconds of this segment."""
+        return time.process_time() - self.cpu_start
+
     def elapsed(self) -> float:
         """Wall seconds so far, earlier segments included."""
-        return self.offset + time.time() - self.start
+        return self.offset + self.segment_elapsed()
 
     def cpu_elapsed(self) -> float | None:
         """CPU seconds so far, earlier segments included (``None`` when an earlier segment's are unknown)."""
         if self.cpu_offset is None:
             return None
-        return self.cpu_offset + time.process_time() - self.cpu_start
+        return self.cpu_offset + self.segment_cpu_elapsed()
 
 
 def save_training_state(

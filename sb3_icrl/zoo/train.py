@@ -29,7 +29,6 @@ import os
 import shlex
 import shutil
 import sys
-import time
 import warnings
 from typing import Any
 
@@ -829,7 +828,6 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
     evaluation = _evaluation(callbacks)
     _go_on(args, model, callbacks, name, resuming)
     _pin_tensorboard(args, model, params_path, name, resuming)
-    start, cpu_start = time.time(), time.process_time()
     clock = _wall_clock(args, callbacks, name, resuming)
     finished = False
     try:
@@ -861,11 +859,11 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
             os.path.join(save_path, FINISHED_FILE),
             {
                 "num_timesteps": int(model.num_timesteps),
-                "wall_time_s": time.time() - start,
+                "wall_time_s": clock.segment_elapsed(),
                 "wall_time_total_s": clock.elapsed(),
                 # CPU time of this process's training (this segment of a resumed run): the machine's load does not
                 # stretch it as it stretches wall time
-                "cpu_time_s": time.process_time() - cpu_start,
+                "cpu_time_s": clock.segment_cpu_elapsed(),
                 # The whole run's, earlier segments included (null when a checkpoint resumed from did not record it)
                 "cpu_time_total_s": clock.cpu_elapsed(),
                 **({"evaluation_cpu_time_s": evaluation.eval_seconds} if evaluation is not None else {}),
@@ -873,7 +871,7 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
             },
         )
     print_recovered_constraint(model, env_id, args.env_kwargs)
-    print(f"Saved {save_path} ({time.time() - start:.1f} s)")
+    print(f"Saved {save_path} ({clock.segment_elapsed():.1f} s)")
     return save_path
 
 
