@@ -16,8 +16,8 @@ LINE = {
 }
 
 
-def make(name: str) -> gym.Env:
-    return gym.make(f"sb3_icrl/{name}")
+def make(name: str, **kwargs) -> gym.Env:
+    return gym.make(f"sb3_icrl/{name}", **kwargs)
 
 
 def place(env: gym.Env, x: float) -> None:
@@ -91,3 +91,18 @@ def test_the_ant_is_paid_only_half_a_metre_past_its_line():
     assert reaches[-3.6] == reaches[-6.0] == pytest.approx(3.5)
     with pytest.raises(ValueError, match="paid_beyond_line"):
         gym.make("sb3_icrl/BlockedAntReach-v0", paid_beyond_line=-1.0)
+
+
+def test_the_ant_ends_its_episode_at_the_line_only_when_asked():
+    ended, running = make("BlockedAntReach-v0", end_at_line=True), make("BlockedAntReach-v0")
+    action = np.zeros(ended.action_space.shape)
+    for env in (ended, running):
+        env.reset(seed=0)
+        _, _, terminated, _, info = env.step(action)
+        assert info["cost"] == 0.0 and not terminated  # on the allowed side nothing ends
+    for env, should_end in ((ended, True), (running, False)):
+        place(env, -3.2)
+        _, _, terminated, truncated, info = env.step(action)
+        assert info["cost"] == 1.0 and terminated is should_end and not truncated
+    with pytest.raises(TypeError, match="end_at_line"):
+        gym.make("sb3_icrl/BlockedAntReach-v0", end_at_line="yes")

@@ -34,8 +34,9 @@ from typing import Any
 
 import numpy as np
 from gymnasium import utils
+from numpy.typing import NDArray
 
-from sb3_icrl.envs.blocked_mujoco import BlockedAntEnv, BlockedHalfCheetahEnv, BlockedWalkerEnv
+from sb3_icrl.envs.blocked_mujoco import BlockedAntEnv, BlockedHalfCheetahEnv, BlockedWalkerEnv, StepReturn
 
 #: ``name -> (entry point, max_episode_steps, kwargs)`` of the binding variants (registered by :mod:`sb3_icrl.envs`)
 BINDING_ENV_SPECS: dict[str, tuple[str, int, dict]] = {
@@ -84,15 +85,25 @@ class BlockedAntReachEnv(BlockedAntEnv):
 
     :param paid_beyond_line: How far past the line (metres) the position still pays; beyond, the pull stops, so that
         crossing gains at most this much per step
+    :param end_at_line: End the episode (``terminated``) at the first step that breaks the constraint: a way to train
+        an expert that holds its position near the line, since a crossing then forfeits the rest of the episode's pay.
+        The benchmark's env keeps it off (demonstrations and evaluation run whole episodes)
     :param kwargs: Arguments of :class:`~sb3_icrl.envs.BlockedAntEnv`
     """
 
-    def __init__(self, paid_beyond_line: float = 0.5, **kwargs: Any):
+    def __init__(self, paid_beyond_line: float = 0.5, end_at_line: bool = False, **kwargs: Any):
         if isinstance(paid_beyond_line, bool) or not isinstance(paid_beyond_line, (int, float)) or not paid_beyond_line > 0:
             raise ValueError(f"`paid_beyond_line` must be a positive number of metres, got {paid_beyond_line!r}.")
+        if not isinstance(end_at_line, (bool, np.bool_)):
+            raise TypeError(f"`end_at_line` must be True or False, got {type(end_at_line).__name__} {end_at_line!r}.")
         super().__init__(**kwargs)
         self.paid_beyond_line = float(paid_beyond_line)
-        utils.EzPickle.__init__(self, paid_beyond_line, **kwargs)
+        self.end_at_line = bool(end_at_line)
+        utils.EzPickle.__init__(self, paid_beyond_line, end_at_line, **kwargs)
+
+    def step(self, action: NDArray[np.float32]) -> StepReturn:
+        observation, reward, terminated, truncated, info = super().step(action)
+        return observation, reward, terminated or (self.end_at_line and bool(info["cost"])), truncated, info
 
     def _get_rew(self, x_velocity: float, action: np.ndarray) -> tuple[float, dict]:
         paid_down_to = self.cost_threshold - self.paid_beyond_line
