@@ -215,7 +215,7 @@ def training_wall_time(run: str) -> float:
     time spent training, whole across resumes), else the training monitor's time from its start to its last finished
     episode (which also counts the time a resumed run was stopped), ``nan`` with neither.
     """
-    return _training_wall_time(run)[0]
+    return read_training_wall_time(run)[0]
 
 
 def wall_time_notes(run: str) -> list[str]:
@@ -224,11 +224,17 @@ def wall_time_notes(run: str) -> list[str]:
     :return: What keeps :func:`training_wall_time` from the run's own record (a ``finished.json`` time that is not a
         number, a monitor file that does not read), one sentence each, naming the file
     """
-    return _training_wall_time(run)[1]
+    return read_training_wall_time(run)[1]
 
 
-def _training_wall_time(run: str) -> tuple[float, list[str]]:
-    """:func:`training_wall_time` and :func:`wall_time_notes` of ``run``."""
+def read_training_wall_time(run: str) -> tuple[float, list[str]]:
+    """
+    :func:`training_wall_time` and :func:`wall_time_notes` from one read of the run's files (a caller that wants both
+    need not read a long monitor file twice).
+
+    :param run: A run folder
+    :return: ``(minutes, notes)``
+    """
     seconds = run_wall_time(run)
     if seconds is not None:
         return seconds / 60.0, []
@@ -257,7 +263,12 @@ def _training_wall_time(run: str) -> tuple[float, list[str]]:
 
 
 def evaluate_run(
-    run: str, n_timesteps: int, eval_seed: int, load_best: bool = False, env_kwargs: dict[str, Any] | None = None
+    run: str,
+    n_timesteps: int,
+    eval_seed: int,
+    load_best: bool = False,
+    env_kwargs: dict[str, Any] | None = None,
+    wall_time_min: float | None = None,
 ) -> RunResult:
     """
     Run a run's final (or best) model on held-out env seeds, as ``enjoy.py --no-render --verbose 0`` does.
@@ -268,6 +279,8 @@ def evaluate_run(
     :param load_best: Evaluate ``best_model.zip`` instead of the final model
     :param env_kwargs: Env keyword arguments over the run's own (e.g. the driving envs' test recordings,
         :func:`sb3_icrl.envs.heldout_env_kwargs`)
+    :param wall_time_min: The run's :func:`training_wall_time` when the caller has read it already (``None``: read it
+        here)
     """
     algo, env_id, seed, _ = describe_run(run)
     env_id = resolve_env_id(env_id)
@@ -301,7 +314,7 @@ def evaluate_run(
         env=env_id,
         seed=seed,
         timesteps=int(model.num_timesteps),
-        wall_time_min=training_wall_time(run),
+        wall_time_min=training_wall_time(run) if wall_time_min is None else wall_time_min,
         violation_rate=evaluation.violation_rate,
         feasible_reward=evaluation.mean_feasible_reward,
         reward=evaluation.mean_reward,

@@ -1,8 +1,11 @@
 """sb3-icrl compare: held-out evaluation of finished runs, summaries over seeds, and clear errors."""
 
+import builtins
 import json
 import os
 import pathlib
+import shutil
+from typing import Any
 
 import numpy as np
 import pytest
@@ -101,6 +104,32 @@ def test_compare_evaluates_final_models_as_enjoy_does(runs: pathlib.Path, tmp_pa
     assert first["feasible_reward"] == pytest.approx(evaluation.mean_feasible_reward)
     assert first["violation_rate"] == pytest.approx(evaluation.violation_rate)
     assert payload["summary"]["ppo"]["wilcoxon_pairs"] == 2
+
+
+def test_compare_reads_each_runs_monitor_once_for_its_wall_time_and_its_notes(
+    runs: pathlib.Path, tmp_path: pathlib.Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    # finished.json's time is text, so the wall time (and a note that says so) come from the monitor
+    run = tmp_path / "ppo" / "ConstrainedCorridor-v0_1"
+    shutil.copytree(runs / "ppo" / "ConstrainedCorridor-v0_1", run)
+    finished = json.loads((run / "finished.json").read_text())
+    (run / "finished.json").write_text(json.dumps({**finished, "wall_time_s": "abc", "wall_time_total_s": "abc"}))
+    monitor = run / "0.monitor.csv"
+    monitor.write_text('#{"t_start": 0.0}\nr,l,t\n1.0,5,30.0\n2.0,5,90.0\n')
+    opened = []
+    original_open = builtins.open
+
+    def counting_open(file: Any, *args: Any, **kwargs: Any) -> Any:
+        if isinstance(file, (str, os.PathLike)) and os.path.abspath(file) == str(monitor):
+            opened.append(file)
+        return original_open(file, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "open", counting_open)
+    output = tmp_path / "compare.json"
+    assert main([str(run), "-n", "50", "--json", str(output)]) == 0
+    assert len(opened) == 1
+    assert json.loads(output.read_text())["runs"][0]["wall_time_min"] == pytest.approx(1.5)
+    assert capsys.readouterr().err.count("the wall time comes from the training monitor instead") == 1
 
 
 def test_compare_warns_when_runs_of_one_algorithm_differ_in_recipe(runs: pathlib.Path) -> None:

@@ -36,10 +36,10 @@ from sb3_icrl.run_evaluation import (
     evaluate_run,
     format_outcome_rate,
     outcome_rate_means,
+    read_training_wall_time,
     same_seed_error,
     summarise,
     training_wall_time,
-    wall_time_notes,
 )
 from sb3_icrl.run_folder import (
     FINISHED_FILE,
@@ -53,11 +53,13 @@ from sb3_icrl.run_folder import (
 from sb3_icrl.zoo.arguments import non_negative_int, positive_int
 
 
-def check_runs(runs: list[str]) -> None:
+def check_runs(runs: list[str]) -> dict[str, float]:
     """
     Fail before any evaluation unless the runs trained on one env, with at most one run per algorithm and seed.
 
     :param runs: Run folders
+    :return: Each run's training wall time in minutes (:func:`training_wall_time`), read here with its warnings so that
+        the evaluation need not read the run's monitor file again
     """
     described = [(run, *describe_run(run)[:3]) for run in runs]
     envs = {env_id for _, _, env_id, _ in described}
@@ -65,6 +67,7 @@ def check_runs(runs: list[str]) -> None:
         raise RunFolderError(f"The runs trained on different envs ({sorted(envs)}): compare one env at a time.")
     labels = run_labels(runs)
     seen: dict[tuple[str, int], str] = {}
+    wall_times: dict[str, float] = {}
     for run, _, _, seed in described:
         label = labels[run]
         if (label, seed) in seen:
@@ -82,8 +85,10 @@ def check_runs(runs: list[str]) -> None:
         elif not is_finished(run):
             why = unreadable_finished(run) or f"no {FINISHED_FILE}"
             print(f"warning: {run} did not finish its training ({why}): it is compared as it stands", file=sys.stderr)
-        for note in wall_time_notes(run):
+        wall_times[run], notes = read_training_wall_time(run)
+        for note in notes:
             print(f"warning: {note}", file=sys.stderr)
+    return wall_times
 
 
 def check_reference(runs: list[str], reference: str | None) -> None:
@@ -279,7 +284,7 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     args = get_parser(prog).parse_args(list(sys.argv[1:] if argv is None else argv))
     try:
         import_gym_packages(args.gym_packages)
-        check_runs(args.runs)
+        wall_times = check_runs(args.runs)
         check_reference(args.runs, args.reference)
         if args.json:
             _check_json_path(args.json)
@@ -290,7 +295,7 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
         labels = run_labels(args.runs)
         for run in args.runs:
             print(f"Evaluating {run}")
-            result = evaluate_run(run, args.n_timesteps, args.seed, args.model == "best")
+            result = evaluate_run(run, args.n_timesteps, args.seed, args.model == "best", wall_time_min=wall_times[run])
             result.label = labels[run] if labels[run] != result.algo else ""
             results.append(result)
         summary = summarise(results, args.reference)
