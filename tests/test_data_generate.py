@@ -1,14 +1,17 @@
 """Generating demonstrations: violating trajectories dropped, exact violating shares, experts under VecNormalize, the CLI."""
 
 import json
+import zipfile
 
 import gymnasium as gym
 import numpy as np
 import pytest
+from stable_baselines3.common import base_class
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 import sb3_icrl  # noqa: F401  (registers the envs)
 from sb3_icrl import PPOLagrangian
+from sb3_icrl.common import saved
 from sb3_icrl.data import NormalizedExpert, generate_demonstrations, load, save
 from sb3_icrl.data.__main__ import main
 from sb3_icrl.data.importers import from_arrays
@@ -111,6 +114,38 @@ def test_cli_generates_from_a_saved_ppo_lagrangian_with_vecnormalize(tmp_path, c
     assert len(metadata["expert"]["sha256"]) == 64 and metadata["seed"] == 3
     assert metadata["command"].startswith("python -m sb3_icrl.data generate --env")
     assert "Wrote" in capsys.readouterr().out
+
+
+def _recording(unpack, paths):
+    """``unpack`` (SB3's ``load_from_zip_file``), which also records each path it unpacks."""
+
+    def recorded(path, *args, **kwargs):
+        paths.append(str(path))
+        return unpack(path, *args, **kwargs)
+
+    return recorded
+
+
+def test_generate_unpacks_a_zip_expert_once_and_still_names_a_broken_entry(tmp_path, monkeypatch, capsys):
+    expert = tmp_path / "expert.zip"
+    venv = DummyVecEnv([lambda: gym.make(CORRIDOR)])
+    PPOLagrangian("MlpPolicy", venv, n_steps=32, batch_size=16, seed=0, device="cpu").save(expert)
+    unpacked = []
+    # SB3's load and the damage check each call their own imported name
+    for module in (base_class, saved):
+        monkeypatch.setattr(module, "load_from_zip_file", _recording(module.load_from_zip_file, unpacked))
+    args = ["generate", "--env", CORRIDOR, "--expert", str(expert), "--n", "1", "--violating-fraction", "1"]
+    assert main([*args, "--out", str(tmp_path / "demos.npz")]) == 0
+    assert unpacked == [str(expert)]
+    # A data entry that is not JSON: SB3's load fails, and the error names the file and the entry
+    with zipfile.ZipFile(expert) as archive:
+        entries = {name: archive.read(name) for name in archive.namelist()}
+    with zipfile.ZipFile(expert, "w") as archive:
+        for name, content in {**entries, "data": b"{not json"}.items():
+            archive.writestr(name, content)
+    capsys.readouterr()
+    assert main([*args, "--out", str(tmp_path / "broken.npz")]) == 1
+    assert f"The expert {expert} is damaged (JSONDecodeError" in capsys.readouterr().err
 
 
 def test_cli_reports_errors(tmp_path, capsys):

@@ -337,6 +337,15 @@ def file_sha256(path: str | os.PathLike) -> str:
     return hashlib.sha256(pathlib.Path(path).read_bytes()).hexdigest()
 
 
+def _damaged_expert(expert: str, damage: str) -> ValueError:
+    """
+    :param expert: The expert's file
+    :param damage: What is wrong with it (:func:`~sb3_icrl.common.saved.model_damage`)
+    :return: The error that names both
+    """
+    return ValueError(f"The expert {expert} {damage}: train it again, or give another saved model.")
+
+
 def load_expert(
     expert: str,
     env_id: str,
@@ -365,13 +374,20 @@ def load_expert(
         if not os.path.isfile(expert):
             raise FileNotFoundError(f"No expert file at {expert!r}: give a saved model (.zip, .npz) or 'pilag'.")
         source = {"path": portable_path(expert), "sha256": file_sha256(expert)}
-        damage = None if expert.endswith(".npz") else model_damage(expert)
+        # The zip's entries and checksums only: SB3's load below unpacks the model, once
+        damage = None if expert.endswith(".npz") else model_damage(expert, load=False)
         if damage is not None:  # SB3's own error would name neither the file nor what is wrong with it
-            raise ValueError(f"The expert {expert} {damage}: train it again, or give another saved model.")
+            raise _damaged_expert(expert, damage)
         if expert.endswith(".npz"):
             model = PILagrangian.load(expert)
         elif algo in EXPERT_ALGORITHMS:
-            model = EXPERT_ALGORITHMS[algo].load(expert, device="cpu")
+            try:
+                model = EXPERT_ALGORITHMS[algo].load(expert, device="cpu")
+            except Exception as error:
+                damage = model_damage(expert)  # unpacked again only to name a broken entry (JSON, pickle, tensor)
+                if damage is None:
+                    raise
+                raise _damaged_expert(expert, damage) from error
         else:
             raise ValueError(f"Unknown expert algorithm {algo!r}: choose one of {sorted(EXPERT_ALGORITHMS)}.")
     if vec_normalize_path is not None:
