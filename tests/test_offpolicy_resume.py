@@ -92,6 +92,17 @@ def test_checkpoints_save_the_replay_buffer_before_the_model_and_keep_the_newest
     _assert_same_buffer(restored.replay_buffer, saved)
 
 
+def test_the_clean_up_leaves_a_folder_named_like_an_older_replay_buffer(tmp_path) -> None:
+    # Not a buffer this callback wrote: os.remove would fail on it and end the run
+    folder = tmp_path / "rl_model_replay_buffer_8_steps.pkl"
+    folder.mkdir()
+    (folder / "notes.txt").write_text("kept")
+    checkpoint = AtomicCheckpointCallback(16, str(tmp_path), save_replay_buffer=True, save_training_state=True)
+    _irlplus().learn(32, callback=checkpoint)
+    assert _buffer_files(tmp_path) == ["rl_model_replay_buffer_32_steps.pkl", "rl_model_replay_buffer_8_steps.pkl"]
+    assert (tmp_path / "rl_model_replay_buffer_32_steps.pkl").is_file() and (folder / "notes.txt").read_text() == "kept"
+
+
 def test_without_the_flag_or_a_replay_buffer_no_buffer_is_saved(tmp_path) -> None:
     _irlplus().learn(32, callback=AtomicCheckpointCallback(16, str(tmp_path / "off"), save_training_state=True))
     assert (tmp_path / "off" / "rl_model_32_steps.zip").is_file() and not _buffer_files(tmp_path / "off")

@@ -715,14 +715,23 @@ class AtomicCheckpointCallback(CheckpointCallback):
             print(f"Saving model checkpoint to {model_path}")
 
     def _remove_other_replay_buffers(self, keep: str) -> None:
-        """Delete the folder's replay buffers but ``keep``: those of older checkpoints, and one whose model a kill
-        left unwritten (whatever its step count: it belongs to no checkpoint of this run any more)."""
+        """
+        Delete the folder's replay buffers but ``keep``: those of older checkpoints, and one whose model a kill left
+        unwritten (whatever its step count: it belongs to no checkpoint of this run any more). Only regular files go: a
+        folder (or link) with a buffer's name is not one this callback wrote, and ``os.remove`` would fail on a folder.
+
+        :param keep: The replay buffer just written
+        """
         pattern = re.compile(rf"^{re.escape(self.name_prefix)}_replay_buffer_\d+_steps\.pkl$")
-        for entry in os.listdir(self.save_path):
-            path = os.path.join(self.save_path, entry)
-            if pattern.match(entry) and path != keep:
-                with contextlib.suppress(FileNotFoundError):
-                    os.remove(path)
+        with os.scandir(self.save_path) as entries:
+            stale = [
+                entry.path
+                for entry in entries
+                if pattern.match(entry.name) and entry.path != keep and entry.is_file(follow_symlinks=False)
+            ]
+        for path in stale:
+            with contextlib.suppress(FileNotFoundError):
+                os.remove(path)
 
     def _on_training_end(self) -> None:
         self._on_rollout_start()  # the end of training is a rollout boundary too
