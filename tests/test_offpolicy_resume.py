@@ -295,3 +295,52 @@ def test_train_resume_and_i_restore_the_replay_buffer(tmp_path, capsys) -> None:
     with pytest.warns(UserWarning, match=r"No replay buffer with .*rl_model_300_steps\.zip .*empty replay buffer"):
         assert main([*args, "--exp-id", "1", "--resume"]) == 0
     assert (run / "finished.json").is_file()
+
+
+def test_a_resumed_run_short_of_learning_starts_waits_for_its_buffer_to_refill(tmp_path, monkeypatch) -> None:
+    """
+    SB3 compares learning_starts with the total steps: resumed at 200 steps with an empty buffer, it would update at
+    once on the few transitions collected since. The resumed run waits until the buffer holds learning_starts (100)
+    transitions again, acting with its policy meanwhile; one resumed with its buffer updates at once, as it did.
+    """
+    recipe = [*TINY[:3], "learning_starts:100", *TINY[4:]]
+    args = [*PENDULUM, *recipe, "--exp-id", "1", "-n", "400"]
+    # A run killed after its 200-step checkpoint (its buffers kept, to resume from there with one)
+    with monkeypatch.context() as keep_buffers:
+        keep_buffers.setattr(AtomicCheckpointCallback, "_remove_other_replay_buffers", lambda self, keep: None)
+        assert main([*args, "-f", str(tmp_path / "a")]) == 0
+    run = tmp_path / "a" / "irlplus" / "BiasedPendulum-v0_1"
+    _interrupt(run)
+    for path in [*run.glob("rl_model_*300_steps.*"), *run.glob("rl_model_*400_steps.*")]:
+        path.unlink()
+    assert _buffer_files(run) == ["rl_model_replay_buffer_100_steps.pkl", "rl_model_replay_buffer_200_steps.pkl"]
+    shutil.copytree(tmp_path / "a", tmp_path / "b")
+    (tmp_path / "b" / "irlplus" / "BiasedPendulum-v0_1" / "rl_model_replay_buffer_200_steps.pkl").unlink()
+
+    updates: list[int] = []  # the step count at each gradient update
+    random_actions: list[int] = []  # SB3's warm-up draws them: none after a resume
+    train, sample_action = IRLPlus.train, IRLPlus._sample_action
+
+    def recording_train(model: IRLPlus, *call: Any, **kwargs: Any) -> None:
+        updates.append(model.num_timesteps)
+        train(model, *call, **kwargs)
+
+    def recording_sample(model: IRLPlus, learning_starts: int, *call: Any, **kwargs: Any) -> Any:
+        if model.num_timesteps < learning_starts:
+            random_actions.append(model.num_timesteps)
+        return sample_action(model, learning_starts, *call, **kwargs)
+
+    monkeypatch.setattr(IRLPlus, "train", recording_train)
+    monkeypatch.setattr(IRLPlus, "_sample_action", recording_sample)
+    assert main([*args, "-f", str(tmp_path / "a"), "--resume"]) == 0
+    assert updates[0] == 201 and len(updates) == 200 and not random_actions
+
+    updates.clear()
+    with pytest.warns(UserWarning, match=r"wait until it holds learning_starts \(100\) transitions again \(after step 300\)"):
+        assert main([*args, "-f", str(tmp_path / "b"), "--resume"]) == 0
+    assert updates[0] == 301 and len(updates) == 100 and not random_actions
+    # The wait is not saved: the checkpoints and the final model keep the recipe's gradient_steps and learning_starts
+    resumed = tmp_path / "b" / "irlplus" / "BiasedPendulum-v0_1"
+    for path in (resumed / "rl_model_300_steps.zip", resumed / "BiasedPendulum-v0.zip"):
+        saved = IRLPlus.load(path, device="cpu")
+        assert (saved.gradient_steps, saved.learning_starts) == (1, 100), path

@@ -11,8 +11,9 @@ from copy import deepcopy
 from typing import Any
 
 import numpy as np
+from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.buffers import ReplayBuffer
-from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
+from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback, EvalCallback
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 
@@ -626,6 +627,67 @@ def load_replay_buffer(model: OffPolicyAlgorithm, path: str) -> bool:
             "delete it to continue from its checkpoint with an empty replay buffer, or continue from another checkpoint."
         ) from error
     return True
+
+
+class ReplayBufferRefill(BaseCallback):
+    """
+    Hold back an off-policy learner's gradient updates until its replay buffer holds ``learning_starts`` transitions
+    again. A run continued from a checkpoint without its buffer (or with fewer transitions) would otherwise update at
+    once, SB3 counting ``learning_starts`` against the total steps, on the few transitions collected since.
+
+    It sets the model's ``gradient_steps`` to 0 from the end of each rollout to the start of the next (the only span in
+    which SB3 reads it), rather than moving ``learning_starts``: the learner keeps acting with its policy (not the
+    random actions of SB3's warm-up), and each checkpoint saves the model's own settings. Put it first among the
+    callbacks, so that it restores them before a checkpoint is written.
+
+    :param updates_after: The updates resume once the model's ``num_timesteps`` is past this step count
+    :param verbose: Verbosity level
+    """
+
+    def __init__(self, updates_after: int, verbose: int = 0):
+        super().__init__(verbose)
+        self.updates_after = int(updates_after)
+        self._gradient_steps: int | None = None
+
+    @classmethod
+    def for_model(cls, model: BaseAlgorithm) -> "ReplayBufferRefill | None":
+        """
+        :param model: A learner continued from a checkpoint, its replay buffer restored (or left empty)
+        :return: The callback that holds back its updates, ``None`` when its buffer holds enough transitions (or SB3's
+            own ``learning_starts`` holds them back as long)
+        """
+        if not isinstance(model, OffPolicyAlgorithm) or model.replay_buffer is None:
+            return None
+        buffer = model.replay_buffer
+        # size() counts rows of n_envs transitions; a buffer smaller than learning_starts is refilled to its capacity
+        wanted = min(model.learning_starts, buffer.buffer_size * buffer.n_envs)
+        missing = wanted - buffer.size() * buffer.n_envs
+        updates_after = model.num_timesteps + missing
+        if missing <= 0 or updates_after <= model.learning_starts:
+            return None
+        return cls(updates_after)
+
+    def _on_rollout_end(self) -> None:
+        assert isinstance(self.model, OffPolicyAlgorithm)
+        if self.model.num_timesteps <= self.updates_after and self._gradient_steps is None:
+            self._gradient_steps = self.model.gradient_steps
+            self.model.gradient_steps = 0
+
+    def _on_rollout_start(self) -> None:
+        self.release()
+
+    def _on_training_end(self) -> None:
+        self.release()
+
+    def release(self) -> None:
+        """Give the model back its ``gradient_steps`` (a run stopped between a rollout and the next saves it too)."""
+        if self._gradient_steps is not None:
+            assert isinstance(self.model, OffPolicyAlgorithm)
+            self.model.gradient_steps = self._gradient_steps
+            self._gradient_steps = None
+
+    def _on_step(self) -> bool:
+        return True
 
 
 class AtomicCheckpointCallback(CheckpointCallback):

@@ -105,6 +105,7 @@ from sb3_icrl.zoo.arguments import (
 from sb3_icrl.zoo.callbacks import (
     AtomicCheckpointCallback,
     ConstraintEvalCallback,
+    ReplayBufferRefill,
     WallClock,
     load_replay_buffer,
     load_training_state,
@@ -458,7 +459,9 @@ def _continue_in_place(args: argparse.Namespace, name: str, save_path: str) -> b
 def _go_on(args: argparse.Namespace, model: BaseAlgorithm, callbacks: list[BaseCallback], name: str, resuming: bool) -> None:
     """
     Before ``learn`` of a run that continues a model: restore the training state saved with it; in the same run
-    folder, also the evaluation history and model selection, with the callbacks' step counts where the run was.
+    folder, also the evaluation history and model selection, with the callbacks' step counts where the run was. An
+    off-policy model whose buffer is short of ``learning_starts`` gets a
+    :class:`~sb3_icrl.zoo.callbacks.ReplayBufferRefill`, put first in ``callbacks``.
     """
     evaluation = _evaluation(callbacks) if resuming else None
     if resuming:
@@ -469,7 +472,9 @@ def _go_on(args: argparse.Namespace, model: BaseAlgorithm, callbacks: list[BaseC
             callback.n_calls = model.num_timesteps // model.n_envs
     if args.trained_agent:
         _restore_training_state(model, args.trained_agent, name, evaluation)
-        _restore_replay_buffer(model, args.trained_agent, args.verbose)
+        refill = _restore_replay_buffer(model, args.trained_agent, args.verbose)
+        if refill is not None:
+            callbacks.insert(0, refill)  # first: the checkpoints then save the model's own gradient_steps
 
 
 def _wall_clock(args: argparse.Namespace, callbacks: list[BaseCallback], name: str, resuming: bool) -> WallClock:
@@ -504,23 +509,52 @@ def _restore_training_state(
         )
 
 
-def _restore_replay_buffer(model: BaseAlgorithm, trained_agent: str, verbose: int) -> None:
+def _restore_replay_buffer(model: BaseAlgorithm, trained_agent: str, verbose: int) -> ReplayBufferRefill | None:
     """
     An off-policy model's replay buffer, saved with ``trained_agent`` (:func:`~sb3_icrl.zoo.callbacks.replay_buffer_path`;
     only a run's newest checkpoint keeps one); without it the model goes on with an empty buffer, with a warning.
+
+    :param model: The model continued from ``trained_agent``
+    :param trained_agent: Its zip
+    :param verbose: Verbosity level
+    :return: The callback that holds back the gradient updates while the buffer holds fewer than ``learning_starts``
+        transitions (``None``: no wait)
     """
     if not isinstance(model, OffPolicyAlgorithm):
-        return
+        return None
     path = replay_buffer_path(trained_agent, model.num_timesteps)
-    if load_replay_buffer(model, path):  # a damaged file: a ValueError that names it
+    restored = load_replay_buffer(model, path)  # a damaged file: a ValueError that names it
+    refill = ReplayBufferRefill.for_model(model)
+    wait = (
+        f"its gradient updates wait until it holds learning_starts ({model.learning_starts}) transitions again (after "
+        f"step {refill.updates_after})"
+        if refill is not None
+        else ""
+    )
+    if restored:
         if verbose and model.replay_buffer is not None:
             print(f"Replay buffer restored from {os.path.basename(path)} ({model.replay_buffer.size()} transitions)")
-        return
+            if wait:
+                print(f"The replay buffer is short of learning_starts: {wait}")
+        return refill
+    then = f"{wait}, so" if wait else "its first updates sample only the few transitions collected since, so"
     warnings.warn(
         f"No replay buffer with {trained_agent} ({os.path.basename(path)}; only a run's newest checkpoint keeps one): "
-        "the run goes on with an empty replay buffer: its first updates sample only the few transitions collected "
-        "since, so it learns differently from an uninterrupted run."
+        f"the run goes on with an empty replay buffer: {then} it learns differently from an uninterrupted run."
     )
+    return refill
+
+
+def _release_refill(callbacks: list[BaseCallback]) -> None:
+    """
+    Give the model back the ``gradient_steps`` a :class:`~sb3_icrl.zoo.callbacks.ReplayBufferRefill` holds (a run
+    stopped between a rollout and its update): the model is then saved with its own.
+
+    :param callbacks: The run's callbacks
+    """
+    for callback in callbacks:
+        if isinstance(callback, ReplayBufferRefill):
+            callback.release()
 
 
 def _pin_tensorboard(args: argparse.Namespace, model: BaseAlgorithm, params_path: str, name: str, resuming: bool) -> None:
@@ -841,6 +875,7 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
         finished = True
     except KeyboardInterrupt:
         print("Interrupted: saving the model")
+        _release_refill(callbacks)
     except Exception as error:
         # No final model: enjoy and compare would take it for a trained one; the checkpoints stay for --resume
         _mark_failed(save_path, error, model)
