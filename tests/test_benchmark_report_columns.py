@@ -500,6 +500,15 @@ def test_update_replaces_the_rerun_seeds_and_keeps_every_other_cell(finished_sui
     # Nothing to update, or a report of the other models: said so
     assert cli.main([*argv[:-3], "-o", str(tmp_path / "empty"), "--no-figures", "--update"]) == 2
     assert "--update: no report in" in capsys.readouterr().err
+
+    # ... before any evaluation, which takes minutes on a real suite
+    def no_evaluation(*args, **kwargs):
+        raise AssertionError("evaluated the runs before finding that there is no report to update")
+
+    monkeypatch.setattr(cli, "evaluate_finished", no_evaluation)
+    assert cli.main([*argv[:-3], "-o", str(tmp_path / "empty"), "--no-figures", "--update"]) == 2
+    assert "--update: no report in" in capsys.readouterr().err
+    monkeypatch.setattr(cli, "evaluate_finished", only_the_first)
     assert cli.main([*argv, "--update", "--model", "best"]) == 2
     assert "evaluated the final models, this one the best models: pass --model final" in capsys.readouterr().err
 

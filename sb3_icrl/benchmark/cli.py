@@ -225,6 +225,18 @@ def _no_suite_folder(log_folder: str, name: str) -> str:
     return f"-f/--log-folder {log_folder} has no folder {name} of this suite ({holds})"
 
 
+def _earlier_summary_path(output: str) -> str:
+    """
+    :param output: The report folder that ``--update`` updates
+    :return: Its ``summary.json``
+    :raises SuiteError: When there is none
+    """
+    path = os.path.join(output, "summary.json")
+    if not os.path.isfile(path):
+        raise SuiteError(f"--update: no report in {output!r} (no summary.json): pass its folder with -o, or drop --update.")
+    return path
+
+
 def _with_earlier_report(
     suite: Suite,
     runs: list[RunSpec],
@@ -240,9 +252,7 @@ def _with_earlier_report(
 
     :return: The runs (to list the unfinished ones), the results and the metrics of the whole updated report
     """
-    path = os.path.join(output, "summary.json")
-    if not os.path.isfile(path):
-        raise SuiteError(f"--update: no report in {output!r} (no summary.json): pass its folder with -o, or drop --update.")
+    path = _earlier_summary_path(output)
     try:
         with open(path) as file:
             earlier = json.load(file)
@@ -277,6 +287,9 @@ def report_command(args: argparse.Namespace) -> int:
     output = args.output or os.path.join(args.log_folder, suite.name, "report" if model == "final" else "report_best")
     if args.output or os.path.isdir(os.path.join(args.log_folder, suite.name)):
         check_writable_folder(output, "-o/--output")  # before the evaluations, which take minutes
+    update = getattr(args, "update", False)  # (``benchmark run`` writes a report of its own runs)
+    if update:
+        _earlier_summary_path(output)  # before the evaluations too
     results = evaluate_finished(runs, args.log_folder, suite, model=model)
     # With --update and no finished run, the earlier report is written again from its summary with today's statistics
     if not results and args.command == "report" and not getattr(args, "update", False):
@@ -286,7 +299,6 @@ def report_command(args: argparse.Namespace) -> int:
         )
     metrics = constraint_metrics(results, args.log_folder, model=model)
     fresh = [run for run, _ in results]
-    update = getattr(args, "update", False)  # (``benchmark run`` writes a report of its own runs)
     if update:
         runs, results, metrics = _with_earlier_report(suite, runs, results, metrics, output, args.log_folder, model)
     summary = summarise_suite(suite, runs, results, metrics, model=model)
