@@ -54,10 +54,18 @@ def test_shipped_suites_parse(name):
 def test_shipped_suites_are_the_benchmark():
     assert {"table3", "noise", "imperfect", "multi", "experts", "smoke"} <= set(SHIPPED)
     table3 = load_suite("table3")
-    assert len(table3.envs) == 7 and table3.algos == ["gacl", "bc2l", "mecl", "vicrl", "ppo", "ppolag"]
+    # The report of record: the paper's seven envs and the three binding variants with an expert, on fresh seeds, its
+    # recipes, success rule and headline envs frozen in the file
+    assert len(table3.envs) == 10 and table3.algos == ["gacl", "bc2l", "mecl", "vicrl", "ppo", "ppolag"]
     assert table3.forward_recipe == "mecl"  # the reference rows learn as MECL's forward learner does
-    assert table3.seeds == [123, 321, 456, 654, 666]
+    assert table3.seeds == [1000, 1001, 1002, 1003, 1004] and table3.recipe_version == "table3-v2"
+    assert table3.success == {"max_violation_rate": 0.05, "min_normalised_score": 0.5}
+    assert set(table3.headline_envs) <= {env.removeprefix("sb3_icrl/") for env in table3.envs}
+    assert "BlockedAnt-v0" not in table3.headline_envs  # no variant of it passes
     assert table3.paper["BlockedHalfCheetah-v0"]["vicrl"] == (3806.0, 0.0)
+    # The development table, on the paper's seeds, ships beside it
+    development = load_suite("table3_dev")
+    assert development.seeds == [123, 321, 456, 654, 666] and development.recipe_version is None
     assert [settings["transition_noise"] for settings in load_suite("noise").variants.values()] == [0.001, 0.01, 0.1]
 
 

@@ -46,11 +46,22 @@ def test_the_icrl_runs_get_one_transfer_job_per_task(tmp_path):
         ("transfer: {tasks: [same, same]}\n", "names a task twice"),
         ("transfer: {tasks: [same], n_timesteps: -3}\n", "transfer"),
         ("transfer: {tasks: [reward]}\n", "no reward-transfer task for GridWorldWall-v0"),
+        ("transfer: {tasks: [same], envs: [GridWorldSquare-v0]}\n", "GridWorldSquare-v0 not among the suite's envs"),
+        ("transfer: {tasks: [same], envs: []}\n", "`transfer.envs` is a non-empty list"),
     ],
 )
 def test_bad_transfer_settings_name_file_and_line(tmp_path, text, message):
     with pytest.raises(SuiteError, match=f"line 9: .*{message}"):
         load_suite(write(tmp_path, SUITE + text))
+
+
+def test_transfer_envs_choose_whose_runs_take_the_tests(tmp_path):
+    two_envs = SUITE.replace("envs: [GridWorldWall-v0]", "envs: [GridWorldWall-v0, GridWorldSquare-v0]")
+    # A reward-transfer task only where the env has one: the other env's runs take none
+    suite = load_suite(write(tmp_path, two_envs + "transfer: {tasks: [same], envs: [GridWorldSquare-v0]}\n"))
+    assert suite.transfer == TransferSpec(("same",), None, ("GridWorldSquare-v0",))
+    jobs = {run.env_id: run.transfer_jobs("logs") for run in suite.runs() if run.algo == "bc2l"}
+    assert jobs["sb3_icrl/GridWorldWall-v0"] == [] and len(jobs["sb3_icrl/GridWorldSquare-v0"]) == 1
 
 
 def test_a_suite_without_icrl_algorithms_has_nothing_to_transfer(tmp_path):

@@ -43,7 +43,7 @@ def test_glance_table_has_a_row_per_method_and_a_column_per_env(tmp_path):
     ]
     (tmp_path / "table3").mkdir()
     (tmp_path / "table3" / "summary.json").write_text(json.dumps({"suite": "table3", "description": "d", "cells": cells}))
-    lines = readme_table.glance(tmp_path).splitlines()
+    lines = readme_table.glance(tmp_path, "table3").splitlines()
     assert lines[0] == "| | BiasedPendulum | BlockedHalfCheetah |"
     assert lines[2] == "| MECL | 2.36 / 50% | 3021 / 0% (3025 / 40%) |"
     assert lines[3] == "| PPO | 0.83 / 100% | - |"

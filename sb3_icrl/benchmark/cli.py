@@ -63,7 +63,9 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
     )
     report = commands.add_parser("report", help="evaluate the finished runs and write the tables and figures")
     for sub in (run, status, report):
-        sub.add_argument("suite", help="a shipped suite (table3, noise, imperfect, multi, experts, smoke) or a .yml path")
+        sub.add_argument(
+            "suite", help="a shipped suite (table3, table3_dev, noise, imperfect, multi, experts, smoke) or a .yml path"
+        )
         sub.add_argument("-f", "--log-folder", default="logs", help="log root (runs go to <root>/<suite>/...)")
         sub.add_argument("--only", nargs="+", default=None, help="filters key=value[,value]: env, algo, seed, variant")
         sub.add_argument(

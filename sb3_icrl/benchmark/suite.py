@@ -73,8 +73,8 @@ SUITE_KEYS = {
     "cross-env aggregates, probabilities of improvement and performance profile use these only, the other envs' cells "
     "are shown and marked (default: every env)",
     "transfer": "transfer tests the engine runs after each ICRL run (sb3-icrl transfer, learners seeded with the run's "
-    f"seed): {{tasks: [reward], n_timesteps: 200000}}; tasks among {', '.join(TRANSFER_TASKS)}, n_timesteps optional "
-    "(default: ppolag.yml's)",
+    f"seed): {{tasks: [reward], n_timesteps: 200000, envs: [...]}}; tasks among {', '.join(TRANSFER_TASKS)}, n_timesteps "
+    "optional (default: ppolag.yml's), envs optional (default: every env of the suite)",
 }
 #: The settings of a suite's ``success`` rule
 SUCCESS_KEYS = ("max_violation_rate", "min_normalised_score")
@@ -126,10 +126,12 @@ class TransferSpec:
 
     :param tasks: Tasks among ``same``, ``reward``, ``dynamics``
     :param n_timesteps: Training steps of each transfer learner (``None``: ppolag.yml's)
+    :param envs: Env names whose ICRL runs take the tests (``None``: every env of the suite)
     """
 
     tasks: tuple[str, ...]
     n_timesteps: int | None = None
+    envs: tuple[str, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -193,6 +195,8 @@ class RunSpec:
         unless the suite asks for them and the run is an ICRL one. The learners take the run's seed.
         """
         if self.transfer is None or self.algo not in ICRL_ALGOS:
+            return []
+        if self.transfer.envs is not None and env_name(self.env_id) not in self.transfer.envs:
             return []
         jobs = []
         for task in self.transfer.tasks:
@@ -711,9 +715,11 @@ class _SuiteReader:
         raw = self.content.get("transfer")
         if raw is None:
             return None
-        example = "{tasks: [reward], n_timesteps: 200000}"
-        if not isinstance(raw, dict) or not set(raw) <= {"tasks", "n_timesteps"} or "tasks" not in raw:
-            raise self.error(("transfer",), f"`transfer` maps `tasks` (and optionally `n_timesteps`), e.g. {example}.")
+        example = "{tasks: [reward], n_timesteps: 200000, envs: [BlockedSwimmer-v0]}"
+        if not isinstance(raw, dict) or not set(raw) <= {"tasks", "n_timesteps", "envs"} or "tasks" not in raw:
+            raise self.error(
+                ("transfer",), f"`transfer` maps `tasks` (and optionally `n_timesteps` and `envs`), e.g. {example}."
+            )
         tasks = raw["tasks"]
         if not isinstance(tasks, list) or not tasks or not all(task in TRANSFER_TASKS for task in tasks):
             raise self.error(
@@ -723,6 +729,19 @@ class _SuiteReader:
             raise self.error(("transfer", "tasks"), f"`transfer.tasks` names a task twice: {tasks!r}.")
         if not set(algos) & set(ICRL_ALGOS):
             raise self.error(("transfer",), "`transfer` tests learned constraints, and the suite has no ICRL algorithm.")
+        names = [env_name(env) for env in envs]
+        tested = raw.get("envs")
+        if tested is not None:
+            if not isinstance(tested, list) or not tested or not all(isinstance(env, str) for env in tested):
+                raise self.error(
+                    ("transfer", "envs"), f"`transfer.envs` is a non-empty list of the suite's envs, got {tested!r}."
+                )
+            unknown = [env for env in tested if env_name(env) not in names]
+            if unknown:
+                raise self.error(
+                    ("transfer", "envs"), f"{', '.join(unknown)} not among the suite's envs ({', '.join(names)})."
+                )
+            envs = [env for env in envs if env_name(env) in {env_name(name) for name in tested}]
         if "reward" in tasks:
             without = [env for env in envs if env_name(env) not in REWARD_TRANSFER_TASKS]
             if without:
@@ -733,7 +752,7 @@ class _SuiteReader:
                 )
         steps = raw.get("n_timesteps")
         n_timesteps = None if steps is None else self.positive_int(steps, ("transfer", "n_timesteps"))
-        return TransferSpec(tuple(tasks), n_timesteps)
+        return TransferSpec(tuple(tasks), n_timesteps, None if tested is None else tuple(env_name(env) for env in envs))
 
     def paper(self) -> dict[str, dict[str, tuple[float, float]]]:
         return self.numbers(self.content.get("paper"), ("paper",), "paper")
