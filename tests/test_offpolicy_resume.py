@@ -344,3 +344,17 @@ def test_a_resumed_run_short_of_learning_starts_waits_for_its_buffer_to_refill(t
     for path in (resumed / "rl_model_300_steps.zip", resumed / "BiasedPendulum-v0.zip"):
         saved = IRLPlus.load(path, device="cpu")
         assert (saved.gradient_steps, saved.learning_starts) == (1, 100), path
+
+
+def test_a_resume_counts_the_restored_transitions_of_every_env(tmp_path, capsys) -> None:
+    # Two envs: each buffer row holds two transitions, and the line says how many transitions came back
+    args = [*PENDULUM[:-1], "1", *TINY, "n_envs:2", "-f", str(tmp_path), "-n", "500", "--exp-id", "1"]
+    assert main(args) == 0
+    run = tmp_path / "irlplus" / "BiasedPendulum-v0_1"
+    (buffer_file,) = _buffer_files(run)
+    rows = _read_buffer(run / buffer_file).pos
+    assert rows > 0
+    _interrupt(run)
+    capsys.readouterr()
+    assert main([*args, "--resume"]) == 0
+    assert f"({2 * rows} transitions)" in capsys.readouterr().out

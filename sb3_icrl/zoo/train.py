@@ -533,7 +533,9 @@ def _restore_replay_buffer(model: BaseAlgorithm, trained_agent: str, verbose: in
     )
     if restored:
         if verbose and model.replay_buffer is not None:
-            print(f"Replay buffer restored from {os.path.basename(path)} ({model.replay_buffer.size()} transitions)")
+            # size() counts rows of n_envs transitions each
+            stored = model.replay_buffer.size() * model.replay_buffer.n_envs
+            print(f"Replay buffer restored from {os.path.basename(path)} ({stored} transitions)")
             if wait:
                 print(f"The replay buffer is short of learning_starts: {wait}")
         return refill
