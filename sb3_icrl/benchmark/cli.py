@@ -294,7 +294,7 @@ def report_command(args: argparse.Namespace) -> int:
         _earlier_summary_path(output)  # before the evaluations too
     results = evaluate_finished(runs, args.log_folder, suite, model=model)
     # With --update and no finished run, the earlier report is written again from its summary with today's statistics
-    if not results and args.command == "report" and not getattr(args, "update", False):
+    if not results and args.command == "report" and not update:
         raise SuiteError(
             f"No finished run of suite {suite.name!r} in {os.path.join(args.log_folder, suite.name)}: train them first with "
             f"`sb3-icrl benchmark run {args.suite} -f {args.log_folder}` (or check -f and --only)."

@@ -699,17 +699,27 @@ class _SuiteReader:
             )
         return rule
 
-    def headline_envs(self, envs: list[str]) -> tuple[str, ...] | None:
-        raw = self.content.get("headline_envs")
-        if raw is None:
-            return None
+    def env_subset(self, raw: Any, envs: list[str], where: tuple[str, ...]) -> tuple[str, ...]:
+        """
+        A setting that names some of the suite's envs, checked.
+
+        :param raw: Its value in the file
+        :param envs: The suite's envs
+        :param where: Its key path (for the error's line)
+        :return: The env names, in the order given
+        """
+        key = ".".join(where)
         names = [env_name(env) for env in envs]
         if not isinstance(raw, list) or not raw or not all(isinstance(env, str) for env in raw):
-            raise self.error(("headline_envs",), f"`headline_envs` is a non-empty list of the suite's envs, got {raw!r}.")
+            raise self.error(where, f"`{key}` is a non-empty list of the suite's envs, got {raw!r}.")
         unknown = [env for env in raw if env_name(env) not in names]
         if unknown:
-            raise self.error(("headline_envs",), f"{', '.join(unknown)} not among the suite's envs ({', '.join(names)}).")
+            raise self.error(where, f"{', '.join(unknown)} not among the suite's envs ({', '.join(names)}).")
         return tuple(env_name(env) for env in raw)
+
+    def headline_envs(self, envs: list[str]) -> tuple[str, ...] | None:
+        raw = self.content.get("headline_envs")
+        return None if raw is None else self.env_subset(raw, envs, ("headline_envs",))
 
     def transfer(self, envs: list[str], algos: list[str]) -> TransferSpec | None:
         raw = self.content.get("transfer")
@@ -729,19 +739,9 @@ class _SuiteReader:
             raise self.error(("transfer", "tasks"), f"`transfer.tasks` names a task twice: {tasks!r}.")
         if not set(algos) & set(ICRL_ALGOS):
             raise self.error(("transfer",), "`transfer` tests learned constraints, and the suite has no ICRL algorithm.")
-        names = [env_name(env) for env in envs]
-        tested = raw.get("envs")
+        tested = None if raw.get("envs") is None else self.env_subset(raw["envs"], envs, ("transfer", "envs"))
         if tested is not None:
-            if not isinstance(tested, list) or not tested or not all(isinstance(env, str) for env in tested):
-                raise self.error(
-                    ("transfer", "envs"), f"`transfer.envs` is a non-empty list of the suite's envs, got {tested!r}."
-                )
-            unknown = [env for env in tested if env_name(env) not in names]
-            if unknown:
-                raise self.error(
-                    ("transfer", "envs"), f"{', '.join(unknown)} not among the suite's envs ({', '.join(names)})."
-                )
-            envs = [env for env in envs if env_name(env) in {env_name(name) for name in tested}]
+            envs = [env for env in envs if env_name(env) in tested]
         if "reward" in tasks:
             without = [env for env in envs if env_name(env) not in REWARD_TRANSFER_TASKS]
             if without:
