@@ -8,6 +8,7 @@ import os
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
+import gymnasium as gym
 import numpy as np
 import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
@@ -83,21 +84,32 @@ def load_run_model(algo: str, path: str, device: str, seed: int) -> BaseAlgorith
 
 
 def run_episodes(
-    model: Any, env: VecEnv, n_timesteps: int, deterministic: bool, verbose: int, writer: FrameSink | None = None
+    model: Any,
+    env: VecEnv,
+    n_timesteps: int,
+    deterministic: bool,
+    verbose: int,
+    writer: FrameSink | None = None,
+    n_episodes: int | None = None,
 ) -> ConstraintEvaluation:
     """
-    Step the single env ``n_timesteps`` times; per episode the same metrics as
-    :func:`~sb3_icrl.common.evaluation.evaluate_constraint`. With a ``writer``, each rendered frame is written as it
-    comes, one file per episode.
+    Step the single env ``n_timesteps`` times, or until ``n_episodes`` episodes have ended; per episode the same metrics
+    as :func:`~sb3_icrl.common.evaluation.evaluate_constraint`. With a ``writer``, each rendered frame is written as it
+    comes, one file per episode. Both ways seed and step the env alike: the first ``n_episodes`` episodes of a run by
+    steps are the episodes of a run by episodes.
 
     :param model: The policy
     :param env: A single env (``VecNormalize`` on top, if any: the rewards reported are the raw ones)
-    :param n_timesteps: Steps to run
+    :param n_timesteps: Steps to run; with ``n_episodes``, the most steps to run (a policy whose episodes do not end
+        stops there, with fewer episodes)
     :param deterministic: Deterministic actions
     :param verbose: 1: a line per episode
     :param writer: Where the rendered frames go (``None``: not rendered)
+    :param n_episodes: Stop once this many episodes have ended (``None``: run every one of the ``n_timesteps`` steps)
     :return: The finished episodes
     """
+    if n_episodes is not None and n_episodes < 1:
+        raise ValueError(f"n_episodes must be at least 1, got {n_episodes}.")
     normalize = env if isinstance(env, VecNormalize) else None
     episodes = EpisodeAccumulator(1)
     obs = env.reset()
@@ -119,12 +131,14 @@ def run_episodes(
                     f"Episode {len(episodes.results['violations'])}: reward {reward:.2f}, true cost {cost:.2f}, "
                     f"violated {'yes' if violated else 'no'}, feasible reward {feasible:.2f} ({int(length)} steps)"
                 )
+            if n_episodes is not None and len(episodes.results["violations"]) >= n_episodes:
+                break
         episode_start = dones
     evaluation = episodes.evaluation()
-    n_episodes = len(evaluation.violations)
-    if n_episodes:
+    finished = len(evaluation.violations)
+    if finished:
         print(
-            f"{n_episodes} episodes: violation rate {evaluation.violation_rate:.2f}, feasible reward "
+            f"{finished} episodes: violation rate {evaluation.violation_rate:.2f}, feasible reward "
             f"{evaluation.mean_feasible_reward:.2f}, reward {evaluation.mean_reward:.2f}, true cost {evaluation.mean_cost:.2f}"
         )
     else:
@@ -134,6 +148,10 @@ def run_episodes(
 
 class RunFolderError(ValueError):
     """A path that is not a finished ``train.py`` run folder, or runs that cannot be compared as asked."""
+
+
+class UnfinishedEpisodesError(RunFolderError):
+    """Fewer evaluation episodes ended than were asked for within the step cap: the run's policy, not its files."""
 
 
 @dataclass
@@ -269,18 +287,23 @@ def evaluate_run(
     load_best: bool = False,
     env_kwargs: dict[str, Any] | None = None,
     wall_time_min: float | None = None,
+    n_episodes: int | None = None,
 ) -> RunResult:
     """
     Run a run's final (or best) model on held-out env seeds, as ``enjoy.py --no-render --verbose 0`` does.
 
     :param run: The run folder
-    :param n_timesteps: Evaluation steps (episodes = steps / episode length)
+    :param n_timesteps: Evaluation steps (episodes = steps / episode length); with ``n_episodes``, the step cap
     :param eval_seed: Seed of the evaluation env and policy (pick one the run did not train on)
     :param load_best: Evaluate ``best_model.zip`` instead of the final model
     :param env_kwargs: Env keyword arguments over the run's own (e.g. the driving envs' test recordings,
         :func:`sb3_icrl.envs.heldout_env_kwargs`)
     :param wall_time_min: The run's :func:`training_wall_time` when the caller has read it already (``None``: read it
         here)
+    :param n_episodes: Evaluate exactly this many complete episodes, the first ones the steps would give (``None``:
+        every episode that ends within ``n_timesteps`` steps)
+    :raises UnfinishedEpisodesError: With ``n_episodes``, when fewer episodes end within the ``n_timesteps`` steps (an
+        env without a time limit whose policy's episodes do not end)
     """
     algo, env_id, seed, _ = describe_run(run)
     env_id = resolve_env_id(env_id)
@@ -303,10 +326,21 @@ def evaluate_run(
     )
     model = load_run_model(algo, path, "auto", eval_seed)
     try:
-        evaluation = run_episodes(model, env, n_timesteps, deterministic=True, verbose=0)
+        evaluation = run_episodes(model, env, n_timesteps, deterministic=True, verbose=0, n_episodes=n_episodes)
     finally:
         env.close()
-    if len(evaluation.violations) == 0:
+    finished = len(evaluation.violations)
+    if n_episodes is not None and finished < n_episodes:
+        limit = gym.spec(env_id).max_episode_steps
+        raise UnfinishedEpisodesError(
+            f"{run}: only {finished} of its {n_episodes} evaluation episodes ended within {n_timesteps} steps, the cap"
+            + (
+                f": {env_id} has no time limit, and its policy's episodes do not end."
+                if limit is None
+                else f" ({env_id}'s time limit: {limit} steps an episode)."
+            )
+        )
+    if finished == 0:
         raise RunFolderError(f"No evaluation episode of {run} finished in {n_timesteps} steps: raise -n.")
     return RunResult(
         run=run,

@@ -7,11 +7,14 @@ import pathlib
 import shutil
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import pytest
 import yaml
 
 from sb3_icrl import run_evaluation
+from sb3_icrl.common.evaluation import EPISODE_FIELDS, ConstraintEvaluation
+from sb3_icrl.run_evaluation import UnfinishedEpisodesError
 from sb3_icrl.zoo import enjoy
 from sb3_icrl.zoo import main as train_main
 from sb3_icrl.zoo.compare import (
@@ -248,3 +251,67 @@ def test_compare_evaluates_rl_zoo3_run_folders(tmp_path: pathlib.Path, capsys) -
     enjoy_args = ["--algo", "ppo", "--env", "ConstrainedCorridor-v0", "-f", str(tmp_path / "logs"), "-n", "300"]
     evaluation = enjoy.enjoy(enjoy.get_parser().parse_args([*enjoy_args, "--no-render", "--seed", "7", "--verbose", "0"]))
     assert len(evaluation.violations) == result["n_episodes"]
+
+
+# ---------------------------------------------------------------- an exact number of episodes
+
+
+@pytest.fixture(scope="module")
+def pendulum_run(tmp_path_factory: pytest.TempPathFactory) -> str:
+    """A 64-step PPO run on BiasedPendulum-v0: its policy lets the pendulum fall, after 19-27 steps of the 100 allowed."""
+    folder = tmp_path_factory.mktemp("pendulum")
+    argv = ["--algo", "ppo", "--env", "BiasedPendulum-v0", "--seed", "0", "-f", str(folder), "-n", "64", *TINY[2:]]
+    assert train_main(argv) == 0
+    return str(folder / "ppo" / "BiasedPendulum-v0_1")
+
+
+def test_an_evaluation_by_episodes_is_the_first_episodes_of_one_by_steps(pendulum_run: str, monkeypatch) -> None:
+    """The same seeded env stepped the same way: stopping after N episodes keeps the first N episodes of the steps."""
+    evaluations: list[ConstraintEvaluation] = []
+    original = run_evaluation.run_episodes
+
+    def recorded(*args: Any, **kwargs: Any) -> ConstraintEvaluation:
+        evaluations.append(original(*args, **kwargs))
+        return evaluations[-1]
+
+    monkeypatch.setattr(run_evaluation, "run_episodes", recorded)
+    by_steps = evaluate_run(pendulum_run, 500, eval_seed=100)
+    by_episodes = evaluate_run(pendulum_run, 500, eval_seed=100, n_episodes=5)
+    steps, episodes = evaluations
+    # Episodes end early: the steps of 5 full-length episodes hold many more of them
+    assert by_steps.n_episodes == len(steps.violations) > 5 and by_episodes.n_episodes == 5
+    for key in EPISODE_FIELDS:
+        np.testing.assert_array_equal(getattr(episodes, key), getattr(steps, key)[:5])
+    assert by_episodes.episode_length == pytest.approx(float(np.mean(steps.episode_lengths[:5])))
+    assert by_episodes.violation_rate == pytest.approx(float(np.mean(steps.violations[:5])))
+    # Fewer episodes than asked for within the step cap: no result, and why
+    with pytest.raises(UnfinishedEpisodesError, match="only 0 of its 5 evaluation episodes ended within 10 steps, the cap"):
+        evaluate_run(pendulum_run, 10, eval_seed=100, n_episodes=5)
+
+
+class _EndlessEnv(gym.Env):
+    """An env without a time limit whose episodes never end."""
+
+    observation_space = gym.spaces.Box(-1.0, 1.0, (1,))
+    action_space = gym.spaces.Discrete(2)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
+        return np.zeros(1, dtype=np.float32), {}
+
+    def step(self, action: int) -> tuple[np.ndarray, float, bool, bool, dict]:
+        return np.zeros(1, dtype=np.float32), 1.0, False, False, {"cost": 0.0}
+
+
+class _FirstAction:
+    def predict(self, obs, state=None, episode_start=None, deterministic=True):
+        return np.zeros(1, dtype=int), None
+
+
+def test_a_policy_whose_episodes_never_end_stops_at_the_step_cap() -> None:
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    env = DummyVecEnv([_EndlessEnv])
+    evaluation = run_evaluation.run_episodes(_FirstAction(), env, 30, True, 0, n_episodes=3)
+    assert len(evaluation.violations) == 0
+    with pytest.raises(ValueError, match="n_episodes must be at least 1, got 0"):
+        run_evaluation.run_episodes(_FirstAction(), env, 30, True, 0, n_episodes=0)
