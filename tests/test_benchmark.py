@@ -1,6 +1,7 @@
 """The benchmark engine: suite files, running and resuming suites, and the report's statistics."""
 
 import csv
+import dataclasses
 import io
 import json
 import os
@@ -15,10 +16,11 @@ import numpy as np
 import pytest
 import scipy.stats
 
-from sb3_icrl.benchmark import iqm, load_suite, stratified_bootstrap_ci, summarise_suite
+from sb3_icrl.benchmark import iqm, load_suite, report, stratified_bootstrap_ci, summarise_suite
 from sb3_icrl.benchmark.cli import main as benchmark_main
 from sb3_icrl.benchmark.report import csv_rows, markdown_table
 from sb3_icrl.benchmark.suite import SUITES_DIR, RunSpec, SuiteError
+from sb3_icrl.run_evaluation import UnfinishedEpisodesError
 from sb3_icrl.zoo.compare import RunResult
 from sb3_icrl.zoo.runs import FINISHED_FILE
 
@@ -310,6 +312,114 @@ def test_an_updated_report_draws_the_rerun_methods_and_says_so(tmp_path, monkeyp
     every = [run for run in suite.runs() if run.env_id.endswith("GridWorldWall-v0")]
     write_figures(summary, suite, str(tmp_path / "logs"), str(tmp_path / "report"), runs_drawn=every)
     assert titles == ["GridWorldWall-v0 (base)"]
+
+
+# ---------------------------------------------------------------- the held-out evaluation budget
+
+HEAD = "envs: [GridWorldWall-v0]\nalgos: [bc2l]\nseeds: [0]\n"
+
+
+def test_eval_budget_defaults_to_episodes_and_names_a_bad_value(tmp_path):
+    assert load_suite(write(tmp_path, HEAD)).eval_budget == "episodes"
+    assert load_suite(write(tmp_path, HEAD + "eval_budget: steps\n")).eval_budget == "steps"
+    assert load_suite(write(tmp_path, HEAD + "eval_budget: episodes\n")).eval_budget == "episodes"
+    for value, shown in (("Steps", "'Steps'"), ("[steps]", r"\['steps'\]"), ("20", "20")):
+        path = write(tmp_path, HEAD + f"eval_budget: {value}\n")
+        allowed = r"`eval_budget` is one of episodes \(exactly eval_episodes .*\); steps \(the steps of .*\)"
+        with pytest.raises(SuiteError, match=f"line 4: {allowed}, got {shown}\\.$") as error:
+            load_suite(path)
+        assert path in str(error.value)
+
+
+def test_suites_with_a_committed_report_evaluate_by_steps_as_it_was_made():
+    """Their cached evaluations and numbers stay valid; the report of record and the suites never run count episodes."""
+    assert load_suite("table3").eval_budget == "episodes"
+    assert load_suite("table3_dev").eval_budget == "steps"
+    assert {path.stem: load_suite(str(path), dry_build=False).eval_budget for path in STUDIES} == {
+        path.stem: "steps" for path in STUDIES
+    }
+    for name in ("noise", "imperfect", "multi", "experts", "smoke"):
+        assert load_suite(name, dry_build=False).eval_budget == "episodes", name
+
+
+def _finished_run(tmp_path, budget: str) -> tuple:
+    """A suite of one GridWorldWall run (2 held-out episodes of at most 50 steps), its finished run folder and root."""
+    suite = load_suite(write(tmp_path, HEAD + f"steps: 512\neval_episodes: 2\neval_budget: {budget}\n"))
+    [run] = suite.runs()
+    root = str(tmp_path / "logs")
+    folder = pathlib.Path(run.run_folder(root))
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / FINISHED_FILE).write_text("{}")
+    os.utime(folder / FINISHED_FILE, (0, 0))  # the caches are newer than the run's end
+    return suite, run, folder, root
+
+
+def _fake_evaluations(monkeypatch) -> list:
+    """``report.evaluate_run`` replaced: each call's (steps, seed, episode count) recorded, a result of as many episodes."""
+    calls = []
+
+    def evaluate(folder, steps, seed, load_best=False, env_kwargs=None, **budget):
+        calls.append((steps, seed, budget))
+        n_episodes = budget.get("n_episodes", 7)
+        return RunResult(folder, "bc2l", "sb3_icrl/GridWorldWall-v0", 0, 512, 1.0, 0.0, 1.0, 1.0, n_episodes)
+
+    monkeypatch.setattr(report, "evaluate_run", evaluate)
+    return calls
+
+
+def test_a_steps_cache_written_before_the_budget_key_is_used_as_it_is(tmp_path, monkeypatch):
+    """Every run folder of a committed report holds such a heldout.json: by steps, it is used, not evaluated again."""
+    suite, run, folder, root = _finished_run(tmp_path, "steps")
+    settings = {"eval_seed": 100, "n_timesteps": 100}  # as written before eval_budget: 2 episodes of 50 steps
+    assert report.heldout_settings(suite, run.env_id) == settings
+    assert report.heldout_settings(suite, run.env_id, "best") == {**settings, "model": "best"}
+    saved = RunResult("elsewhere", "bc2l", "sb3_icrl/GridWorldWall-v0", 0, 512, 1.0, 0.25, 3.0, 3.0, 9)
+    (folder / report.HELDOUT_FILE).write_text(json.dumps({"settings": settings, "result": dataclasses.asdict(saved)}))
+    calls = _fake_evaluations(monkeypatch)
+    [(_, result)] = report.evaluate_finished([run], root, suite, log=lambda line: None)
+    assert calls == [] and (result.n_episodes, result.feasible_reward, result.violation_rate) == (9, 3.0, 0.25)
+    # Without a cache: the steps of 2 full-length episodes, every episode ending in them counted, as before
+    (folder / report.HELDOUT_FILE).unlink()
+    report.evaluate_finished([run], root, suite, log=lambda line: None)
+    assert calls == [(100, 100, {})]
+    assert json.loads((folder / report.HELDOUT_FILE).read_text())["settings"] == settings
+
+
+def test_episodes_and_steps_never_share_a_cache(tmp_path, monkeypatch):
+    calls = _fake_evaluations(monkeypatch)
+    suite, run, _, root = _finished_run(tmp_path, "episodes")
+    assert report.heldout_settings(suite, run.env_id) == {"eval_seed": 100, "n_episodes": 2}
+    [(_, result)] = report.evaluate_finished([run], root, suite, log=lambda line: None)
+    # Exactly 2 episodes, under a cap of twice the steps of 2 full-length episodes
+    assert calls == [(2 * 100, 100, {"n_episodes": 2})] and result.n_episodes == 2
+    assert summarise_suite(suite, [run], [(run, result)])["eval_budget"] == "episodes"
+    report.evaluate_finished([run], root, suite, log=lambda line: None)
+    assert len(calls) == 1  # cached
+    # The same run reported by steps: its episodes cache is not used, and the other way round
+    steps_suite, *_ = _finished_run(tmp_path, "steps")
+    [(_, by_steps)] = report.evaluate_finished([run], root, steps_suite, log=lambda line: None)
+    assert calls[1:] == [(100, 100, {})] and by_steps.n_episodes == 7
+    assert summarise_suite(steps_suite, [run], [(run, by_steps)])["eval_budget"] == "steps"
+    report.evaluate_finished([run], root, steps_suite, log=lambda line: None)
+    assert len(calls) == 2
+    report.evaluate_finished([run], root, suite, log=lambda line: None)
+    assert calls[2:] == [(2 * 100, 100, {"n_episodes": 2})]
+
+
+def test_a_policy_that_does_not_end_its_episodes_is_left_out_and_said_why(tmp_path, monkeypatch):
+    suite, run, folder, root = _finished_run(tmp_path, "episodes")
+
+    def unfinished(*args, **kwargs):
+        raise UnfinishedEpisodesError("run: only 1 of its 2 evaluation episodes ended within 200 steps, the cap")
+
+    monkeypatch.setattr(report, "evaluate_run", unfinished)
+    logged: list[str] = []
+    assert report.evaluate_finished([run], root, suite, log=logged.append) == []
+    assert (
+        logged[-1]
+        == f"{run.name}: left out of the report, run: only 1 of its 2 evaluation episodes ended within 200 steps, the cap"
+    )
+    assert not (folder / report.HELDOUT_FILE).exists()  # evaluated again next time
 
 
 # ---------------------------------------------------------------- running suites

@@ -340,7 +340,7 @@ def test_report_of_best_models_evaluates_best_model_zip_with_its_own_cache(finis
     suite, root, results = finished_suite
     evaluated = []
 
-    def fake_evaluate_run(folder, steps, seed, load_best=False, env_kwargs=None):
+    def fake_evaluate_run(folder, steps, seed, load_best=False, env_kwargs=None, n_episodes=None):
         evaluated.append((os.path.relpath(folder, root), load_best))
         feasible = 9.0 if load_best else 1.0
         return RunResult(folder, "bc2l", "sb3_icrl/GridWorldWall-v0", 0, 100, 1.0, 0.0, feasible, feasible, 2)
@@ -511,6 +511,25 @@ def test_update_replaces_the_rerun_seeds_and_keeps_every_other_cell(finished_sui
     monkeypatch.setattr(cli, "evaluate_finished", only_the_first)
     assert cli.main([*argv, "--update", "--model", "best"]) == 2
     assert "evaluated the final models, this one the best models: pass --model final" in capsys.readouterr().err
+
+
+def test_update_refuses_a_report_evaluated_with_the_other_budget(finished_suite, tmp_path, monkeypatch, capsys):
+    """Its cells would count their held-out episodes two ways; a report from before the key was evaluated by steps."""
+    from sb3_icrl.benchmark import cli
+
+    suite, root, results = finished_suite
+    output = str(tmp_path / "results" / "suite")
+    earlier = summarise_suite(suite, suite.runs(), results, run_facts(results, root))
+    assert earlier["eval_budget"] == "episodes"
+    del earlier["eval_budget"]
+    write_report(earlier, output)
+    monkeypatch.setattr(cli, "evaluate_finished", lambda runs, *args, **kwargs: [])
+    argv = ["report", write(tmp_path, SUITE), "-f", root, "-o", output, "--no-figures", "--update"]
+    assert cli.main(argv) == 2
+    assert "evaluated its runs by steps, suite 'suite' evaluates them by episodes (eval_budget)" in capsys.readouterr().err
+    argv[1] = write(tmp_path, SUITE + "eval_budget: steps\n")
+    assert cli.main(argv) == 0
+    assert json.loads(pathlib.Path(output, "summary.json").read_text())["eval_budget"] == "steps"
 
 
 def test_compute_line_names_the_variants_of_a_suite_reported_in_parts(finished_suite, tmp_path):

@@ -190,15 +190,12 @@ def test_a_cache_from_before_the_per_constraint_rates(tmp_path, monkeypatch, rep
     fresh = _result("mecl", 0)
     calls = []
 
-    def fake_evaluate(path, steps, seed, load_best=False, env_kwargs=None):
+    def fake_evaluate(path, steps, seed, load_best=False, env_kwargs=None, n_episodes=None):
         calls.append(path)
         return RunResult(**asdict(fresh))
 
     monkeypatch.setattr(report, "evaluate_run", fake_evaluate)
-    env_kwargs = report.heldout_env_kwargs(run.env_id)
-    settings = {"eval_seed": suite.eval_seed, "n_timesteps": report.heldout_steps(run.env_id, suite.eval_episodes)}
-    if env_kwargs:
-        settings["env_kwargs"] = env_kwargs
+    settings = report.heldout_settings(suite, run.env_id)
     older = {key: value for key, value in asdict(fresh).items() if key != "constraint_violation_rates"}
     (folder / HELDOUT_FILE).write_text(json.dumps({"settings": settings, "result": older}))
     os.utime(folder / FINISHED_FILE, (0, 0))  # the cache is newer than the run's end

@@ -105,13 +105,12 @@ def test_a_cached_evaluation_missing_a_field_is_evaluated_again(suite, tmp_path,
     fresh = _result(run.algo, run.seed, _rates(0.0, 0.0, 1.0, 0.0))
     calls = []
 
-    def fake_evaluate(path, steps, seed, load_best=False, env_kwargs=None):
+    def fake_evaluate(path, steps, seed, load_best=False, env_kwargs=None, n_episodes=None):
         calls.append(path)
         return RunResult(**asdict(fresh))
 
     monkeypatch.setattr(report, "evaluate_run", fake_evaluate)
-    settings = {"eval_seed": suite.eval_seed, "n_timesteps": report.heldout_steps(run.env_id, suite.eval_episodes)}
-    settings["env_kwargs"] = {"split": "test"}  # the driving envs' held-out recordings
+    settings = report.heldout_settings(suite, run.env_id)  # the cache's settings fit: its missing field alone is stale
     older = {key: value for key, value in asdict(fresh).items() if key != "outcome_rates"}
     (folder / HELDOUT_FILE).write_text(json.dumps({"settings": settings, "result": older}))
     os.utime(folder / FINISHED_FILE, (0, 0))  # the cache is newer than the run's end

@@ -216,7 +216,7 @@ def test_driving_envs_are_evaluated_on_their_test_recordings(tmp_path, monkeypat
     (folder / "finished.json").write_text("{}")
     asked = []
 
-    def evaluate(path, steps, seed, load_best=False, env_kwargs=None):
+    def evaluate(path, steps, seed, load_best=False, env_kwargs=None, n_episodes=None):
         asked.append(env_kwargs)
         return _result(run.algo, run.seed, 1.0, 0.0)
 

@@ -271,6 +271,12 @@ def _with_earlier_report(
             f"--update: the report in {output!r} evaluated the {earlier_model} models, this one the {model} models: "
             f"pass --model {earlier_model}, or another -o folder."
         )
+    earlier_budget = earlier.get("eval_budget", "steps")  # a report written before the key was evaluated by steps
+    if earlier_budget != suite.eval_budget:
+        raise SuiteError(
+            f"--update: the report in {output!r} evaluated its runs by {earlier_budget}, suite {suite.name!r} evaluates "
+            f"them by {suite.eval_budget} (eval_budget): its cells would mix the two. Pass another -o folder."
+        )
     kept, kept_metrics, missing = previous_results(earlier, suite, root)
     # A selected run that has not finished (again) loses its old result: its cell must not mix two recipes. With no
     # fresh result at all, nothing is mixed: the report is written again as it was, with the current statistics

@@ -54,7 +54,14 @@ from sb3_icrl.metrics.identification import headline, identification_file, ident
 from sb3_icrl.metrics.transfer import read_transfers
 from sb3_icrl.plots.figures import load_runs, new_figure, save_figure, training_curves_figure
 from sb3_icrl.registry import ICRL_ALGOS, env_name
-from sb3_icrl.run_evaluation import OUTCOME_TITLES, RunResult, evaluate_run, format_outcome_rate, summarise
+from sb3_icrl.run_evaluation import (
+    OUTCOME_TITLES,
+    RunResult,
+    UnfinishedEpisodesError,
+    evaluate_run,
+    format_outcome_rate,
+    summarise,
+)
 from sb3_icrl.run_folder import (
     LAST_TRAINING_EPISODES,
     find_vecnormalize,
@@ -82,6 +89,10 @@ IDENTIFICATION_COLUMNS = (
 REPORT_MODELS = ("final", "best")
 #: Steps per held-out episode when the env declares no time limit
 DEFAULT_EPISODE_STEPS = 1000
+#: An evaluation by episodes stops after this many times the steps of as many full-length episodes: no episode
+#: outlasts its env's time limit, so only the policy of an env without one (its episodes counted as
+#: :data:`DEFAULT_EPISODE_STEPS` long) or with a longer one than registered reaches it
+EPISODE_STEP_CAP = 2
 
 
 def heldout_steps(env_id: str, episodes: int) -> int:
@@ -90,17 +101,45 @@ def heldout_steps(env_id: str, episodes: int) -> int:
     return episodes * limit
 
 
+def heldout_settings(suite: Suite, env_id: str, model: str = "final") -> dict[str, Any]:
+    """
+    What a run's held-out evaluation depends on: its cache is used only when they are the same. An evaluation by steps
+    records its steps (``n_timesteps``, as before the suite key ``eval_budget`` was read: those caches stay valid), one
+    by episodes its episodes (``n_episodes``): the two never share a cache.
+
+    :param suite: The suite (evaluation budget, episodes and seed)
+    :param env_id: The run's env id
+    :param model: ``"final"`` or ``"best"``
+    :return: The settings, as ``heldout.json`` records them
+    """
+    budget: dict[str, int] = (
+        {"n_timesteps": heldout_steps(env_id, suite.eval_episodes)}
+        if suite.eval_budget == "steps"
+        else {"n_episodes": suite.eval_episodes}
+    )
+    settings: dict[str, Any] = {"eval_seed": suite.eval_seed, **budget, **({"model": model} if model == "best" else {})}
+    env_kwargs = heldout_env_kwargs(env_id)  # the driving envs: their test recordings
+    if env_kwargs:
+        settings["env_kwargs"] = env_kwargs  # a cache made on other recordings is evaluated again
+    return settings
+
+
 def evaluate_finished(
     runs: Sequence[RunSpec], root: str, suite: Suite, log: Callable[[str], None] = print, model: str = "final"
 ) -> list[tuple[RunSpec, RunResult]]:
     """
     Held-out evaluation of every finished run (cached in the run folder as ``heldout.json``, ``heldout_best.json``
-    for the best model, keyed by the evaluation settings, so a report is cheap to make again; a cache whose fields are
-    not those of :class:`RunResult`, written by another version, is evaluated again).
+    for the best model, keyed by the evaluation settings, :func:`heldout_settings`, so a report is cheap to make again;
+    a cache whose fields are not those of :class:`RunResult`, written by another version, is evaluated again).
+
+    The suite's ``eval_budget`` says what is run: ``episodes``, exactly ``eval_episodes`` complete episodes from
+    ``eval_seed`` (a run whose policy has not ended them within :data:`EPISODE_STEP_CAP` times the steps of as many
+    full-length episodes is left out, and said so); ``steps``, the steps of ``eval_episodes`` full-length episodes,
+    every episode that ends in them counted (more of them where episodes end early).
 
     :param runs: The suite's runs
     :param root: The log root
-    :param suite: The suite (evaluation episodes and seed)
+    :param suite: The suite (evaluation budget, episodes and seed)
     :param log: Where progress lines go
     :param model: ``"final"``: each run's final model; ``"best"``: the ``best_model.zip`` its training chose by its
         algorithm's selection score (ICRL methods: learned quantities only), run with the normalisation statistics
@@ -131,10 +170,8 @@ def evaluate_finished(
             continue
         steps = heldout_steps(run.env_id, suite.eval_episodes)
         cache = os.path.join(folder, HELDOUT_BEST_FILE if best else HELDOUT_FILE)
-        env_kwargs = heldout_env_kwargs(run.env_id)  # the driving envs: their test recordings
-        settings: dict[str, Any] = {"eval_seed": suite.eval_seed, "n_timesteps": steps, **({"model": model} if best else {})}
-        if env_kwargs:
-            settings["env_kwargs"] = env_kwargs  # a cache made on other recordings is evaluated again
+        env_kwargs = heldout_env_kwargs(run.env_id)
+        settings = heldout_settings(suite, run.env_id, model)
         cached = None
         saved: dict[str, Any] = {}
         if os.path.isfile(cache):
@@ -151,9 +188,21 @@ def evaluate_finished(
             ):
                 cached = RunResult(**saved["result"])
         if cached is None:
-            log(f"evaluating {run.name}{' (best model)' if best else ''} on {suite.eval_episodes} held-out episodes")
+            if suite.eval_budget == "steps":
+                log(
+                    f"evaluating {run.name}{' (best model)' if best else ''} on {steps} held-out steps "
+                    f"({suite.eval_episodes} full-length episodes)"
+                )
+                budget: dict[str, Any] = {}
+            else:
+                log(f"evaluating {run.name}{' (best model)' if best else ''} on {suite.eval_episodes} held-out episodes")
+                steps *= EPISODE_STEP_CAP  # the cap: a policy whose episodes do not end stops there
+                budget = {"n_episodes": suite.eval_episodes}
             try:
-                cached = evaluate_run(folder, steps, suite.eval_seed, load_best=best, env_kwargs=env_kwargs)
+                cached = evaluate_run(folder, steps, suite.eval_seed, load_best=best, env_kwargs=env_kwargs, **budget)
+            except UnfinishedEpisodesError as error:  # its policy, not its files: training it again would not help
+                log(f"{run.name}: left out of the report, {error}")
+                continue
             except Exception as error:  # one broken run leaves its cell short by a seed, not the report unwritten
                 log(
                     f"{run.name}: left out of the report, its model in {folder} could not be evaluated "
@@ -826,6 +875,7 @@ def summarise_suite(
         "description": suite.description,
         "eval_episodes": suite.eval_episodes,
         "eval_seed": suite.eval_seed,
+        "eval_budget": suite.eval_budget,
         "reference": suite.reference,
         "cells": cells,
         "aggregates": aggregates,

@@ -48,6 +48,11 @@ from sb3_icrl.run_folder import is_finished
 
 #: Where the shipped suites live
 SUITES_DIR = pathlib.Path(__file__).resolve().parent / "suites"
+#: How a report's held-out evaluation is counted (the suite key ``eval_budget``), with what each means
+EVAL_BUDGETS = {
+    "episodes": "exactly eval_episodes complete episodes per run",
+    "steps": "the steps of eval_episodes full-length episodes, every episode that ends in them counted",
+}
 #: Top-level keys of a suite file
 SUITE_KEYS = {
     "description": "one line on what the suite measures",
@@ -58,6 +63,9 @@ SUITE_KEYS = {
     "steps": "training steps: an integer, or a mapping env -> integer (default: the recipe's n_timesteps)",
     "eval_episodes": "held-out episodes per run in the report (default 20)",
     "eval_seed": "seed of the held-out episodes (default 100, a seed no run trains on)",
+    "eval_budget": "how the report counts held-out episodes: "
+    + "; ".join(f"{name}, {meaning}" for name, meaning in EVAL_BUDGETS.items())
+    + " (default episodes)",
     "train_args": "extra train.py settings for every run: eval_freq, eval_episodes, save_freq, num_threads, device",
     "reference": "algorithm the report tests the others against (Wilcoxon signed-rank)",
     "forward_recipe": f"the reference rows ({', '.join(REFERENCE_ALGOS)}) learn with this algorithm's forward learner and "
@@ -268,6 +276,8 @@ class Suite:
     transfer: TransferSpec | None = None
     #: Env names in the headline aggregates, ``None``: every env
     headline_envs: tuple[str, ...] | None = None
+    #: How the held-out evaluation is counted, one of :data:`EVAL_BUDGETS`
+    eval_budget: str = "episodes"
 
     def runs(self) -> list[RunSpec]:
         """Every run, env by env, then variant, algorithm and seed."""
@@ -717,6 +727,13 @@ class _SuiteReader:
             raise self.error(where, f"{', '.join(unknown)} not among the suite's envs ({', '.join(names)}).")
         return tuple(env_name(env) for env in raw)
 
+    def eval_budget(self) -> str:
+        value = self.content.get("eval_budget", "episodes")
+        if not isinstance(value, str) or value not in EVAL_BUDGETS:
+            allowed = "; ".join(f"{name} ({meaning})" for name, meaning in EVAL_BUDGETS.items())
+            raise self.error(("eval_budget",), f"`eval_budget` is one of {allowed}, got {value!r}.")
+        return str(value)
+
     def headline_envs(self, envs: list[str]) -> tuple[str, ...] | None:
         raw = self.content.get("headline_envs")
         return None if raw is None else self.env_subset(raw, envs, ("headline_envs",))
@@ -910,6 +927,7 @@ def load_suite(name_or_path: str | os.PathLike, dry_build: bool = True) -> Suite
         steps=reader.steps(envs),
         eval_episodes=reader.positive_int(content.get("eval_episodes", 20), ("eval_episodes",)),
         eval_seed=reader.positive_int(content.get("eval_seed", 100), ("eval_seed",), allow_zero=True),
+        eval_budget=reader.eval_budget(),
         train_args=reader.train_args(),
         reference=reference,
         paper=reader.paper(),
