@@ -1,12 +1,20 @@
 """The reference rows of a benchmark: PPO and the oracle on the ICRL cells' forward learner, normalised scores, success."""
 
+import dataclasses
+import json
 import math
 import pathlib
 
 import pytest
 
 from sb3_icrl.benchmark import load_suite, summarise_suite
-from sb3_icrl.benchmark.report import markdown_table, normalised_scores_by_algo, performance_profile_figure
+from sb3_icrl.benchmark.report import (
+    finite_or_null,
+    markdown_table,
+    normalised_scores_by_algo,
+    performance_profile_figure,
+    previous_results,
+)
 from sb3_icrl.benchmark.suite import SuiteError
 from sb3_icrl.common.statistics import wilson_interval
 from sb3_icrl.zoo.compare import RunResult
@@ -155,6 +163,27 @@ def test_cells_without_both_reference_rows_have_no_score(tmp_path) -> None:
     assert not any("normalised_score_mean" in cell for cell in summary["cells"])
     assert summary["normalised_aggregates"] == [] and "normalised score" not in markdown_table(summary)
     assert math.isnan(summary["cells"][0]["per_seed"][0].get("normalised_score", math.nan))
+
+
+def test_an_updated_report_keeps_no_score_its_reference_rows_no_longer_give(tmp_path) -> None:
+    suite = load_suite(write(tmp_path, SUITE))
+    values = {"ppo": (0.0, 1.0), "ppolag": (10.0, 0.0), "mecl": (8.0, 0.0)}
+    results = [(run, _result(run.algo, run.seed, *values[run.algo])) for run in suite.runs()]
+    earlier = json.loads(json.dumps(finite_or_null(summarise_suite(suite, suite.runs(), results))))
+    assert earlier["cells"][0]["per_seed"][0]["normalised_score"] == pytest.approx(0.8)
+    kept, metrics, _ = previous_results(earlier, suite, "logs")
+    # report --update of the oracle's seeds, which have not finished again: its row leaves the report
+    summary = summarise_suite(suite, suite.runs(), [(run, result) for run, result in kept if run.algo != "ppolag"], metrics)
+    mecl = next(cell for cell in summary["cells"] if cell["algo"] == "mecl")
+    assert not any("normalised_score" in seed or "success" in seed for seed in mecl["per_seed"])
+    assert normalised_scores_by_algo(summary) == {} and "/ 0.80" not in markdown_table(summary)
+    # An oracle that now breaks its constraint normalises nothing either, whatever the earlier report held
+    broken = [
+        (run, dataclasses.replace(result, violation_rate=1.0) if run.algo == "ppolag" else result) for run, result in kept
+    ]
+    summary = summarise_suite(suite, suite.runs(), broken, metrics)
+    assert next(cell for cell in summary["cells"] if cell["algo"] == "mecl")["normalisation_problem"]
+    assert not any("normalised_score" in seed for cell in summary["cells"] for seed in cell["per_seed"])
 
 
 def test_runs_record_the_suites_recipe_version_and_a_report_refuses_to_mix_them(tmp_path) -> None:

@@ -628,6 +628,10 @@ def oracle_problem(ppo: dict[str, Any], oracle: dict[str, Any]) -> str | None:
     return None
 
 
+#: The per-seed values :func:`add_reference_scores` derives from the reference rows
+SCORE_KEYS = ("normalised_score", "success")
+
+
 def add_reference_scores(cells: list[dict[str, Any]], success: dict[str, float] | None) -> None:
     """
     Where an env and variant have both reference rows, and the oracle keeps the constraint and earns more feasible
@@ -635,11 +639,16 @@ def add_reference_scores(cells: list[dict[str, Any]], success: dict[str, float] 
     cells' runs gets ``normalised_score`` (:func:`~sb3_icrl.common.statistics.normalised_score` between the two rows'
     mean feasible rewards), each cell ``normalised_score_mean`` and ``normalised_score_spread``; with a ``success`` rule,
     each run ``success`` and each cell ``success_count``, ``success_probability`` and its Wilson 95% interval
-    (``success_ci95``). In place.
+    (``success_ci95``). In place. A run's ``normalised_score`` and ``success`` from elsewhere (an earlier report's, read
+    back by ``report --update``) are dropped first: they hold only where this report's reference rows give them.
 
     :param cells: The cells of :func:`summarise_suite`
     :param success: The suite's rule (``max_violation_rate``, ``min_normalised_score``), or ``None``
     """
+    for cell in cells:
+        for seed in cell["per_seed"]:
+            for key in SCORE_KEYS:
+                seed.pop(key, None)
     rows = {(cell["env"], cell["variant"], cell["algo"]): cell for cell in cells}
     for cell in cells:
         low = rows.get((cell["env"], cell["variant"], PPO_ROW))
