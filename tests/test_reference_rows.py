@@ -313,8 +313,57 @@ def test_headline_envs_alone_make_the_aggregates_and_the_others_are_marked(tmp_p
     (aggregate,) = [entry for entry in summary["normalised_aggregates"] if entry["algo"] == "mecl"]
     assert aggregate["n_cells"] == 1 and aggregate["normalised_score_mean"] == pytest.approx(0.5)
     assert normalised_scores_by_algo(summary)["mecl"] == [[0.5, 0.5, 0.5]]
+    assert {entry["algo"]: entry["n_cells"] for entry in summary["aggregates"]} == dict.fromkeys(suite.algos, 1)
     table = markdown_table(summary)
     assert "| GridWorldWall-v0 † | base | mecl |" in table and "| GridWorldSquare-v0 | base | mecl |" in table
     assert "the headline envs only (GridWorldSquare-v0;" in table
     with pytest.raises(SuiteError, match="GridWorldZigzag-v0 not among the suite's envs"):
         load_suite(write(tmp_path, text + "headline_envs: [GridWorldZigzag-v0]\n"))
+
+
+def _suite_results(suite, values) -> list:
+    """``(run, result)`` of the suite's runs that ``values`` names: ``{(env name, algo): feasible reward}``, no violation."""
+    results = []
+    for run in suite.runs():
+        feasible = values.get((run.env_id.split("/")[-1], run.algo))
+        if feasible is not None:
+            name = f"r/{run.env_id}/{run.algo}/{run.seed}"
+            results.append((run, RunResult(name, run.algo, run.env_id, run.seed, 100, 1.0, 0.0, feasible, feasible, 20)))
+    return results
+
+
+def test_aggregates_take_the_headline_envs_where_every_row_has_scores(tmp_path) -> None:
+    text = SUITE.replace("envs: [GridWorldWall-v0]", "envs: [GridWorldWall-v0, GridWorldSquare-v0]")
+    text = text.replace("algos: [mecl, ppo, ppolag]", "algos: [bc2l, mecl, ppo, ppolag]").replace("[0, 1, 2]", "[0, 1]")
+    suite = load_suite(write(tmp_path, text))
+    values = {
+        (env, algo): value
+        for env in ("GridWorldWall-v0", "GridWorldSquare-v0")
+        for algo, value in (("ppo", 0.0), ("ppolag", 10.0), ("bc2l", 2.0), ("mecl", 6.0))
+    }
+    # A suite part-way: MECL has not finished on the square map, where BC2L scores 0.9
+    del values[("GridWorldSquare-v0", "mecl")]
+    values[("GridWorldSquare-v0", "bc2l")] = 9.0
+    summary = summarise_suite(suite, suite.runs(), _suite_results(suite, values))
+    aggregates = {entry["algo"]: entry for entry in summary["normalised_aggregates"]}
+    # Both methods over the one env where every row has scores: BC2L's 0.9 on the other is not averaged in
+    assert {algo: entry["n_cells"] for algo, entry in aggregates.items()} == dict.fromkeys(suite.algos, 1)
+    assert aggregates["bc2l"]["normalised_score_mean"] == pytest.approx(0.2)
+    assert normalised_scores_by_algo(summary)["bc2l"] == [[0.2, 0.2]]
+    assert [(entry["x"], entry["n_cells"]) for entry in summary["improvements"]] == [("bc2l", 1), ("mecl", 1)]
+    assert summary["aggregated_envs"] == [["GridWorldWall-v0", "base"]]
+    assert summary["aggregates_left_out"] == [
+        {"env": "GridWorldSquare-v0", "variant": "base", "reason": "no finished run of mecl"}
+    ]
+    square = next(cell for cell in summary["cells"] if (cell["env"], cell["algo"]) == ("GridWorldSquare-v0", "bc2l"))
+    assert square["normalised_score_mean"] == pytest.approx(0.9) and not square["aggregated"]  # still in its row
+    table = markdown_table(summary)
+    assert "Across envs (stratified bootstrap 95% CIs over the seeds of each env), over GridWorldWall-v0:" in table
+    assert "Left out of them: GridWorldSquare-v0 (no finished run of mecl)." in table
+
+
+def test_a_report_without_aggregates_yet_says_why(tmp_path) -> None:
+    suite = load_suite(write(tmp_path, SUITE))
+    values = {("GridWorldWall-v0", "ppo"): 0.0, ("GridWorldWall-v0", "mecl"): 5.0}  # the oracle has not finished
+    table = markdown_table(summarise_suite(suite, suite.runs(), _suite_results(suite, values)))
+    assert "No cross-env aggregates yet: GridWorldWall-v0 (no finished run of ppolag)." in table

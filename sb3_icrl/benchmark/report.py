@@ -682,6 +682,47 @@ def add_reference_scores(cells: list[dict[str, Any]], success: dict[str, float] 
         cell["success_ci95"] = list(wilson_interval(count, len(cell["per_seed"])))
 
 
+def aggregated_envs(cells: list[dict[str, Any]], suite: Suite) -> tuple[list[tuple[str, str]], list[dict[str, str]]]:
+    """
+    The envs and variants the cross-env aggregates, the probabilities of improvement and the performance profile take:
+    the headline ones (the suite's ``headline_envs``, else every env) where both reference rows and every method the
+    report has cells of have normalised scores. Elsewhere some method (or reference row) has not finished yet, or the
+    reference rows give no scores: aggregates over them would average each method over other envs.
+
+    :param cells: The cells, after :func:`add_reference_scores`
+    :param suite: The suite (its envs, variants, headline envs and algorithms)
+    :return: ``(aggregated, left_out)``: the ``(env, variant)`` taken, in the suite's order, and for each other headline
+        one ``{"env", "variant", "reason"}``; both empty for a suite without both reference rows (no scores at all)
+    """
+    if PPO_ROW not in suite.algos or ORACLE_ROW not in suite.algos:
+        return [], []
+    rows: dict[tuple[str, str], dict[str, dict[str, Any]]] = {}
+    for cell in cells:
+        rows.setdefault((cell["env"], cell["variant"]), {})[cell["algo"]] = cell
+    # The reference rows, and the methods the report has (a report of some of them: --only)
+    algos = [algo for algo in suite.algos if algo in (PPO_ROW, ORACLE_ROW) or any(cell["algo"] == algo for cell in cells)]
+    aggregated, left_out = [], []
+    for env in (env_name(env_id) for env_id in suite.envs):
+        if suite.headline_envs is not None and env not in suite.headline_envs:
+            continue
+        for variant in suite.variants:
+            present = rows.get((env, variant), {})
+            missing = [algo for algo in algos if algo not in present]
+            problems = [cell["normalisation_problem"] for cell in present.values() if "normalisation_problem" in cell]
+            unscored = [algo for algo in algos if algo in present and "normalised_score_mean" not in present[algo]]
+            if missing:
+                reason = f"no finished run of {', '.join(missing)}"
+            elif problems:
+                reason = f"no normalised scores: {problems[0]}"
+            elif unscored:
+                reason = f"no normalised scores of {', '.join(unscored)}"
+            else:
+                aggregated.append((env, variant))
+                continue
+            left_out.append({"env": env, "variant": variant, "reason": reason})
+    return aggregated, left_out
+
+
 def normalised_aggregates(
     cells: list[dict[str, Any]], algos: Sequence[str]
 ) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
@@ -759,8 +800,10 @@ def summarise_suite(
     Wilcoxon test against the suite's reference, the paper's and other sources' numbers (``others``), our expert's
     return (``expert_return``: mean return of the demonstrations the runs learned from) and the feasible reward as a
     fraction of it (``feasible_reward_fraction``), the runs' compute (``core_hours``) and, per published number, whether
-    the cell beats it (``beats``: :func:`beats`); per algorithm, the IQM over all envs with a stratified bootstrap CI;
-    the runs not finished yet; the suite's compute.
+    the cell beats it (``beats``: :func:`beats`); per algorithm, the IQM of the violation rate over the headline envs
+    with a stratified bootstrap CI (``aggregates``), and the normalised aggregates over the envs of
+    :func:`aggregated_envs` (``normalised_aggregates``, ``improvements``; ``aggregated_envs`` and
+    ``aggregates_left_out`` name them); the runs not finished yet; the suite's compute.
 
     :param suite: The suite
     :param runs: Its runs (to list the missing ones)
@@ -862,10 +905,18 @@ def summarise_suite(
     add_reference_scores(cells, suite.success)
     for cell in cells:
         cell["headline"] = suite.headline_envs is None or cell["env"] in suite.headline_envs
-    normalised, improvements = normalised_aggregates([cell for cell in cells if cell["headline"]], suite.algos)
+    aggregated, left_out = aggregated_envs(cells, suite)
+    for cell in cells:
+        cell["aggregated"] = (cell["env"], cell["variant"]) in aggregated
+    normalised, improvements = normalised_aggregates([cell for cell in cells if cell["aggregated"]], suite.algos)
     aggregates = []
     for algo in suite.algos:
-        tasks = [[seed["violation_rate"] for seed in cell["per_seed"]] for cell in cells if cell["algo"] == algo]
+        # The headline envs only, as the normalised aggregates
+        tasks = [
+            [seed["violation_rate"] for seed in cell["per_seed"]]
+            for cell in cells
+            if cell["algo"] == algo and cell["headline"]
+        ]
         if tasks:
             lower, upper = stratified_bootstrap_ci(tasks)
             aggregates.append(
@@ -891,6 +942,8 @@ def summarise_suite(
         "normalised_aggregates": normalised,
         "improvements": improvements,
         "headline_envs": list(suite.headline_envs) if suite.headline_envs is not None else None,
+        "aggregated_envs": [list(task) for task in aggregated],
+        "aggregates_left_out": left_out,
         "success_rule": suite.success,
         "runs_missing": missing,
         "others_sources": list(suite.others),
@@ -1021,7 +1074,9 @@ def aggregate_lines(summary: dict[str, Any]) -> list[str]:
     """
     aggregates = summary.get("normalised_aggregates") or []
     if not aggregates:
-        return []
+        left_out = summary.get("aggregates_left_out") or []
+        reasons = "; ".join(f"{_task_text(entry['env'], entry['variant'])} ({entry['reason']})" for entry in left_out)
+        return ["", f"No cross-env aggregates yet: {reasons}."] if left_out else []
     rule = summary.get("success_rule")
     lines = [
         "",
@@ -1034,20 +1089,14 @@ def aggregate_lines(summary: dict[str, Any]) -> list[str]:
             else ""
         ),
         "",
-        "Across envs (stratified bootstrap 95% CIs over the seeds of each env)"
-        + (
-            f", the headline envs only ({', '.join(summary['headline_envs'])}; the others, marked † in the table, do not "
-            "bind or cannot be identified):"
-            if summary.get("headline_envs")
-            else ":"
-        ),
+        "Across envs (stratified bootstrap 95% CIs over the seeds of each env)" + _aggregated_text(summary),
         "",
         "| algo | envs | runs | IQM | mean | optimality gap |",
         "|---|---|---|---|---|---|",
     ]
     for entry in aggregates:
         cells = [
-            f"{entry[key]:.2f} [{entry[key + '_ci95'][0]:.2f}, {entry[key + '_ci95'][1]:.2f}]"
+            f"{entry[key]:.2f}{_interval_text(entry.get(key + '_ci95'))}"
             for key in ("normalised_score_iqm", "normalised_score_mean", "optimality_gap")
         ]
         lines.append(f"| {entry['algo']} | {entry['n_cells']} | {entry['n_runs']} | " + " | ".join(cells) + " |")
@@ -1056,11 +1105,42 @@ def aggregate_lines(summary: dict[str, Any]) -> list[str]:
         lines += ["", "Probability of improvement, P(X > Y) on the normalised score:", ""]
         lines += ["| X | Y | envs | P(X > Y) [95% CI] |", "|---|---|---|---|"]
         for entry in improvements:
-            low, high = entry["ci95"]
             lines.append(
-                f"| {entry['x']} | {entry['y']} | {entry['n_cells']} | {entry['probability']:.2f} [{low:.2f}, {high:.2f}] |"
+                f"| {entry['x']} | {entry['y']} | {entry['n_cells']} | {entry['probability']:.2f}"
+                f"{_interval_text(entry.get('ci95'))} |"
             )
     return lines
+
+
+def _interval_text(interval: Sequence[float] | None) -> str:
+    """`` [low, high]`` of an aggregate's interval, nothing for one that has none (one run per env)."""
+    return f" [{interval[0]:.2f}, {interval[1]:.2f}]" if interval is not None else ""
+
+
+def _aggregated_text(summary: dict[str, Any]) -> str:
+    """What the cross-env aggregates of a summary take (:func:`aggregated_envs`) and leave out, ending the line that
+    introduces them; for a summary written before they were recorded, its headline envs."""
+    headline = summary.get("headline_envs")
+    chosen = (
+        f"the headline envs only ({', '.join(headline)}; the others, marked † in the table, do not bind or cannot be "
+        "identified)"
+        if headline
+        else "the envs"
+    )
+    if "aggregated_envs" not in summary:
+        return f", {chosen}:" if headline else ":"
+    taken = ", ".join(_task_text(env, variant) for env, variant in summary["aggregated_envs"])
+    text = f", over {taken}: {chosen} where every row has normalised scores."
+    left_out = summary.get("aggregates_left_out") or []
+    if left_out:
+        reasons = "; ".join(f"{_task_text(entry['env'], entry['variant'])} ({entry['reason']})" for entry in left_out)
+        text += f" Left out of them: {reasons}."
+    return text
+
+
+def _task_text(env: str, variant: str) -> str:
+    """An env, with its variant when it is not the base one."""
+    return env if variant == "base" else f"{env} ({variant})"
 
 
 #: The per-seed keys of the driving outcome rates, in :data:`OUTCOME_KEYS` order
@@ -1387,12 +1467,12 @@ PROFILE_TAUS = np.linspace(-0.5, 1.5, 81)
 
 def normalised_scores_by_algo(summary: dict[str, Any]) -> dict[str, list[list[float]]]:
     """
-    Per algorithm, the finite per-seed normalised scores of each of its cells in the headline envs (one list per env
-    and variant).
+    Per algorithm, the finite per-seed normalised scores of each of its cells in the envs the aggregates take
+    (:func:`aggregated_envs`; in a summary written before it, the headline envs), one list per env and variant.
     """
     scores: dict[str, list[list[float]]] = {}
     for cell in summary["cells"]:
-        if not cell.get("headline", True):  # outside the headline envs
+        if not cell.get("aggregated", cell.get("headline", True)):  # outside the aggregates
             continue
         values = [s["normalised_score"] for s in cell["per_seed"] if math.isfinite(s.get("normalised_score", math.nan))]
         if values:
@@ -1412,9 +1492,9 @@ def performance_profile_figure(summary: dict[str, Any]) -> Any:
     ax = figure.subplots()
     for algo, tasks in scores.items():
         profile = performance_profile(tasks, PROFILE_TAUS)
-        lower, upper = performance_profile_ci(tasks, PROFILE_TAUS, reps=500)
         envs = f"{len(tasks)} env" + ("s" if len(tasks) != 1 else "")
         (line,) = ax.plot(PROFILE_TAUS, profile, label=f"{algo} ({envs}, {sum(map(len, tasks))} runs)")
+        lower, upper = performance_profile_ci(tasks, PROFILE_TAUS, reps=500)
         ax.fill_between(PROFILE_TAUS, lower, upper, color=line.get_color(), alpha=0.2)
     for tau, text in ((0.0, "PPO"), (1.0, "oracle")):
         ax.axvline(tau, color="gray", linewidth=0.8, linestyle="--")
