@@ -362,6 +362,27 @@ def test_aggregates_take_the_headline_envs_where_every_row_has_scores(tmp_path) 
     assert "Left out of them: GridWorldSquare-v0 (no finished run of mecl)." in table
 
 
+def test_aggregates_of_one_seed_per_env_have_no_interval(tmp_path) -> None:
+    text = SUITE.replace("envs: [GridWorldWall-v0]", "envs: [GridWorldWall-v0, GridWorldSquare-v0]")
+    text = text.replace("algos: [mecl, ppo, ppolag]", "algos: [bc2l, mecl, ppo, ppolag]").replace("[0, 1, 2]", "[0]")
+    suite = load_suite(write(tmp_path, text))
+    values = {("GridWorldWall-v0", "ppolag"): 10.0, ("GridWorldSquare-v0", "ppolag"): 10.0}
+    values.update({(env, "ppo"): 0.0 for env in ("GridWorldWall-v0", "GridWorldSquare-v0")})
+    values.update({("GridWorldWall-v0", "bc2l"): 2.0, ("GridWorldSquare-v0", "bc2l"): 4.0})
+    values.update({("GridWorldWall-v0", "mecl"): 6.0, ("GridWorldSquare-v0", "mecl"): 8.0})
+    summary = summarise_suite(suite, suite.runs(), _suite_results(suite, values))
+    bc2l = next(entry for entry in summary["normalised_aggregates"] if entry["algo"] == "bc2l")
+    # One run per env: a bootstrap over the seeds of each env draws the same runs every time, a zero-width "interval"
+    assert bc2l["n_runs"] == 2 and bc2l["normalised_score_mean"] == pytest.approx(0.3)
+    assert all(bc2l[key] is None for key in bc2l if key.endswith("_ci95"))
+    assert summary["improvements"][0]["probability"] == 0.0 and summary["improvements"][0]["ci95"] is None
+    table = markdown_table(summary)
+    assert "| bc2l | 2 | 2 | 0.30 | 0.30 | 0.70 |" in table and "| bc2l | mecl | 2 | 0.00 |" in table
+    assert "no interval: one run per env" in table
+    (ax,) = performance_profile_figure(summary).axes
+    assert not ax.collections  # no band either
+
+
 def test_a_report_without_aggregates_yet_says_why(tmp_path) -> None:
     suite = load_suite(write(tmp_path, SUITE))
     values = {("GridWorldWall-v0", "ppo"): 0.0, ("GridWorldWall-v0", "mecl"): 5.0}  # the oracle has not finished

@@ -752,18 +752,24 @@ def normalised_aggregates(
         if not groups:
             continue
         flat = np.concatenate(groups)
+        # With one run per env every resample is the runs themselves: no interval
+        spread_out = any(len(values) > 1 for values in groups)
         aggregates.append(
             {
                 "algo": algo,
                 "n_cells": len(groups),
                 "n_runs": int(flat.size),
                 "normalised_score_iqm": iqm(flat),
-                "normalised_score_iqm_ci95": list(stratified_bootstrap_ci(groups)),
+                "normalised_score_iqm_ci95": list(stratified_bootstrap_ci(groups)) if spread_out else None,
                 # rliable's mean: of the per-env means (the flat mean when every env has as many seeds)
                 "normalised_score_mean": float(np.mean([np.mean(values) for values in groups])),
-                "normalised_score_mean_ci95": list(stratified_bootstrap_ci(groups, statistic=np.mean)),
+                "normalised_score_mean_ci95": (
+                    list(stratified_bootstrap_ci(groups, statistic=np.mean)) if spread_out else None
+                ),
                 "optimality_gap": optimality_gap(flat),
-                "optimality_gap_ci95": list(stratified_bootstrap_ci(groups, statistic=optimality_gap)),
+                "optimality_gap_ci95": (
+                    list(stratified_bootstrap_ci(groups, statistic=optimality_gap)) if spread_out else None
+                ),
             }
         )
     methods = [algo for algo in algos if algo not in (PPO_ROW, ORACLE_ROW) and by_algo[algo]]
@@ -776,13 +782,14 @@ def normalised_aggregates(
             if not shared:
                 continue
             xs, ys = [by_algo[x][task] for task in shared], [by_algo[y][task] for task in shared]
+            spread_out = any(len(values) > 1 for values in (*xs, *ys))
             improvements.append(
                 {
                     "x": x,
                     "y": y,
                     "n_cells": len(shared),
                     "probability": probability_of_improvement(xs, ys),
-                    "ci95": list(probability_of_improvement_ci(xs, ys)),
+                    "ci95": list(probability_of_improvement_ci(xs, ys)) if spread_out else None,
                 }
             )
     return aggregates, improvements
@@ -1109,6 +1116,8 @@ def aggregate_lines(summary: dict[str, Any]) -> list[str]:
                 f"| {entry['x']} | {entry['y']} | {entry['n_cells']} | {entry['probability']:.2f}"
                 f"{_interval_text(entry.get('ci95'))} |"
             )
+    if any(entry.get("normalised_score_iqm_ci95") is None for entry in aggregates):
+        lines += ["", "A value without [95% CI]: no interval: one run per env (the bootstrap would draw the same runs)."]
     return lines
 
 
@@ -1483,7 +1492,8 @@ def normalised_scores_by_algo(summary: dict[str, Any]) -> dict[str, list[list[fl
 def performance_profile_figure(summary: dict[str, Any]) -> Any:
     """
     rliable's performance profile of the normalised scores: per algorithm, the share of runs scoring above each
-    threshold (each env weighing the same), with its stratified-bootstrap 95% band; ``None`` without normalised scores.
+    threshold (each env weighing the same), with its stratified-bootstrap 95% band where some env has several runs;
+    ``None`` without normalised scores.
     """
     scores = normalised_scores_by_algo(summary)
     if not scores:
@@ -1494,8 +1504,9 @@ def performance_profile_figure(summary: dict[str, Any]) -> Any:
         profile = performance_profile(tasks, PROFILE_TAUS)
         envs = f"{len(tasks)} env" + ("s" if len(tasks) != 1 else "")
         (line,) = ax.plot(PROFILE_TAUS, profile, label=f"{algo} ({envs}, {sum(map(len, tasks))} runs)")
-        lower, upper = performance_profile_ci(tasks, PROFILE_TAUS, reps=500)
-        ax.fill_between(PROFILE_TAUS, lower, upper, color=line.get_color(), alpha=0.2)
+        if any(len(values) > 1 for values in tasks):  # with one run per env, no band: every resample is the runs
+            lower, upper = performance_profile_ci(tasks, PROFILE_TAUS, reps=500)
+            ax.fill_between(PROFILE_TAUS, lower, upper, color=line.get_color(), alpha=0.2)
     for tau, text in ((0.0, "PPO"), (1.0, "oracle")):
         ax.axvline(tau, color="gray", linewidth=0.8, linestyle="--")
         ax.text(tau, 1.02, text, ha="center", fontsize=8, color="gray")
