@@ -388,3 +388,21 @@ def test_a_report_without_aggregates_yet_says_why(tmp_path) -> None:
     values = {("GridWorldWall-v0", "ppo"): 0.0, ("GridWorldWall-v0", "mecl"): 5.0}  # the oracle has not finished
     table = markdown_table(summarise_suite(suite, suite.runs(), _suite_results(suite, values)))
     assert "No cross-env aggregates yet: GridWorldWall-v0 (no finished run of ppolag)." in table
+
+
+def test_a_report_refuses_runs_of_another_recipe_version_than_its_suites(tmp_path) -> None:
+    suite = load_suite(write(tmp_path, SUITE + "recipe_version: 2026-11-a\n"))
+    values = {"ppo": (10.0, 1.0), "ppolag": (20.0, 0.0), "mecl": (15.0, 0.0)}
+    results = [(run, _result(run.algo, run.seed, *values[run.algo])) for run in suite.runs()]
+    # Every oracle run recorded the same version, another than the suite's: its cell is one recipe, not the suite's
+    metrics = {result.run: {"recipe_version": "2026-11-a" if run.algo != "ppolag" else "2026-10"} for run, result in results}
+    with pytest.raises(
+        ValueError, match=r"ppolag runs on GridWorldWall-v0 \(base; seeds 0, 1, 2\) used recipe version 2026-10, not 2026-11-a"
+    ):
+        summarise_suite(suite, suite.runs(), results, metrics)
+    metrics = {result.run: {"recipe_version": "2026-11-a"} for run, result in results if run.algo != "mecl"}
+    with pytest.raises(ValueError, match=r"mecl runs on .* used recipe version none recorded, not 2026-11-a"):
+        summarise_suite(suite, suite.runs(), results, metrics)
+    # A suite without a version takes what its runs recorded, one version a cell
+    plain = load_suite(write(tmp_path, SUITE))
+    assert summarise_suite(plain, plain.runs(), results, metrics)["cells"]

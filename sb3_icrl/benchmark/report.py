@@ -432,12 +432,14 @@ def recorded_recipe_version(folder: str | os.PathLike) -> str | None:
     return str(version) if version is not None else None
 
 
-def check_recipe_versions(cell: dict[str, Any]) -> None:
+def check_recipe_versions(cell: dict[str, Any], expected: str | None = None) -> None:
     """
     Refuse a cell whose runs recorded different recipe versions (a run that recorded none counts as its own version):
-    its statistics would mix two recipes.
+    its statistics would mix two recipes; and, for a suite that names its version, a cell whose runs recorded another
+    one (or none): the suite reports its own recipes only.
 
     :param cell: A cell of :func:`summarise_suite`
+    :param expected: The suite's ``recipe_version`` (``None``: the suite names none)
     """
     versions = {seed.get("recipe_version") for seed in cell["per_seed"]}
     if len(versions) > 1:
@@ -445,6 +447,14 @@ def check_recipe_versions(cell: dict[str, Any]) -> None:
         raise ValueError(
             f"The {cell['algo']} runs on {cell['env']} ({cell['variant']}) used different recipe versions ({shown}): a "
             "cell reports one recipe. Run the others again with the suite's version, or report them apart (--only)."
+        )
+    (version,) = versions
+    if expected is not None and version != expected:
+        seeds = ", ".join(str(seed["seed"]) for seed in cell["per_seed"])
+        raise ValueError(
+            f"The {cell['algo']} runs on {cell['env']} ({cell['variant']}; seeds {seeds}) used recipe version "
+            f"{version or 'none recorded'}, not {expected}, the suite's: it reports its own recipes only. Train them "
+            "again with `sb3-icrl benchmark run`, or leave them out (--only)."
         )
 
 
@@ -905,7 +915,7 @@ def summarise_suite(
                     "core_hours": _core_hours([wall_time[r.run] for r in mine]),
                 }
             )
-            check_recipe_versions(cells[-1])
+            check_recipe_versions(cells[-1], suite.recipe_version)
             cells[-1]["recipe_version"] = cells[-1]["per_seed"][0].get("recipe_version")
             # Higher feasible reward and no higher violation rate than each published number of the same method
             cells[-1]["beats"] = {source: beats(cells[-1], pair) for source, pair in published_pairs(cells[-1]).items()}
