@@ -1,5 +1,6 @@
 """A suite's ``transfer`` key: the engine runs the transfer tests of every ICRL run once it has finished training."""
 
+import json
 import os
 import textwrap
 
@@ -7,7 +8,10 @@ import pytest
 
 from sb3_icrl.benchmark import load_suite
 from sb3_icrl.benchmark.cli import main as benchmark_main
-from sb3_icrl.benchmark.suite import SuiteError, TransferSpec
+from sb3_icrl.benchmark.report import constraint_metrics
+from sb3_icrl.benchmark.suite import SuiteError, TransferSpec, run_complete
+from sb3_icrl.run_evaluation import RunResult
+from sb3_icrl.run_folder import FINISHED_FILE
 
 SUITE = """\
 description: transfer
@@ -88,3 +92,28 @@ def test_the_engine_runs_the_missing_transfers_of_finished_runs(tmp_path, capsys
     with open(run.log_file(root)) as file:
         commands = [line for line in file if line.startswith("=== ")]
     assert len(commands) == 3 and "sb3_icrl.metrics.transfer" in commands[2] and os.path.isfile(result)
+
+
+def test_a_transfer_result_older_than_the_runs_final_model_does_not_count(tmp_path):
+    suite = load_suite(write(tmp_path, SUITE + "transfer: {tasks: [same], n_timesteps: 256}\n"))
+    icrl, _ = suite.runs()
+    folder = icrl.run_folder(tmp_path)
+    os.makedirs(folder)
+    result = os.path.join(folder, "transfer_same.json")
+    with open(result, "w") as file:
+        json.dump({"violation_rate": 0.25, "feasible_reward_ratio": 0.5}, file)
+    with open(os.path.join(folder, FINISHED_FILE), "w") as file:
+        json.dump({"num_timesteps": 512}, file)
+    os.utime(result, (1_000_000, 1_000_000))  # written before the run was trained again (finished.json deleted)
+    files = [file for file, _ in icrl.transfer_jobs(tmp_path)]
+    assert not run_complete(folder, files)
+    lines: list[str] = []
+    entry = RunResult(os.path.relpath(folder, tmp_path), "bc2l", icrl.env_id, 0, 512, 1.0, 0.0, 1.0, 1.0, 2)
+    metrics = constraint_metrics([(icrl, entry)], str(tmp_path), log=lines.append)[entry.run]
+    assert "transfer_same_violation_rate" not in metrics
+    assert any("transfer_same.json predates its final model" in line for line in lines)
+    os.utime(result)  # a transfer of the final model
+    assert run_complete(folder, files)
+    assert (
+        constraint_metrics([(icrl, entry)], str(tmp_path), log=lines.append)[entry.run]["transfer_same_violation_rate"] == 0.25
+    )

@@ -31,7 +31,7 @@ import gymnasium as gym
 import numpy as np
 import yaml
 
-from sb3_icrl.benchmark.suite import RunSpec, Suite
+from sb3_icrl.benchmark.suite import RunSpec, Suite, result_current
 from sb3_icrl.common.evaluation import CONSTRAINT_VIOLATION_PREFIX, OUTCOME_KEYS, OUTCOME_RATE_KEYS
 from sb3_icrl.common.statistics import (
     MIN_PAIRS_FOR_WILCOXON,
@@ -51,7 +51,7 @@ from sb3_icrl.data import load_demonstrations
 from sb3_icrl.envs import heldout_env_kwargs
 from sb3_icrl.envs.constraint_spec import get_constraint_spec
 from sb3_icrl.metrics.identification import headline, identification_file, identify_run, methods_figure
-from sb3_icrl.metrics.transfer import read_transfers
+from sb3_icrl.metrics.transfer import read_transfers, transfer_file
 from sb3_icrl.plots.figures import load_runs, new_figure, save_figure, training_curves_figure
 from sb3_icrl.registry import ICRL_ALGOS, env_name
 from sb3_icrl.run_evaluation import (
@@ -272,6 +272,12 @@ def constraint_metrics(
             except Exception as error:  # a run that cannot be scored leaves its columns empty, not the report unwritten
                 log(f"no identification scores for {run.name}: {type(error).__name__}: {error}")
         for task, transfer in (read_transfers(folder) if model == "final" else {}).items():
+            if not result_current(folder, transfer_file(task)):
+                log(
+                    f"{run.name}: its {transfer_file(task)} predates its final model (trained again since): left out; "
+                    "`benchmark run` runs the transfer again"
+                )
+                continue
             entry[f"transfer_{task}_violation_rate"] = float(transfer["violation_rate"])
             entry[f"transfer_{task}_feasible_ratio"] = float(transfer["feasible_reward_ratio"])
     return metrics

@@ -21,7 +21,7 @@ from typing import Any
 
 import yaml
 
-from sb3_icrl.benchmark.suite import RunSpec, run_complete
+from sb3_icrl.benchmark.suite import RunSpec, result_current, run_complete
 from sb3_icrl.common.versions import versions
 from sb3_icrl.run_folder import FINISHED_FILE, is_finished
 
@@ -129,7 +129,7 @@ def execute_run(
         os.makedirs(os.path.dirname(log_file), exist_ok=True)
         start = time.time()
         commands = [] if is_finished(run_folder) else [train_command(argv)]
-        missing = [targv for file, targv in transfers if not os.path.isfile(os.path.join(run_folder, file))]
+        missing = [targv for file, targv in transfers if not result_current(run_folder, file)]
         commands += [transfer_command(targv) for targv in missing]
         for command in commands:
             # Unbuffered: nothing is left to flush at close, where a full disk would fail again without the file's name

@@ -44,7 +44,7 @@ from sb3_icrl.registry import (
     resolve_env_id,
 )
 from sb3_icrl.run_env import create_env
-from sb3_icrl.run_folder import is_finished
+from sb3_icrl.run_folder import FINISHED_FILE, is_finished
 
 #: Where the shipped suites live
 SUITES_DIR = pathlib.Path(__file__).resolve().parent / "suites"
@@ -122,9 +122,24 @@ def run_complete(run_folder: str, result_files: Sequence[str]) -> bool:
     """
     :param run_folder: A run folder
     :param result_files: Files its transfer tests write in it
-    :return: Whether the run has finished training and has each of those results
+    :return: Whether the run has finished training and has each of those results, of its final model
+        (:func:`result_current`)
     """
-    return is_finished(run_folder) and all(os.path.isfile(os.path.join(run_folder, file)) for file in result_files)
+    return is_finished(run_folder) and all(result_current(run_folder, file) for file in result_files)
+
+
+def result_current(run_folder: str | os.PathLike, result_file: str) -> bool:
+    """
+    :param run_folder: A run folder
+    :param result_file: A file a transfer test writes in it
+    :return: Whether the file is there and no older than the run's ``finished.json``: one written before is of an
+        earlier final model (the run was trained again since, its ``finished.json`` deleted), and does not count
+    """
+    path = os.path.join(run_folder, result_file)
+    finished = os.path.join(run_folder, FINISHED_FILE)
+    if not os.path.isfile(path):
+        return False
+    return not os.path.isfile(finished) or os.path.getmtime(path) >= os.path.getmtime(finished)
 
 
 @dataclass(frozen=True)
