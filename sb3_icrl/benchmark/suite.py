@@ -44,7 +44,7 @@ from sb3_icrl.registry import (
     resolve_env_id,
 )
 from sb3_icrl.run_env import create_env
-from sb3_icrl.run_folder import FINISHED_FILE, is_finished
+from sb3_icrl.run_folder import FINISHED_FILE, LAST_TRAINING_EPISODES, is_finished
 
 #: Where the shipped suites live
 SUITES_DIR = pathlib.Path(__file__).resolve().parent / "suites"
@@ -83,9 +83,22 @@ SUITE_KEYS = {
     "transfer": "transfer tests the engine runs after each ICRL run (sb3-icrl transfer, learners seeded with the run's "
     f"seed): {{tasks: [reward], n_timesteps: 200000, envs: [...]}}; tasks among {', '.join(TRANSFER_TASKS)}, n_timesteps "
     "optional (default: ppolag.yml's), envs optional (default: every env of the suite)",
+    "beats": "the judgement 'beats the paper', written before any run: {against: vicrl, envs: [...], columns: [heldout, "
+    "last_training]}; each ICRL cell on those envs is judged against the `paper` row of method `against` (a higher mean "
+    "feasible reward, a mean violation rate no higher) under every column named",
+    "aim": "the aim written before any run: {min_oracle_fraction_iqm: 0.75, max_violation_rate_iqm: 0.05}; over the envs "
+    "of the cross-env aggregates, the best ICRL method's IQM of each run's feasible reward over its env's oracle (ppolag) "
+    "mean, and its violation-rate IQM (needs ppo and ppolag among the algos)",
 }
 #: The settings of a suite's ``success`` rule
 SUCCESS_KEYS = ("max_violation_rate", "min_normalised_score")
+#: The evaluation columns a ``beats`` judgement can take, with what each is
+BEATS_COLUMNS = {
+    "heldout": "held-out episodes of the final model",
+    "last_training": f"the last {LAST_TRAINING_EPISODES} training episodes",
+}
+#: The settings of a suite's ``aim``
+AIM_KEYS = ("min_oracle_fraction_iqm", "max_violation_rate_iqm")
 #: What a variant may change, with the train.py flag it becomes
 VARIANT_KEYS = {
     "transition_noise": "--transition-noise",
@@ -155,6 +168,21 @@ class TransferSpec:
     tasks: tuple[str, ...]
     n_timesteps: int | None = None
     envs: tuple[str, ...] | None = None
+
+
+@dataclass(frozen=True)
+class BeatsRule:
+    """
+    A suite's judgement "beats the paper", written before its runs (the suite key ``beats``).
+
+    :param against: The method whose row of the suite's ``paper`` numbers each ICRL cell is judged against
+    :param envs: Env names judged, each with a ``paper`` number of ``against``
+    :param columns: The evaluation columns (:data:`BEATS_COLUMNS`) under each of which a cell must beat it
+    """
+
+    against: str
+    envs: tuple[str, ...]
+    columns: tuple[str, ...]
 
 
 @dataclass(frozen=True)
@@ -293,6 +321,10 @@ class Suite:
     headline_envs: tuple[str, ...] | None = None
     #: How the held-out evaluation is counted, one of :data:`EVAL_BUDGETS`
     eval_budget: str = "episodes"
+    #: The judgement "beats the paper", ``None`` when the suite writes none
+    beats: BeatsRule | None = None
+    #: The aim's thresholds (:data:`AIM_KEYS`), ``None`` when the suite states none
+    aim: dict[str, float] | None = None
 
     def runs(self) -> list[RunSpec]:
         """Every run, env by env, then variant, algorithm and seed."""
@@ -789,6 +821,62 @@ class _SuiteReader:
     def paper(self) -> dict[str, dict[str, tuple[float, float]]]:
         return self.numbers(self.content.get("paper"), ("paper",), "paper")
 
+    def beats(self, envs: list[str], algos: list[str], paper: dict[str, dict[str, tuple[float, float]]]) -> BeatsRule | None:
+        raw = self.content.get("beats")
+        if raw is None:
+            return None
+        example = "{against: vicrl, envs: [BlockedHalfCheetah-v0], columns: [heldout, last_training]}"
+        if not isinstance(raw, dict) or set(raw) != {"against", "envs", "columns"}:
+            raise self.error(("beats",), f"`beats` maps `against`, `envs` and `columns`, e.g. {example}.")
+        if not set(algos) & set(ICRL_ALGOS):
+            raise self.error(("beats",), "`beats` judges the ICRL cells, and the suite has no ICRL algorithm.")
+        against = raw["against"]
+        rows = sorted({algo for entries in paper.values() for algo in entries})
+        if not isinstance(against, str) or against not in rows:
+            offered = ", ".join(rows) if rows else "none: the suite has no `paper` numbers"
+            raise self.error(
+                ("beats", "against"),
+                f"`beats.against` names a method row of the suite's `paper` numbers ({offered}), got {against!r}.",
+            )
+        judged = self.env_subset(raw["envs"], envs, ("beats", "envs"))
+        if len(set(judged)) != len(judged):
+            raise self.error(("beats", "envs"), f"`beats.envs` names an env twice: {raw['envs']!r}.")
+        for index, env in enumerate(judged):
+            if against not in paper.get(env, {}):
+                raise self.error(("beats", "envs", index), f"the suite's `paper` numbers have no {against} row on {env}.")
+        columns = raw["columns"]
+        if not isinstance(columns, list) or not columns or not all(column in BEATS_COLUMNS for column in columns):
+            allowed = "; ".join(f"{name} ({meaning})" for name, meaning in BEATS_COLUMNS.items())
+            raise self.error(("beats", "columns"), f"`beats.columns` is a non-empty list among {allowed}, got {columns!r}.")
+        if len(set(columns)) != len(columns):
+            raise self.error(("beats", "columns"), f"`beats.columns` names a column twice: {columns!r}.")
+        return BeatsRule(against, judged, tuple(columns))
+
+    def aim(self, algos: list[str]) -> dict[str, float] | None:
+        raw = self.content.get("aim")
+        if raw is None:
+            return None
+        example = "{min_oracle_fraction_iqm: 0.75, max_violation_rate_iqm: 0.05}"
+        if not isinstance(raw, dict) or set(raw) != set(AIM_KEYS):
+            raise self.error(("aim",), f"`aim` maps {' and '.join(AIM_KEYS)} to numbers, e.g. {example}.")
+        aim = {}
+        for key in AIM_KEYS:
+            value = raw[key]
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise self.error(("aim", key), f"`aim.{key}` is a number, got {value!r}.")
+            if key == "max_violation_rate_iqm" and not 0 <= value <= 1:
+                raise self.error(("aim", key), f"`aim.{key}` is a rate within [0, 1], got {value!r}.")
+            aim[key] = float(value)
+        if not set(algos) & set(ICRL_ALGOS):
+            raise self.error(("aim",), "`aim` is judged on the best ICRL method, and the suite has no ICRL algorithm.")
+        if not set(REFERENCE_ALGOS) <= set(algos):
+            raise self.error(
+                ("aim",),
+                f"`aim` is judged over the envs of the cross-env aggregates, which need the reference rows "
+                f"{' and '.join(REFERENCE_ALGOS)} among the algos: add them, or leave `aim` out.",
+            )
+        return aim
+
     def others(self) -> dict[str, dict[str, dict[str, tuple[float, float]]]]:
         raw = self.content.get("others")
         if raw is None:
@@ -953,6 +1041,8 @@ def load_suite(name_or_path: str | os.PathLike, dry_build: bool = True) -> Suite
         others=reader.others(),
         transfer=reader.transfer(envs, algos),
         headline_envs=reader.headline_envs(envs),
+        beats=reader.beats(envs, algos, reader.paper()),  # read again: checked in the file's order, paper first
+        aim=reader.aim(algos),
     )
     if dry_build:  # last: each cheaper check has passed
         reader.check_envs(envs, variants)
