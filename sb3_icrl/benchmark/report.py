@@ -31,7 +31,7 @@ import gymnasium as gym
 import numpy as np
 import yaml
 
-from sb3_icrl.benchmark.suite import RunSpec, Suite, result_current
+from sb3_icrl.benchmark.suite import BEATS_COLUMNS, RunSpec, Suite, result_current
 from sb3_icrl.common.evaluation import CONSTRAINT_VIOLATION_PREFIX, OUTCOME_KEYS, OUTCOME_RATE_KEYS
 from sb3_icrl.common.statistics import (
     MIN_PAIRS_FOR_WILCOXON,
@@ -952,6 +952,12 @@ def summarise_suite(
             )
     finished = {run for run, _ in results}
     missing = [run.name for run in runs if run not in finished]
+    # The suite's own judgements, only where it writes them: other suites' summaries stay as they were
+    judgements: dict[str, Any] = {}
+    if suite.beats is not None:
+        judgements["beats_judgement"] = beats_judgement(cells, suite)
+    if suite.aim is not None:
+        judgements["aim"] = aim_outcome(cells, aggregated, left_out, suite)
     return {
         "suite": suite.name,
         "model": model,
@@ -972,7 +978,308 @@ def summarise_suite(
         "others_sources": list(suite.others),
         "core_hours": _core_hours(list(wall_time.values())),
         "core_hours_runs": sum(value is not None for value in wall_time.values()),
+        **judgements,
     }
+
+
+def column_pair(cell: dict[str, Any], column: str) -> tuple[float, float] | None:
+    """
+    A cell's mean ``(feasible reward, violation rate)`` under an evaluation column of :data:`BEATS_COLUMNS`.
+
+    :param cell: A cell of :func:`summarise_suite`
+    :param column: ``heldout`` (the held-out episodes of the final models) or ``last_training`` (the last training
+        episodes, the paper's protocol)
+    :return: The pair; ``None`` when it is missing: for ``last_training``, unless every seed has it (a mean over some
+        seeds would judge the cell on fewer runs than its held-out column)
+    """
+    values: list[list[Any]]
+    if column == "heldout":
+        values = [[cell.get("feasible_reward_mean")], [cell.get("violation_rate_mean")]]
+    else:
+        values = [[seed.get(key) for seed in cell["per_seed"]] for key in LAST_TRAINING_COLUMNS]
+    if not values[0] or any(value is None or not math.isfinite(value) for column in values for value in column):
+        return None
+    return float(np.mean(values[0])), float(np.mean(values[1]))
+
+
+def _all_of(verdicts: Sequence[bool | None]) -> bool | None:
+    """``False`` where some verdict is, else ``None`` where some is missing, else ``True``."""
+    if any(verdict is False for verdict in verdicts):
+        return False
+    return None if any(verdict is None for verdict in verdicts) else True
+
+
+def beats_judgement(cells: list[dict[str, Any]], suite: Suite) -> dict[str, Any]:
+    """
+    The suite's judgement "beats the paper" (its key ``beats``): each ICRL method's cell on each judged env and variant
+    against the paper's row of the method ``against``, under each column named (:func:`column_pair`, :func:`beats`),
+    ``None`` where the column's value is missing; a cell beats the row where it does under every column. Each judged
+    cell gets ``beats_judgement`` (``{column: verdict, "beats": verdict}``), in place.
+
+    :param cells: The cells of :func:`summarise_suite`
+    :param suite: The suite (its ``beats`` rule, ``paper`` numbers, variants and algorithms)
+    :return: ``against``, ``columns``, ``paper`` (env -> the row's pair), ``tasks`` (``[env, variant]``), per ICRL method
+        (``methods``) its verdicts per task and the tasks it beats the row on (``beaten``), does not (``not_beaten``) and
+        that are not decided yet (``undecided``); ``best``, the methods that beat it on the most tasks; ``outcome``:
+        ``True`` where some method beats it on every task, ``False`` where every method fails on one, else ``None``
+    """
+    rule = suite.beats
+    assert rule is not None
+    rows = {(cell["env"], cell["variant"], cell["algo"]): cell for cell in cells}
+    tasks = [(env, variant) for env in rule.envs for variant in suite.variants]
+    methods = []
+    for algo in (algo for algo in suite.algos if algo in ICRL_ALGOS):
+        entries = []
+        for env, variant in tasks:
+            pair = suite.paper[env][rule.against]
+            cell = rows.get((env, variant, algo))
+            verdicts: dict[str, bool | None] = {
+                column: None if cell is None else beats_pair(column_pair(cell, column), pair) for column in rule.columns
+            }
+            verdicts["beats"] = _all_of(list(verdicts.values()))
+            if cell is not None:
+                cell["beats_judgement"] = dict(verdicts)
+            entries.append({"env": env, "variant": variant, **verdicts})
+        methods.append(
+            {
+                "algo": algo,
+                "tasks": entries,
+                **{
+                    name: [[entry["env"], entry["variant"]] for entry in entries if entry["beats"] is verdict]
+                    for name, verdict in (("beaten", True), ("not_beaten", False), ("undecided", None))
+                },
+            }
+        )
+    most = max(len(method["beaten"]) for method in methods)
+    everywhere = [method["algo"] for method in methods if len(method["beaten"]) == len(tasks)]
+    return {
+        "against": rule.against,
+        "columns": list(rule.columns),
+        "paper": {env: list(suite.paper[env][rule.against]) for env in rule.envs},
+        "tasks": [list(task) for task in tasks],
+        "methods": methods,
+        "best": [method["algo"] for method in methods if len(method["beaten"]) == most],
+        "outcome": True if everywhere else False if all(method["not_beaten"] for method in methods) else None,
+    }
+
+
+def beats_pair(ours: tuple[float, float] | None, pair: Sequence[float]) -> bool | None:
+    """:func:`beats` of a ``(feasible reward, violation rate)`` of ours, ``None`` when ours is missing."""
+    if ours is None:
+        return None
+    return beats({"feasible_reward_mean": ours[0], "violation_rate_mean": ours[1]}, pair)
+
+
+#: Short names of the evaluation columns in the tables
+COLUMN_LABELS = {"heldout": "held-out", "last_training": "last training"}
+
+
+def _verdict_text(verdict: bool | None) -> str:
+    return "-" if verdict is None else "yes" if verdict else "no"
+
+
+def beats_judgement_text(judgement: dict[str, Any]) -> str:
+    """
+    The judgement "beats the paper" in one plain sentence: the rule, each method's count and the outcome.
+
+    :param judgement: A summary's ``beats_judgement`` (:func:`beats_judgement`)
+    """
+    n_tasks = len(judgement["tasks"])
+    columns = " and ".join(COLUMN_LABELS[column] for column in judgement["columns"])
+    envs = ", ".join(_task_text(env, variant) for env, variant in judgement["tasks"])
+    parts = []
+    for method in judgement["methods"]:
+        named = ", ".join(_task_text(env, variant) for env, variant in method["beaten"])
+        undecided = len(method["undecided"])
+        notes = [named] * bool(named) + [f"{undecided} not decided yet"] * bool(undecided)
+        parts.append(
+            f"{method['algo'].upper()} on {len(method['beaten'])} of {n_tasks}" + (f" ({'; '.join(notes)})" if notes else "")
+        )
+    best = " and ".join(algo.upper() for algo in judgement["best"])
+    most = max(len(method["beaten"]) for method in judgement["methods"])
+    leader = f"; the most, {most} of {n_tasks}: {best}" if most else ""
+    if judgement["outcome"]:
+        outcome = f"{best} on every judged env"
+    elif judgement["outcome"] is False:
+        outcome = f"no method on every judged env{leader}"
+    else:
+        outcome = f"not decided yet, values missing{leader} so far"
+    return (
+        f"beats the paper's {judgement['against'].upper()} row (a higher mean feasible reward and a mean violation rate no "
+        f"higher, under the {columns} columns alike; the suite's `beats`) on {envs}: "
+        + "; ".join(parts)
+        + f". Outcome: {outcome}."
+    )
+
+
+def beats_judgement_lines(summary: dict[str, Any]) -> list[str]:
+    """The judgement "beats the paper" as a Markdown table and its outcome, after a blank line; none without it."""
+    judgement = summary.get("beats_judgement")
+    if not judgement:
+        return []
+    columns = judgement["columns"]
+    headings = [f"{_task_text(env, variant)} ({_published(judgement['paper'][env])})" for env, variant in judgement["tasks"]]
+    lines = [
+        "",
+        f"Beats the paper, each entry {' / '.join(COLUMN_LABELS[column] for column in columns)} ("
+        + "; ".join(f"{COLUMN_LABELS[column]}: {BEATS_COLUMNS[column]}" for column in columns)
+        + '; "-": no value yet, a run not finished or a seed without its training episodes):',
+        "",
+        "| algo | " + " | ".join(headings) + " | envs beaten |",
+        "|---" * (len(headings) + 2) + "|",
+    ]
+    for method in judgement["methods"]:
+        entries = [" / ".join(_verdict_text(entry[column]) for column in columns) for entry in method["tasks"]]
+        lines.append(
+            f"| {method['algo']} | " + " | ".join(entries) + f" | {len(method['beaten'])} of {len(judgement['tasks'])} |"
+        )
+    text = beats_judgement_text(judgement)
+    return [*lines, "", text[0].upper() + text[1:]]
+
+
+def aim_outcome(
+    cells: list[dict[str, Any]], aggregated: list[tuple[str, str]], left_out: list[dict[str, str]], suite: Suite
+) -> dict[str, Any]:
+    """
+    The suite's aim (its key ``aim``): per algorithm, over the envs and variants of the cross-env aggregates
+    (:func:`aggregated_envs`), each run's feasible reward over its env's oracle mean (the ``ppolag`` row's mean
+    feasible reward there), with its IQM and mean and their stratified bootstrap 95% CIs, beside the violation rate's
+    IQM and CI over the same runs (no interval with one run per env, as :func:`normalised_aggregates`); then the best
+    ICRL method, the one with the highest IQM of that fraction (the first in the suite's order on a tie), and whether it
+    meets the aim. An env whose oracle mean is not positive is left out (a fraction of it says nothing), and said so.
+
+    :param cells: The cells, after :func:`add_reference_scores`
+    :param aggregated: The envs and variants of the cross-env aggregates
+    :param left_out: The headline ones they leave out, with the reason
+    :param suite: The suite (its ``aim`` and algorithms)
+    :return: The thresholds, ``envs`` (``[env, variant]`` taken), ``left_out`` (headline ones not taken, with the
+        reason), ``oracle_feasible_reward`` (per env taken), ``aggregates`` per algorithm, ``best`` and ``met``
+        (``None`` without any env taken)
+    """
+    aim = suite.aim
+    assert aim is not None
+    rows = {(cell["env"], cell["variant"], cell["algo"]): cell for cell in cells}
+    taken, skipped = [], list(left_out)
+    for env, variant in aggregated:
+        oracle = rows[(env, variant, ORACLE_ROW)]["feasible_reward_mean"]
+        if math.isfinite(oracle) and oracle > 0:
+            taken.append((env, variant))
+        else:
+            reason = f"the oracle's mean feasible reward, {format_reward(oracle)}, is not positive"
+            skipped.append({"env": env, "variant": variant, "reason": reason})
+    aggregates: list[dict[str, Any]] = []
+    for algo in suite.algos:
+        fractions, violations = [], []
+        for env, variant in taken:
+            cell = rows.get((env, variant, algo))
+            if cell is None:
+                continue
+            oracle = rows[(env, variant, ORACLE_ROW)]["feasible_reward_mean"]
+            fractions.append([s["feasible_reward"] / oracle for s in cell["per_seed"] if math.isfinite(s["feasible_reward"])])
+            violations.append([s["violation_rate"] for s in cell["per_seed"] if math.isfinite(s["violation_rate"])])
+        groups = [values for values in fractions if values]
+        if not groups:
+            continue
+        # With one run per env every resample is the runs themselves: no interval
+        spread_out = any(len(values) > 1 for values in (*groups, *violations))
+        aggregates.append(
+            {
+                "algo": algo,
+                "n_cells": len(groups),
+                "n_runs": sum(map(len, groups)),
+                "oracle_fraction_iqm": iqm(np.concatenate(groups)),
+                "oracle_fraction_iqm_ci95": list(stratified_bootstrap_ci(groups)) if spread_out else None,
+                # rliable's mean, as the normalised aggregates': of the per-env means
+                "oracle_fraction_mean": float(np.mean([np.mean(values) for values in groups])),
+                "oracle_fraction_mean_ci95": list(stratified_bootstrap_ci(groups, statistic=np.mean)) if spread_out else None,
+                "violation_rate_iqm": iqm(np.concatenate(violations)),
+                "violation_rate_iqm_ci95": list(stratified_bootstrap_ci(violations)) if spread_out else None,
+            }
+        )
+    methods = [entry for entry in aggregates if entry["algo"] in ICRL_ALGOS]
+    best = max(methods, key=lambda entry: entry["oracle_fraction_iqm"]) if methods else None  # max keeps the first
+    return {
+        **aim,
+        "envs": [list(task) for task in taken],
+        "left_out": skipped,
+        "oracle_feasible_reward": [
+            [env, variant, rows[(env, variant, ORACLE_ROW)]["feasible_reward_mean"]] for env, variant in taken
+        ],
+        "aggregates": aggregates,
+        "best": best["algo"] if best else None,
+        "met": (
+            bool(
+                best["oracle_fraction_iqm"] >= aim["min_oracle_fraction_iqm"] - 1e-9
+                and best["violation_rate_iqm"] <= aim["max_violation_rate_iqm"] + 1e-9
+            )
+            if best
+            else None
+        ),
+    }
+
+
+def _percent_interval_text(interval: Sequence[float] | None) -> str:
+    """`` [low%, high%]`` of a rate's interval, nothing for one that has none."""
+    return f" [{100 * interval[0]:.0f}%, {100 * interval[1]:.0f}%]" if interval is not None else ""
+
+
+def aim_text(aim: dict[str, Any]) -> str:
+    """
+    The aim and its outcome in one plain sentence.
+
+    :param aim: A summary's ``aim`` (:func:`aim_outcome`)
+    """
+    rule = (
+        f"the suite's aim: the best ICRL method's feasible reward as a fraction of the oracle's (each "
+        f"run's over the ppolag row's mean on its env), IQM >= {aim['min_oracle_fraction_iqm']:g}, with a violation-rate "
+        f"IQM <= {100 * aim['max_violation_rate_iqm']:g}%"
+    )
+    left_out = "; ".join(f"{_task_text(entry['env'], entry['variant'])} ({entry['reason']})" for entry in aim["left_out"])
+    left = f" Left out: {left_out}." if left_out else ""
+    best = next((entry for entry in aim["aggregates"] if entry["algo"] == aim["best"]), None)
+    if best is None:
+        return f"{rule}: not judged yet, no env to judge it on.{left}"
+    envs = ", ".join(_task_text(env, variant) for env, variant in aim["envs"])
+    failures = []
+    if best["oracle_fraction_iqm"] < aim["min_oracle_fraction_iqm"] - 1e-9:
+        failures.append(f"its fraction's IQM is below {aim['min_oracle_fraction_iqm']:g}")
+    if best["violation_rate_iqm"] > aim["max_violation_rate_iqm"] + 1e-9:
+        failures.append(f"its violation-rate IQM is above {100 * aim['max_violation_rate_iqm']:g}%")
+    fraction = f"{best['oracle_fraction_iqm']:.2f}{_interval_text(best.get('oracle_fraction_iqm_ci95'))}"
+    violation = f"{100 * best['violation_rate_iqm']:.0f}%{_percent_interval_text(best.get('violation_rate_iqm_ci95'))}"
+    verdict = "met" if aim["met"] else f"not met, {' and '.join(failures)}"
+    return (
+        f"{rule}; over {envs}: the best, {best['algo'].upper()} (highest IQM of that fraction), has {fraction} and a "
+        f"violation-rate IQM of {violation}: {verdict}.{left}"
+    )
+
+
+def aim_lines(summary: dict[str, Any]) -> list[str]:
+    """The aim: per algorithm its fraction of the oracle's feasible reward and violation rate, then the outcome."""
+    aim = summary.get("aim")
+    if not aim:
+        return []
+    lines = []
+    if aim["aggregates"]:
+        lines += [
+            "",
+            "Feasible reward as a fraction of the oracle's, F / F_oracle per run (stratified bootstrap 95% CIs over the "
+            "seeds of each env):",
+            "",
+            "| algo | envs | runs | F / F_oracle IQM | mean | violation rate IQM |",
+            "|---|---|---|---|---|---|",
+        ]
+        for entry in aim["aggregates"]:
+            lines.append(
+                f"| {entry['algo']} | {entry['n_cells']} | {entry['n_runs']} | {entry['oracle_fraction_iqm']:.2f}"
+                f"{_interval_text(entry.get('oracle_fraction_iqm_ci95'))} | {entry['oracle_fraction_mean']:.2f}"
+                f"{_interval_text(entry.get('oracle_fraction_mean_ci95'))} | {100 * entry['violation_rate_iqm']:.0f}%"
+                f"{_percent_interval_text(entry.get('violation_rate_iqm_ci95'))} |"
+            )
+        if any(entry.get("oracle_fraction_iqm_ci95") is None for entry in aim["aggregates"]):
+            lines += ["", "A value without [95% CI]: no interval: one run per env (the bootstrap would draw the same runs)."]
+    text = aim_text(aim)
+    return [*lines, "", text[0].upper() + text[1:]]
 
 
 def compute_line(summary: dict[str, Any]) -> str | None:
@@ -1061,6 +1368,8 @@ def markdown_table(summary: dict[str, Any]) -> str:
         row.append(format_hours(hours) if hours is not None else "-")
         lines.append("| " + " | ".join(row) + " |")
     lines += aggregate_lines(summary)
+    lines += beats_judgement_lines(summary)
+    lines += aim_lines(summary)
     lines += constraint_lines(summary)
     lines += outcome_lines(summary)
     if summary.get("model") == "best":
