@@ -17,7 +17,9 @@ import pathlib
 import sys
 
 from sb3_icrl.benchmark.report import (
+    aim_text,
     beats,
+    beats_judgement_text,
     format_hours,
     format_mean_std,
     format_rate,
@@ -119,7 +121,7 @@ def table(results: pathlib.Path = RESULTS) -> str:
                 + f"{paper} |{others}"
             )
     lines = "\n".join(rows) + "\n"
-    scores = [line for summary in summaries if (line := scoreboard(summary))]
+    scores = [line for summary in summaries for line in (scoreboard(summary), aim_line(summary)) if line]
     if scores:
         lines += "\n" + "\n".join(scores) + "\n"
     # Each suite's runs once: a report of best models re-evaluates the runs its final-model report counts
@@ -173,8 +175,11 @@ def scoreboard(summary: dict) -> str | None:
     """
     One line per suite with published numbers: for each source and method, on how many of its envs (base variant)
     our cell beats the published one (a higher mean feasible reward and a mean violation rate no higher), naming them.
-    ``None`` when no base cell has a published number.
+    ``None`` when no base cell has a published number. A suite with its own judgement (the suite key ``beats``) gets
+    that judgement instead, as its report made it.
     """
+    if summary.get("beats_judgement"):
+        return f"{suite_label(summary)}: {beats_judgement_text(summary['beats_judgement'])}"
     counts: dict[tuple[str, str], list[tuple[str, bool]]] = {}
     for cell in summary["cells"]:
         if cell["variant"] != "base":
@@ -191,6 +196,13 @@ def scoreboard(summary: dict) -> str | None:
         parts.append(f"{owner} {algo.upper()} on {len(won)} of {len(envs)} envs{named}")
     rule = "our cell beats (higher feasible reward, violation rate no higher)"
     return f"{suite_label(summary)}: {rule} " + "; ".join(parts) + "."
+
+
+def aim_line(summary: dict) -> str | None:
+    """The suite's aim and its outcome (the suite key ``aim``), ``None`` for a summary without one."""
+    if not summary.get("aim"):
+        return None
+    return f"{suite_label(summary)}: {aim_text(summary['aim'])}"
 
 
 def render(text: str, generated: str, start: str = START, end: str = END, name: str = "README.md") -> str:
