@@ -826,7 +826,8 @@ def summarise_suite(
     the cell beats it (``beats``: :func:`beats`); per algorithm, the IQM of the violation rate over the headline envs
     with a stratified bootstrap CI (``aggregates``), and the normalised aggregates over the envs of
     :func:`aggregated_envs` (``normalised_aggregates``, ``improvements``; ``aggregated_envs`` and
-    ``aggregates_left_out`` name them); the runs not finished yet; the suite's compute.
+    ``aggregates_left_out`` name them); the runs not finished yet; the suite's compute. With the suite keys ``beats``
+    and ``aim``, also their judgements (``beats_judgement``: :func:`beats_judgement`; ``aim``: :func:`aim_outcome`).
 
     :param suite: The suite
     :param runs: Its runs (to list the missing ones)
@@ -1230,9 +1231,9 @@ def aim_text(aim: dict[str, Any]) -> str:
     :param aim: A summary's ``aim`` (:func:`aim_outcome`)
     """
     rule = (
-        f"the suite's aim: the best ICRL method's feasible reward as a fraction of the oracle's (each "
-        f"run's over the ppolag row's mean on its env), IQM >= {aim['min_oracle_fraction_iqm']:g}, with a violation-rate "
-        f"IQM <= {100 * aim['max_violation_rate_iqm']:g}%"
+        f"the suite's aim: the best ICRL method's feasible reward as a fraction of the oracle's (each run's over the "
+        f"{ORACLE_ROW} row's mean on its env), IQM >= {aim['min_oracle_fraction_iqm']:g}, with a violation-rate IQM <= "
+        f"{100 * aim['max_violation_rate_iqm']:g}%"
     )
     left_out = "; ".join(f"{_task_text(entry['env'], entry['variant'])} ({entry['reason']})" for entry in aim["left_out"])
     left = f" Left out: {left_out}." if left_out else ""
