@@ -2,6 +2,7 @@
 
 import json
 import os
+import pathlib
 import shutil
 
 import gymnasium as gym
@@ -14,6 +15,7 @@ import sb3_icrl.envs  # noqa: F401  (registers the environments)
 from sb3_icrl.benchmark.report import constraint_metrics
 from sb3_icrl.benchmark.suite import RunSpec
 from sb3_icrl.envs import BINDING_ENV_SPECS, ENV_SPECS, REWARD_TRANSFER_TASKS, TRANSFER_ENV_SPECS
+from sb3_icrl.metrics.identification import _load_run_policy, run_demonstration_pairs
 from sb3_icrl.metrics.transfer import DYNAMICS_NOISE, feasible_reward_ratio, read_transfers, train_learner, transfer_env
 from sb3_icrl.zoo.compare import RunResult
 from sb3_icrl.zoo.hyperparams import load_hyperparams, preprocess_hyperparams
@@ -158,6 +160,20 @@ def test_transfer_command_end_to_end(grid_run, capsys):
     columns = constraint_metrics([(run, result)], root, log=lambda line: None)[result.run]
     assert columns["transfer_same_violation_rate"] == saved["violation_rate"]
     assert "identification_auroc" in columns
+
+
+def test_a_gacl_run_transfers_at_the_experts_learned_cost(tmp_path):
+    # GACL's policy keeps no budget: its learner keeps the expert's mean learned cost per step
+    argv = ["--algo", "gacl", "--env", "GridWorldWall-v0", "-n", "256", "-f", str(tmp_path), "--seed", "0"]
+    assert train_main([*argv, "--eval-freq", "0", "--save-freq", "0", "--num-threads", "1", "--verbose", "0"]) == 0
+    run = os.path.join(tmp_path, "gacl", "GridWorldWall-v0_1")
+    assert cli(["transfer", run, "--task", "same", "-n", "64", "--eval-episodes", "1", "--seed", "1"]) == 0
+    with open(os.path.join(run, "transfer_same.json")) as file:
+        settings = json.load(file)["settings"]
+    model, args, _ = _load_run_policy(pathlib.Path(run))
+    expected = float(np.mean(model.constraint_cost(*run_demonstration_pairs(args))))
+    assert not hasattr(model, "cost_budget") and 0.0 < expected < 1.0
+    assert settings["budget"] == pytest.approx(expected) and settings["budget_statistic"] == "step"
 
 
 def test_transfer_command_refuses_bad_input(grid_run, tmp_path, capsys):

@@ -727,6 +727,19 @@ def _load_run_policy(run: pathlib.Path, which: str = "final") -> tuple[Any, dict
     return model, args, find_vecnormalize(str(path), name)
 
 
+def run_demonstration_pairs(args: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+    """
+    :param args: A run's saved arguments (``args.yml``)
+    :return: The ``(observations, actions)`` pairs of the demonstrations the run learned from
+    """
+    env_id = resolve_env_id(args["env"])
+    demonstrations = load_demonstrations(
+        args.get("demonstrations") or env_id.split("/")[-1], violating_fraction=args.get("violating_fraction")
+    )
+    transitions = demonstrations.transitions
+    return np.asarray(transitions.obs), np.asarray(transitions.acts)
+
+
 @dataclass
 class RunProbes:
     """
@@ -771,11 +784,7 @@ def run_probes(
     env_id = resolve_env_id(args["env"])
     env_kwargs = dict(args.get("env_kwargs") or {})
     noise, noise_model = recorded_transition_noise(args)
-    demonstrations = load_demonstrations(
-        args.get("demonstrations") or env_id.split("/")[-1], violating_fraction=args.get("violating_fraction")
-    )
-    transitions = demonstrations.transitions
-    expert = (np.asarray(transitions.obs), np.asarray(transitions.acts))
+    expert = run_demonstration_pairs(args)
     other: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     if not getattr(learner.constraint_net, "discrete_obs", False):
         other["learner"] = policy_pairs(

@@ -45,7 +45,7 @@ from sb3_icrl.constraints.wrappers import LearnedCostVecEnvWrapper
 from sb3_icrl.envs import NAMESPACE, REWARD_TRANSFER_TASKS
 from sb3_icrl.envs.wrappers import COMPONENT_NOISE, TransitionNoiseWrapper, recorded_transition_noise
 from sb3_icrl.hyperparams import algo_kwargs, load_hyperparams, preprocess_hyperparams
-from sb3_icrl.metrics.identification import _load_run_policy, read_icrl_run, run_model_path
+from sb3_icrl.metrics.identification import _load_run_policy, read_icrl_run, run_demonstration_pairs, run_model_path
 from sb3_icrl.ppo_lagrangian import PPOLagrangian
 from sb3_icrl.registry import import_gym_packages, resolve_env_id
 
@@ -291,6 +291,22 @@ def _cached_reference(path: pathlib.Path, settings: dict[str, Any], log: Any) ->
     return saved["result"]
 
 
+def learned_cost_budget(icrl_model: Any, args: dict[str, Any]) -> tuple[float, str]:
+    """
+    The budget the learned-cost learner keeps: the run's own budget and statistic as it ended. GACL's policy keeps no
+    budget (its discriminator corrects the reward instead), so its learner gets the expert's mean learned cost per step
+    over the run's demonstrations, what the other methods' ``cost_budget="expert"`` sets: as feasible as the expert
+    under the learned constraint, read from the demonstrations only.
+
+    :param icrl_model: The run's model
+    :param args: The run's saved arguments (``args.yml``)
+    :return: ``(budget, budget statistic)``
+    """
+    if hasattr(icrl_model, "cost_budget"):
+        return float(np.asarray(icrl_model.cost_budget).reshape(-1)[0]), str(getattr(icrl_model, "budget_statistic", "step"))
+    return float(np.mean(icrl_model.constraint_cost(*run_demonstration_pairs(args)))), "step"
+
+
 def run_transfer(
     run_folder: str | os.PathLike,
     task: str,
@@ -333,8 +349,7 @@ def run_transfer(
     env_id, noise = transfer_env(source_env, task, recorded_noise)
     icrl_model, _, _ = _load_run_policy(run, model)
     model_file = run_model_path(run, args, model)
-    budget = float(np.asarray(icrl_model.cost_budget).reshape(-1)[0])
-    budget_statistic = str(getattr(icrl_model, "budget_statistic", "step"))
+    budget, budget_statistic = learned_cost_budget(icrl_model, args)
     entry, key = load_hyperparams("ppolag", source_env)  # the source robot's recipe, for all three learners
     params = preprocess_hyperparams(entry)
     steps = int(n_timesteps) if n_timesteps is not None else params["n_timesteps"]
