@@ -9,6 +9,7 @@ from sb3_icrl.common.statistics import (
     MIN_PAIRS_FOR_WILCOXON,
     MIN_SEEDS_FOR_INTERVAL,
     iqm,
+    mean_of_task_means,
     normalised_score,
     optimality_gap,
     performance_profile,
@@ -17,6 +18,7 @@ from sb3_icrl.common.statistics import (
     probability_of_improvement_ci,
     sample_std,
     stratified_bootstrap_ci,
+    stratified_bootstrap_ci_of_task_means,
     wilcoxon_p,
     wilson_interval,
 )
@@ -102,3 +104,21 @@ def test_wilcoxon_needs_differences_and_the_labels_have_their_thresholds() -> No
     assert math.isnan(wilcoxon_p([])) and math.isnan(wilcoxon_p([0.0, 0.0]))
     assert 2 / 2**MIN_PAIRS_FOR_WILCOXON < 0.05 <= 2 / 2 ** (MIN_PAIRS_FOR_WILCOXON - 1)
     assert MIN_SEEDS_FOR_INTERVAL == 5
+
+
+def test_mean_of_task_means_and_its_interval():
+    uneven = [np.array([0.0, 1.0, 2.0, 3.0]), np.array([10.0])]
+    assert mean_of_task_means(uneven) == pytest.approx((1.5 + 10.0) / 2)  # not the pooled 3.2
+    assert math.isnan(mean_of_task_means([])) and math.isnan(mean_of_task_means([[]]))
+    # Its interval is of the same statistic: by hand, over the same stratified resamples
+    rng = np.random.default_rng(0)
+    estimates = [np.mean([task[rng.integers(0, task.size, task.size)].mean() for task in uneven]) for _ in range(200)]
+    expected = tuple(np.percentile(estimates, [2.5, 97.5]))
+    assert stratified_bootstrap_ci_of_task_means(uneven, reps=200, seed=0) == pytest.approx(expected)
+    low, high = stratified_bootstrap_ci_of_task_means(uneven, reps=200, seed=0)
+    assert low <= mean_of_task_means(uneven) <= high
+    # With as many seeds per task, the same interval as the mean of all scores
+    even = [np.array([0.1, 0.4, 0.2]), np.array([0.9, 0.5, 0.7])]
+    assert stratified_bootstrap_ci_of_task_means(even, reps=300) == pytest.approx(
+        stratified_bootstrap_ci(even, statistic=np.mean, reps=300)
+    )

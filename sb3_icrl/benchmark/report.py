@@ -37,6 +37,7 @@ from sb3_icrl.common.statistics import (
     MIN_PAIRS_FOR_WILCOXON,
     MIN_SEEDS_FOR_INTERVAL,
     iqm,
+    mean_of_task_means,
     normalised_score,
     optimality_gap,
     performance_profile,
@@ -44,6 +45,7 @@ from sb3_icrl.common.statistics import (
     probability_of_improvement,
     probability_of_improvement_ci,
     stratified_bootstrap_ci,
+    stratified_bootstrap_ci_of_task_means,
     wilson_interval,
 )
 from sb3_icrl.common.utils import atomic_write_bytes, atomic_write_json
@@ -777,11 +779,10 @@ def normalised_aggregates(
                 "n_runs": int(flat.size),
                 "normalised_score_iqm": iqm(flat),
                 "normalised_score_iqm_ci95": list(stratified_bootstrap_ci(groups)) if spread_out else None,
-                # rliable's mean: of the per-env means (the flat mean when every env has as many seeds)
-                "normalised_score_mean": float(np.mean([np.mean(values) for values in groups])),
-                "normalised_score_mean_ci95": (
-                    list(stratified_bootstrap_ci(groups, statistic=np.mean)) if spread_out else None
-                ),
+                # rliable's mean: of the per-env means (the flat mean when every env has as many seeds), its
+                # interval of the same statistic
+                "normalised_score_mean": mean_of_task_means(groups),
+                "normalised_score_mean_ci95": list(stratified_bootstrap_ci_of_task_means(groups)) if spread_out else None,
                 "optimality_gap": optimality_gap(flat),
                 "optimality_gap_ci95": (
                     list(stratified_bootstrap_ci(groups, statistic=optimality_gap)) if spread_out else None
@@ -1191,8 +1192,8 @@ def aim_outcome(
                 "oracle_fraction_iqm": iqm(np.concatenate(groups)),
                 "oracle_fraction_iqm_ci95": list(stratified_bootstrap_ci(groups)) if spread_out else None,
                 # rliable's mean, as the normalised aggregates': of the per-env means
-                "oracle_fraction_mean": float(np.mean([np.mean(values) for values in groups])),
-                "oracle_fraction_mean_ci95": list(stratified_bootstrap_ci(groups, statistic=np.mean)) if spread_out else None,
+                "oracle_fraction_mean": mean_of_task_means(groups),
+                "oracle_fraction_mean_ci95": list(stratified_bootstrap_ci_of_task_means(groups)) if spread_out else None,
                 "violation_rate_iqm": iqm(np.concatenate(violations)),
                 "violation_rate_iqm_ci95": list(stratified_bootstrap_ci(violations)) if spread_out else None,
             }

@@ -76,6 +76,39 @@ def stratified_bootstrap_ci(
     return _percentile_interval(estimates, confidence)
 
 
+def mean_of_task_means(scores_by_task: ScoresByTask) -> float:
+    """
+    rliable's mean across tasks: the mean of each task's mean, every task weighing the same however many seeds it has
+    (the mean of all scores when every task has as many).
+
+    :param scores_by_task: One array of per-seed scores per task
+    :return: The mean; ``nan`` without scores
+    """
+    tasks = _nonempty_tasks(scores_by_task)
+    return float(np.mean([task.mean() for task in tasks])) if tasks else float("nan")
+
+
+def stratified_bootstrap_ci_of_task_means(
+    scores_by_task: ScoresByTask, reps: int = BOOTSTRAP_REPS, confidence: float = 0.95, seed: int = BOOTSTRAP_SEED
+) -> tuple[float, float]:
+    """
+    :func:`stratified_bootstrap_ci` of :func:`mean_of_task_means`: the interval of the same statistic as the point
+    estimate when tasks have different numbers of seeds (the same resamples, so the same interval as the mean of all
+    scores when every task has as many).
+
+    :param scores_by_task: One array of per-seed scores per task
+    :param reps: Number of resamples
+    :param confidence: Interval size
+    :param seed: Seed of the resampling
+    :return: ``(lower, upper)``; ``(nan, nan)`` without scores
+    """
+    tasks = _nonempty_tasks(scores_by_task)
+    if not tasks:
+        return float("nan"), float("nan")
+    estimates = np.array([mean_of_task_means(resample) for resample in _stratified_resamples(tasks, reps, seed)])
+    return _percentile_interval(estimates, confidence)
+
+
 def _nonempty_tasks(scores_by_task: ScoresByTask) -> list[np.ndarray]:
     """Each task's scores as a flat float array, tasks without scores left out."""
     tasks = [np.asarray(scores, dtype=float).ravel() for scores in scores_by_task]
