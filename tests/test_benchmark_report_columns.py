@@ -11,6 +11,7 @@ import io
 import json
 import os
 import pathlib
+import shutil
 
 import numpy as np
 import pytest
@@ -436,6 +437,37 @@ def test_an_earlier_report_reads_back_into_the_same_summary(finished_suite):
     renamed["cells"][0]["variant"] = "gone"
     with pytest.raises(ValueError, match="holds run 'gone/bc2l/GridWorld-v0/seed 0', which suite 'suite' no longer has"):
         report.previous_results(renamed, suite, root)
+
+
+def test_update_keeps_the_runs_whose_folders_are_elsewhere(finished_suite, tmp_path, monkeypatch, capsys):
+    from sb3_icrl.benchmark import cli
+
+    suite, root, results = finished_suite
+    path = write(tmp_path, SUITE)
+    output = str(tmp_path / "results" / "suite")
+    write_report(summarise_suite(suite, suite.runs(), results, run_facts(results, root)), output)
+    earlier = json.loads(pathlib.Path(output, "summary.json").read_text())
+    # This log folder holds one run only (the report's other runs trained elsewhere); --update without --only
+    here = results[0][0]
+    for run, _ in results[1:]:
+        shutil.rmtree(run.run_folder(root))
+
+    def evaluated(first: int, last: int):
+        return lambda runs, *args, **kwargs: [item for item in results[first:last] if item[0] in runs]
+
+    monkeypatch.setattr(cli, "evaluate_finished", evaluated(0, 1))
+    assert cli.main(["report", path, "-f", root, "-o", output, "--no-figures", "--update"]) == 0
+    assert f"--update: {len(results) - 1} runs of the report in" in capsys.readouterr().out
+    updated = json.loads(pathlib.Path(output, "summary.json").read_text())
+    assert [(c["env"], c["algo"], c["per_seed"]) for c in updated["cells"]] == [
+        (c["env"], c["algo"], c["per_seed"]) for c in earlier["cells"]
+    ]
+    assert updated["runs_missing"] == [] and here.name not in updated["runs_missing"]
+    # A run whose folder is here but has not finished (being trained again) still loses its old result
+    os.remove(os.path.join(here.run_folder(root), "finished.json"))
+    monkeypatch.setattr(cli, "evaluate_finished", evaluated(1, 2))
+    assert cli.main(["report", path, "-f", root, "-o", output, "--no-figures", "--update"]) == 0
+    assert here.name in json.loads(pathlib.Path(output, "summary.json").read_text())["runs_missing"]
 
 
 def test_update_replaces_the_rerun_seeds_and_keeps_every_other_cell(finished_suite, tmp_path, monkeypatch, capsys):

@@ -106,8 +106,9 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
     report.add_argument(
         "--update",
         action="store_true",
-        help="update the report in -o with these runs: their cells' seeds replace the ones it has, its other cells stay "
-        "(with no finished run, the report is written again from its summary, with the current statistics)",
+        help="update the report in -o with these runs: their cells' seeds replace the ones it has, its other cells stay, "
+        "and so do selected runs with no folder under -f (with no finished run, the report is written again from its "
+        "summary, with the current statistics)",
     )
     commands.add_parser("list", help="the shipped suites")
     return parser
@@ -278,9 +279,16 @@ def _with_earlier_report(
             f"them by {suite.eval_budget} (eval_budget): its cells would mix the two. Pass another -o folder."
         )
     kept, kept_metrics, missing = previous_results(earlier, suite, root)
-    # A selected run that has not finished (again) loses its old result: its cell must not mix two recipes. With no
-    # fresh result at all, nothing is mixed: the report is written again as it was, with the current statistics
-    selected = set(runs) if results else set()
+    # A selected run that has not finished (again) loses its old result: its cell must not mix two recipes. One with
+    # no folder under the log root is not being trained again here (the report's runs may have trained elsewhere):
+    # it keeps its result. With no fresh result at all, nothing is mixed: the report is written again as it was
+    selected = {run for run in runs if os.path.isdir(run.run_folder(root))} | {run for run, _ in results} if results else set()
+    elsewhere = [run for run, _ in kept if run in set(runs) and run not in selected]
+    if results and elsewhere:
+        print(
+            f"--update: {len(elsewhere)} runs of the report in {output!r} have no folder under {root!r}: kept as it "
+            "reported them (write the report without --update to leave them out)"
+        )
     kept = [(run, result) for run, result in kept if run not in selected]
     metrics = {**metrics, **{result.run: kept_metrics[result.run] for _, result in kept}}
     if not results:  # the earlier report's runs, no more: a report of part of a suite stays one
