@@ -69,11 +69,7 @@ def stratified_bootstrap_ci(
     :param seed: Seed of the resampling
     :return: ``(lower, upper)``; ``(nan, nan)`` without scores
     """
-    tasks = _nonempty_tasks(scores_by_task)
-    if not tasks:
-        return float("nan"), float("nan")
-    estimates = np.array([statistic(np.concatenate(resample)) for resample in _stratified_resamples(tasks, reps, seed)])
-    return _percentile_interval(estimates, confidence)
+    return _bootstrap_interval(scores_by_task, lambda tasks: statistic(np.concatenate(tasks)), reps, confidence, seed)
 
 
 def mean_of_task_means(scores_by_task: ScoresByTask) -> float:
@@ -96,16 +92,19 @@ def stratified_bootstrap_ci_of_task_means(
     estimate when tasks have different numbers of seeds (the same resamples, so the same interval as the mean of all
     scores when every task has as many).
 
-    :param scores_by_task: One array of per-seed scores per task
-    :param reps: Number of resamples
-    :param confidence: Interval size
-    :param seed: Seed of the resampling
-    :return: ``(lower, upper)``; ``(nan, nan)`` without scores
+    Arguments and return: see :func:`stratified_bootstrap_ci`.
     """
+    return _bootstrap_interval(scores_by_task, mean_of_task_means, reps, confidence, seed)
+
+
+def _bootstrap_interval(
+    scores_by_task: ScoresByTask, estimate: Callable[[list[np.ndarray]], float], reps: int, confidence: float, seed: int
+) -> tuple[float, float]:
+    """The percentile interval of ``estimate`` (a function of the resampled tasks) over stratified resamples."""
     tasks = _nonempty_tasks(scores_by_task)
     if not tasks:
         return float("nan"), float("nan")
-    estimates = np.array([mean_of_task_means(resample) for resample in _stratified_resamples(tasks, reps, seed)])
+    estimates = np.array([estimate(resample) for resample in _stratified_resamples(tasks, reps, seed)])
     return _percentile_interval(estimates, confidence)
 
 
