@@ -55,9 +55,9 @@ def write(tmp_path, text: str) -> str:
             "none are shipped for GridWorld-v0 .*give the variant `demonstrations: PATH.npz`",
         ),
         (
-            "envs: [BlockedWalker-v0]\nalgos: [mecl]\nseeds: [0]\nvariants:\n  imperfect: {violating_fraction: 0.2}\n",
+            "envs: [HighwayVelocity-v0]\nalgos: [mecl]\nseeds: [0]\nvariants:\n  imperfect: {violating_fraction: 0.2}\n",
             1,
-            r"none are shipped for BlockedWalker-v0 with violating_fraction 0.2 \(shipped fractions: \[0.0\]\)",
+            r"none are shipped for HighwayVelocity-v0 with violating_fraction 0.2 \(shipped fractions: \[0.0\]\)",
         ),
         (HEAD + "variants:\n  mine: {demonstrations: no/such/file.npz}\n", 5, "no demonstrations file 'no/such/file.npz'"),
         (

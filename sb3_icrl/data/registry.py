@@ -44,12 +44,14 @@ class ShippedDataset:
     :param fractions: Violating fractions shipped (0: clean expert data; the others are the paper's imperfect experts)
     :param expert: ``"pilag"`` (trained on the fly, grid world) or ``"zip"`` (the PPO-Lagrangian in :data:`EXPERTS_DIR`)
     :param random_action_prob: Per-step random actions in the violating rollouts of the imperfect variants
+    :param max_attempts: Episodes to try before giving up (``None``: the generator's default)
     """
 
     n_trajectories: int
     fractions: tuple[float, ...] = (0.0,)
     expert: str = "zip"
     random_action_prob: float = 0.5
+    max_attempts: int | None = None
 
 
 #: The paper's imperfect-expert fractions
@@ -65,7 +67,8 @@ SHIPPED_DATASETS: dict[str, ShippedDataset] = {
     "BlockedHalfCheetah-v0": ShippedDataset(20, IMPERFECT_FRACTIONS, random_action_prob=0.8),
     "BlockedAnt-v0": ShippedDataset(20, IMPERFECT_FRACTIONS),
     "BiasedPendulum-v0": ShippedDataset(20, IMPERFECT_FRACTIONS),
-    "BlockedWalker-v0": ShippedDataset(20),
+    # Its expert falls under heavy perturbations before it crosses; at 0.1, about one perturbed episode in 40 crosses
+    "BlockedWalker-v0": ShippedDataset(20, IMPERFECT_FRACTIONS, random_action_prob=0.1, max_attempts=2000),
     "BlockedSwimmer-v0": ShippedDataset(20, IMPERFECT_FRACTIONS),
     # The binding variants (sb3_icrl.envs.binding_envs)
     "BiasedPendulumReach-v0": ShippedDataset(20, IMPERFECT_FRACTIONS),
@@ -218,6 +221,7 @@ def regenerate_shipped(
             )
             if fraction:
                 command += f" --random-action-prob {spec.random_action_prob:g}"
+                command += f" --max-attempts {spec.max_attempts}" if spec.max_attempts is not None else ""
             sidecar = build_dataset(
                 path,
                 name,
@@ -227,6 +231,7 @@ def regenerate_shipped(
                 command=command,
                 violating_fraction=fraction,
                 random_action_prob=spec.random_action_prob,
+                max_attempts=spec.max_attempts,
                 seed=SHIPPED_SEED,
                 deterministic=True,
             )
