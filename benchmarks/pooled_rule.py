@@ -42,13 +42,15 @@ class RuleInputError(ValueError):
     """A source that cannot be read or does not match the other side."""
 
 
-def read_source(source: str, env: str) -> tuple[list[RunRow], tuple[int, int] | None]:
+def read_source(source: str, env: str) -> tuple[list[RunRow], tuple[int | str, ...] | None]:
     """
-    The rows of one ``CSV[:VARIANT[:ALGO]]`` source for ``env``, and the report's (episodes, held-out seed).
+    The rows of one ``CSV[:VARIANT[:ALGO]]`` source for ``env``, and how the report evaluated its runs.
 
     :param source: A ``runs.csv`` path, optionally followed by ``:variant`` and ``:algo``
     :param env: The env whose rows to keep
-    :return: The rows, and ``(eval_episodes, eval_seed)`` from the ``summary.json`` beside the file (``None``: none)
+    :return: The rows, and ``(eval_episodes, eval_seed)`` from the ``summary.json`` beside the file, with
+        ``"episodes"`` added for a report that ran exactly that many episodes per run (``eval_budget``; a report by
+        steps, as every report before the key, has none) (``None``: no summary)
     """
     path, *filters = source.split(":")
     if len(filters) > 2:
@@ -71,11 +73,12 @@ def read_source(source: str, env: str) -> tuple[list[RunRow], tuple[int, int] | 
         with open(summary_path) as file:
             summary = json.load(file)
         if "eval_episodes" in summary and "eval_seed" in summary:
-            evaluation = (int(summary["eval_episodes"]), int(summary["eval_seed"]))
+            budget = () if summary.get("eval_budget", "steps") == "steps" else (str(summary["eval_budget"]),)
+            evaluation = (int(summary["eval_episodes"]), int(summary["eval_seed"]), *budget)
     return rows, evaluation
 
 
-def collect(sources: list[str], env: str, side: str) -> tuple[dict[tuple[str, int], RunRow], set[tuple[int, int]]]:
+def collect(sources: list[str], env: str, side: str) -> tuple[dict[tuple[str, int], RunRow], set[tuple[int | str, ...]]]:
     """
     The runs of one side by (algo, seed), refusing a pair found in two sources.
 
@@ -183,8 +186,9 @@ def main(argv: list[str] | None = None) -> int:
         evaluations = before_evaluations | after_evaluations
         if len(evaluations) > 1:
             raise RuleInputError(
-                f"The reports were evaluated differently (episodes, held-out seed): {sorted(evaluations)}; "
-                "re-report them with the same --eval-episodes and --eval-seed."
+                f"The reports were evaluated differently (episodes, held-out seed, and 'episodes' where exactly that many "
+                f"were run): {sorted(evaluations, key=str)}; re-report them with the same eval_episodes, eval_seed and "
+                "eval_budget."
             )
         decision = decide(before, after)
     except RuleInputError as error:

@@ -16,7 +16,9 @@ spec.loader.exec_module(pooled_rule)
 ENV = "BlockedHalfCheetah-v0"
 
 
-def write_report(folder: Path, rows: list[tuple[str, str, int, float, float]], eval_seed: int = 100) -> Path:
+def write_report(
+    folder: Path, rows: list[tuple[str, str, int, float, float]], eval_seed: int = 100, budget: dict | None = None
+) -> Path:
     folder.mkdir(parents=True)
     path = folder / "runs.csv"
     with open(path, "w", newline="") as file:
@@ -25,7 +27,7 @@ def write_report(folder: Path, rows: list[tuple[str, str, int, float, float]], e
         for variant, algo, seed, reward, violation in rows:
             writer.writerow([ENV, variant, algo, seed, reward, violation])
         writer.writerow(["BlockedSwimmer-v0", "a", "mecl", 0, 1.0, 1.0])  # another env: left out
-    (folder / "summary.json").write_text(json.dumps({"eval_episodes": 20, "eval_seed": eval_seed}))
+    (folder / "summary.json").write_text(json.dumps({"eval_episodes": 20, "eval_seed": eval_seed, **(budget or {})}))
     return path
 
 
@@ -56,6 +58,17 @@ def test_unmatched_runs_and_evaluations_are_refused(tmp_path, capsys) -> None:
     other = write_report(tmp_path / "other", [("a", "mecl", 0, 1.0, 0.0), ("a", "mecl", 1, 1.0, 0.0)], eval_seed=7)
     assert pooled_rule.main(["--env", ENV, "--before", str(old), "--after", str(other)]) == 2
     assert "evaluated differently" in capsys.readouterr().err
+    # A report by exactly 20 episodes against one by the steps of 20 (a summary without the key was by steps)
+    exact = write_report(
+        tmp_path / "exact", [("a", "mecl", 0, 1.0, 0.0), ("a", "mecl", 1, 1.0, 0.0)], budget={"eval_budget": "episodes"}
+    )
+    assert pooled_rule.main(["--env", ENV, "--before", str(old), "--after", str(exact)]) == 2
+    assert "evaluated differently" in capsys.readouterr().err
+    steps = write_report(
+        tmp_path / "steps", [("a", "mecl", 0, 1.0, 0.0), ("a", "mecl", 1, 1.0, 0.0)], budget={"eval_budget": "steps"}
+    )
+    assert pooled_rule.main(["--env", ENV, "--before", str(old), "--after", str(steps)]) == 0
+    capsys.readouterr()
     assert pooled_rule.main(["--env", ENV, "--before", str(tmp_path / "none.csv"), "--after", str(new)]) == 2
     assert "no such file" in capsys.readouterr().err
     assert pooled_rule.main(["--env", ENV, "--before", f"{old}:nope", "--after", str(new)]) == 2
