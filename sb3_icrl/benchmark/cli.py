@@ -283,7 +283,8 @@ def _with_earlier_report(
     # no folder under the log root is not being trained again here (the report's runs may have trained elsewhere):
     # it keeps its result. With no fresh result at all, nothing is mixed: the report is written again as it was
     selected = {run for run in runs if os.path.isdir(run.run_folder(root))} | {run for run, _ in results} if results else set()
-    elsewhere = [run for run, _ in kept if run in set(runs) and run not in selected]
+    chosen = set(runs)
+    elsewhere = [run for run, _ in kept if run in chosen and run not in selected]
     if results and elsewhere:
         print(
             f"--update: {len(elsewhere)} runs of the report in {output!r} have no folder under {root!r}: kept as it "

@@ -737,17 +737,9 @@ class _SuiteReader:
         raw = self.content.get("success")
         if raw is None:
             return None
-        example = "{max_violation_rate: 0.05, min_normalised_score: 0.5}"
-        if not isinstance(raw, dict) or set(raw) != set(SUCCESS_KEYS):
-            raise self.error(("success",), f"`success` maps {' and '.join(SUCCESS_KEYS)} to numbers, e.g. {example}.")
-        rule = {}
-        for key in SUCCESS_KEYS:
-            value = raw[key]
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise self.error(("success", key), f"`success.{key}` is a number, got {value!r}.")
-            if key == "max_violation_rate" and not 0 <= value <= 1:
-                raise self.error(("success", key), f"`success.{key}` is a rate within [0, 1], got {value!r}.")
-            rule[key] = float(value)
+        rule = self.thresholds(
+            "success", raw, SUCCESS_KEYS, "max_violation_rate", "{max_violation_rate: 0.05, min_normalised_score: 0.5}"
+        )
         if not set(REFERENCE_ALGOS) <= set(algos):
             raise self.error(
                 ("success",),
@@ -755,6 +747,29 @@ class _SuiteReader:
                 "among the algos: add them, or leave `success` out.",
             )
         return rule
+
+    def thresholds(self, name: str, raw: Any, keys: Sequence[str], rate_key: str, example: str) -> dict[str, float]:
+        """
+        A setting that maps each of ``keys`` to a finite number (``success``, ``aim``), checked.
+
+        :param name: The setting's key
+        :param raw: Its value in the file
+        :param keys: The keys it must have, all of them
+        :param rate_key: The one that is a rate, within [0, 1]
+        :param example: A valid value, for the message
+        :return: The numbers by key
+        """
+        if not isinstance(raw, dict) or set(raw) != set(keys):
+            raise self.error((name,), f"`{name}` maps {' and '.join(keys)} to numbers, e.g. {example}.")
+        numbers = {}
+        for key in keys:
+            value = raw[key]
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise self.error((name, key), f"`{name}.{key}` is a number, got {value!r}.")
+            if key == rate_key and not 0 <= value <= 1:
+                raise self.error((name, key), f"`{name}.{key}` is a rate within [0, 1], got {value!r}.")
+            numbers[key] = float(value)
+        return numbers
 
     def env_subset(self, raw: Any, envs: list[str], where: tuple[str, ...]) -> tuple[str, ...]:
         """
@@ -856,17 +871,9 @@ class _SuiteReader:
         raw = self.content.get("aim")
         if raw is None:
             return None
-        example = "{min_oracle_fraction_iqm: 0.75, max_violation_rate_iqm: 0.05}"
-        if not isinstance(raw, dict) or set(raw) != set(AIM_KEYS):
-            raise self.error(("aim",), f"`aim` maps {' and '.join(AIM_KEYS)} to numbers, e.g. {example}.")
-        aim = {}
-        for key in AIM_KEYS:
-            value = raw[key]
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise self.error(("aim", key), f"`aim.{key}` is a number, got {value!r}.")
-            if key == "max_violation_rate_iqm" and not 0 <= value <= 1:
-                raise self.error(("aim", key), f"`aim.{key}` is a rate within [0, 1], got {value!r}.")
-            aim[key] = float(value)
+        aim = self.thresholds(
+            "aim", raw, AIM_KEYS, "max_violation_rate_iqm", "{min_oracle_fraction_iqm: 0.75, max_violation_rate_iqm: 0.05}"
+        )
         if not set(algos) & set(ICRL_ALGOS):
             raise self.error(("aim",), "`aim` is judged on the best ICRL method, and the suite has no ICRL algorithm.")
         if not set(REFERENCE_ALGOS) <= set(algos):
