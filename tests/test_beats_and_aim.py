@@ -318,3 +318,26 @@ def test_readme_reports_the_judgement_and_the_aim(tmp_path):
     # MECL: 0.6, 0.7 on the wall map and 0.625 twice on the square one
     assert "the best, MECL (highest IQM of that fraction), has 0.62 [" in aim
     assert aim.endswith(": not met, its fraction's IQM is below 0.75.")
+
+
+# ---------------------------------------------------------------- verdicts on runs still coming
+
+
+def test_a_verdict_with_runs_still_coming_is_the_verdict_so_far(tmp_path):
+    suite = load_suite(write(tmp_path, SUITE + BEATS + AIM.replace("0.75", "0.5")), dry_build=False)
+    complete = summary_of(suite, AIM_VALUES, LAST)
+    assert complete["beats_judgement"]["pending_runs"] == 0 and complete["aim"]["pending_runs"] == 0
+    assert "so far" not in aim_text_of(complete["aim"])
+    # BC2L's Square cell not finished: the judged cells lack two ICRL runs, the headline envs two runs in all
+    values = {key: pairs for key, pairs in AIM_VALUES.items() if key != ("GridWorldSquare-v0", "bc2l")}
+    summary = summary_of(suite, values, LAST)
+    judgement, aim = summary["beats_judgement"], summary["aim"]
+    assert judgement["pending_runs"] == 2 and aim["pending_runs"] == 2
+    assert judgement["outcome"] is True  # MECL beats the row on both envs already
+    table = markdown_table(summary)
+    assert "Outcome: MECL on every judged env so far, 2 runs of the judged envs not finished." in table
+    assert aim["met"] is not None
+    assert " so far (provisional: 2 runs of the headline envs not finished). Left out: GridWorldSquare-v0" in aim_text_of(aim)
+    # A reference row's runs missing leave "beats" final (it judges ICRL cells alone) but not the aim
+    summary = summary_of(suite, {key: pairs for key, pairs in AIM_VALUES.items() if key[1] != "ppo"}, LAST)
+    assert summary["beats_judgement"]["pending_runs"] == 0 and summary["aim"]["pending_runs"] == 4

@@ -601,3 +601,15 @@ def test_update_with_no_finished_run_writes_the_report_again_as_it_was(finished_
         # The sample std of today, from the same per-seed values
         assert cell["feasible_reward_std"] == pytest.approx(np.std([s["feasible_reward"] for s in old["per_seed"]], ddof=1))
     assert again["runs_missing"] == []  # the GridWorld cells it never reported are not listed as unfinished
+
+
+def test_many_unfinished_runs_are_counted_per_env_few_are_named():
+    from sb3_icrl.benchmark.report import MAX_MISSING_NAMED, not_finished_text
+
+    few = {"runs_missing": ["base/gacl/A-v0/seed 1", "base/gacl/B-v0/seed 1"], "runs_missing_by_env": [["A-v0", "base", 1, 4]]}
+    assert not_finished_text(few) == "Not finished yet (2): base/gacl/A-v0/seed 1, base/gacl/B-v0/seed 1"
+    names = [f"base/gacl/A-v0/seed {seed}" for seed in range(MAX_MISSING_NAMED)] + ["noise/gacl/A-v0/seed 0"]
+    many = {"runs_missing": names, "runs_missing_by_env": [["A-v0", "base", 12, 20], ["A-v0", "noise", 1, 20]]}
+    assert not_finished_text(many) == (
+        "Not finished yet (13 runs, all named in summary.json's `runs_missing`): A-v0 12 of 20; A-v0 (noise) 1 of 20."
+    )

@@ -953,13 +953,22 @@ def summarise_suite(
                 }
             )
     finished = {run for run, _ in results}
-    missing = [run.name for run in runs if run not in finished]
+    unfinished = [run for run in runs if run not in finished]
+    missing = [run.name for run in unfinished]
     # The suite's own judgements, only where it writes them: other suites' summaries stay as they were
     judgements: dict[str, Any] = {}
     if suite.beats is not None:
+        judged = {(env_name(env), variant) for env in suite.beats.envs for variant in suite.variants}
         judgements["beats_judgement"] = beats_judgement(cells, suite)
+        judgements["beats_judgement"]["pending_runs"] = _count_runs(unfinished, judged, ICRL_ALGOS)
     if suite.aim is not None:
+        headline = {
+            (env_name(run.env_id), run.variant)
+            for run in runs
+            if suite.headline_envs is None or env_name(run.env_id) in suite.headline_envs
+        }
         judgements["aim"] = aim_outcome(cells, aggregated, left_out, suite)
+        judgements["aim"]["pending_runs"] = _count_runs(unfinished, headline)
     return {
         "suite": suite.name,
         "model": model,
@@ -977,11 +986,32 @@ def summarise_suite(
         "aggregates_left_out": left_out,
         "success_rule": suite.success,
         "runs_missing": missing,
+        "runs_missing_by_env": _missing_by_task(runs, unfinished),
         "others_sources": list(suite.others),
         "core_hours": _core_hours(list(wall_time.values())),
         "core_hours_runs": sum(value is not None for value in wall_time.values()),
         **judgements,
     }
+
+
+def _count_runs(runs: Sequence[RunSpec], tasks: set[tuple[str, str]], algos: Sequence[str] | None = None) -> int:
+    """How many of ``runs`` are on one of ``tasks`` (``(env, variant)``), of one of ``algos`` when given."""
+    return sum((env_name(run.env_id), run.variant) in tasks and (algos is None or run.algo in algos) for run in runs)
+
+
+def _runs_text(count: int) -> str:
+    """``1 run``, ``2 runs``."""
+    return f"{count} run" + "s" * (count != 1)
+
+
+def _missing_by_task(runs: Sequence[RunSpec], unfinished: Sequence[RunSpec]) -> list[list[Any]]:
+    """``[env, variant, runs not finished, runs]`` per env and variant with an unfinished run, in the suite's order."""
+    counts: dict[tuple[str, str], list[int]] = {}
+    for run in runs:
+        counts.setdefault((env_name(run.env_id), run.variant), [0, 0])[1] += 1
+    for run in unfinished:
+        counts[(env_name(run.env_id), run.variant)][0] += 1
+    return [[env, variant, left, total] for (env, variant), (left, total) in counts.items() if left]
 
 
 def column_pair(cell: dict[str, Any], column: str) -> tuple[float, float] | None:
@@ -1100,10 +1130,13 @@ def beats_judgement_text(judgement: dict[str, Any]) -> str:
     best = " and ".join(algo.upper() for algo in judgement["best"])
     most = max(len(method["beaten"]) for method in judgement["methods"])
     leader = f"; the most, {most} of {n_tasks}: {best}" if most else ""
+    pending = judgement.get("pending_runs", 0)
+    # A verdict on seeds still coming is the verdict so far: one more seed can move a mean either way
+    so_far = f" so far, {_runs_text(pending)} of the judged envs not finished" if pending else ""
     if judgement["outcome"]:
-        outcome = f"{best} on every judged env"
+        outcome = f"{best} on every judged env{so_far}"
     elif judgement["outcome"] is False:
-        outcome = f"no method on every judged env{leader}"
+        outcome = f"no method on every judged env{leader}{so_far}"
     else:
         outcome = f"not decided yet, values missing{leader} so far"
     return (
@@ -1250,6 +1283,10 @@ def aim_text(aim: dict[str, Any]) -> str:
     fraction = f"{best['oracle_fraction_iqm']:.2f}{_interval_text(best.get('oracle_fraction_iqm_ci95'))}"
     violation = f"{100 * best['violation_rate_iqm']:.0f}%{_percent_interval_text(best.get('violation_rate_iqm_ci95'))}"
     verdict = "met" if aim["met"] else f"not met, {' and '.join(failures)}"
+    pending = aim.get("pending_runs", 0)
+    if pending:
+        # The envs and seeds still coming can move either IQM: the verdict is provisional until they are in
+        verdict += f" so far (provisional: {_runs_text(pending)} of the headline envs not finished)"
     return (
         f"{rule}; over {envs}: the best, {best['algo'].upper()} (highest IQM of that fraction), has {fraction} and a "
         f"violation-rate IQM of {violation}: {verdict}.{left}"
@@ -1377,12 +1414,29 @@ def markdown_table(summary: dict[str, Any]) -> str:
     if summary.get("model") == "best":
         lines += ["", BEST_MODELS_NOTE]
     if summary["runs_missing"]:
-        lines.append("")
-        lines.append(f"Not finished yet ({len(summary['runs_missing'])}): " + ", ".join(summary["runs_missing"]))
+        lines += ["", not_finished_text(summary)]
     compute = compute_line(summary)
     if compute is not None:
         lines += ["", compute]
     return "\n".join(lines) + "\n"
+
+
+#: Up to this many unfinished runs are named one by one; more are counted per env
+MAX_MISSING_NAMED = 12
+
+
+def not_finished_text(summary: dict[str, Any]) -> str:
+    """
+    The runs not finished yet: named when there are few (:data:`MAX_MISSING_NAMED`), else counted per env and variant
+    (the summary's ``runs_missing`` still names them all).
+
+    :param summary: A summary of :func:`summarise_suite`
+    """
+    missing, by_task = summary["runs_missing"], summary.get("runs_missing_by_env")
+    if len(missing) <= MAX_MISSING_NAMED or not by_task:
+        return f"Not finished yet ({len(missing)}): " + ", ".join(missing)
+    counts = "; ".join(f"{_task_text(env, variant)} {left} of {total}" for env, variant, left, total in by_task)
+    return f"Not finished yet ({len(missing)} runs, all named in summary.json's `runs_missing`): {counts}."
 
 
 def _last_training_text(cell: dict[str, Any]) -> str:
