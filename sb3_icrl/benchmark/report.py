@@ -725,7 +725,7 @@ def aggregated_envs(cells: list[dict[str, Any]], suite: Suite) -> tuple[list[tup
             continue
         for variant in suite.variants:
             present = rows.get((env, variant), {})
-            missing = [algo for algo in algos if algo not in present]
+            missing = [algo for algo in algos if algo not in present and algo in suite.variant_algos(variant)]
             problems = [cell["normalisation_problem"] for cell in present.values() if "normalisation_problem" in cell]
             unscored = [algo for algo in algos if algo in present and "normalised_score_mean" not in present[algo]]
             if missing:
@@ -1806,7 +1806,11 @@ def write_figures(
     drawn_cells = None if runs_drawn is None else {run.cell for run in runs_drawn}
     for env_id in suite.envs:
         for variant in suite.variants:
-            algos = [algo for algo in suite.algos if drawn_cells is None or (env_name(env_id), variant, algo) in drawn_cells]
+            algos = [
+                algo
+                for algo in suite.variant_algos(variant)
+                if drawn_cells is None or (env_name(env_id), variant, algo) in drawn_cells
+            ]
             if (env_name(env_id), variant) not in reported or not algos:
                 continue
             try:

@@ -59,7 +59,8 @@ SUITE_KEYS = {
     "envs": "list of env ids",
     "algos": f"list of algorithms ({', '.join(ALGOS)})",
     "seeds": "list of training seeds",
-    "variants": "mapping of variant name to its settings (default: one variant 'base' with none)",
+    "variants": "mapping of variant name to its settings (default: one variant 'base' with none); a variant's `algos` "
+    "lists the suite's algorithms that run it (default: all of them), for a setting only some algorithms take",
     "steps": "training steps: an integer, or a mapping env -> integer (default: the recipe's n_timesteps)",
     "eval_episodes": "held-out episodes per run in the report (default 20)",
     "eval_seed": "seed of the held-out episodes (default 100, a seed no run trains on)",
@@ -108,6 +109,8 @@ VARIANT_KEYS = {
     "hyperparams": "-params",
     "env_kwargs": "--env-kwargs",
 }
+#: The variant setting that says which of the suite's algorithms run the variant (not a train.py flag)
+VARIANT_ALGOS = "algos"
 #: train.py settings a suite may give every run
 TRAIN_ARGS = {
     "eval_freq": "--eval-freq",
@@ -289,6 +292,12 @@ class RunSpec:
         return argv
 
 
+def variant_algos(algos: Sequence[str], settings: dict[str, Any]) -> list[str]:
+    """Of ``algos``, those that run the variant of ``settings`` (its ``algos``; all without it), in ``algos``' order."""
+    chosen = settings.get(VARIANT_ALGOS)
+    return [algo for algo in algos if chosen is None or algo in chosen]
+
+
 @dataclass
 class Suite:
     """
@@ -345,9 +354,13 @@ class Suite:
             )
             for env_id in self.envs
             for variant, settings in self.variants.items()
-            for algo in self.algos
+            for algo in self.variant_algos(variant)
             for seed in self.seeds
         ]
+
+    def variant_algos(self, variant: str) -> list[str]:
+        """The suite's algorithms that run ``variant`` (its ``algos``, default all), in the suite's order."""
+        return variant_algos(self.algos, self.variants[variant])
 
     def select(self, only: dict[str, list[str]]) -> list[RunSpec]:
         """
@@ -487,7 +500,7 @@ class _SuiteReader:
                 raise self.error((key,), f"`{key}` repeats an entry: {self.content[key]}.")
         return envs, algos, seeds
 
-    def variants(self) -> dict[str, dict[str, Any]]:
+    def variants(self, algos: list[str]) -> dict[str, dict[str, Any]]:
         variants = self.content.get("variants") or {"base": {}}
         if not isinstance(variants, dict):
             raise self.error(
@@ -500,8 +513,13 @@ class _SuiteReader:
             if not isinstance(settings, dict):
                 raise self.error(where, f"variant {variant!r} must map settings ({', '.join(VARIANT_KEYS)}) to values.")
             for key, value in settings.items():
+                if key == VARIANT_ALGOS:
+                    self.check_variant_algos(variant, value, algos)
+                    continue
                 if key not in VARIANT_KEYS:
-                    raise self.error((*where, key), f"unknown variant setting {key!r}: use {', '.join(VARIANT_KEYS)}.")
+                    raise self.error(
+                        (*where, key), f"unknown variant setting {key!r}: use {', '.join([*VARIANT_KEYS, VARIANT_ALGOS])}."
+                    )
                 if key in ("hyperparams", "env_kwargs") and not isinstance(value, dict):
                     raise self.error((*where, key), f"`{key}` maps names to values.")
                 if key in ("transition_noise", "violating_fraction") and (
@@ -527,11 +545,28 @@ class _SuiteReader:
                     )
         return {str(name): dict(settings) for name, settings in variants.items()}
 
+    def check_variant_algos(self, variant: str, value: Any, algos: list[str]) -> None:
+        """A variant's ``algos``: a non-empty list of the suite's algorithms, each once."""
+        where = ("variants", variant, VARIANT_ALGOS)
+        if not isinstance(value, list) or not value or not all(isinstance(algo, str) for algo in value):
+            raise self.error(
+                where, f"variant {variant!r}: `algos` lists the suite's algorithms that run it, e.g. [vicrl], got {value!r}."
+            )
+        strangers = [algo for algo in value if algo not in algos]
+        if strangers:
+            raise self.error(
+                where,
+                f"variant {variant!r}: `algos` names {', '.join(strangers)}, not among the suite's algos "
+                f"({', '.join(algos)}): add it to `algos` or drop it here.",
+            )
+        if len(set(value)) != len(value):
+            raise self.error(where, f"variant {variant!r}: `algos` names an algorithm twice: {value!r}.")
+
     def check_demonstrations(self, envs: list[str], algos: list[str], variants: dict[str, dict[str, Any]]) -> None:
         """Every ICRL cell has demonstrations: the variant's own file, or a dataset shipped for its env and fraction."""
-        if not set(algos) & set(ICRL_ALGOS):
-            return
         for variant, settings in variants.items():
+            if not set(variant_algos(algos, settings)) & set(ICRL_ALGOS):
+                continue
             if settings.get("demonstrations") is not None:
                 path = os.path.expanduser(str(settings["demonstrations"]))
                 if not os.path.isfile(path):
@@ -555,7 +590,7 @@ class _SuiteReader:
         """Every hyper-parameter a variant sets is one that each algorithm of the suite takes (each run gets them all)."""
         for variant, settings in variants.items():
             for key in settings.get("hyperparams") or {}:
-                refusing = [algo for algo in algos if str(key) not in _hyperparameter_names(algo)]
+                refusing = [algo for algo in variant_algos(algos, settings) if str(key) not in _hyperparameter_names(algo)]
                 if refusing:
                     known = sorted(set.intersection(*(_hyperparameter_names(algo) for algo in refusing)))
                     close = difflib.get_close_matches(str(key), known, n=1, cutoff=0.8)
@@ -563,7 +598,8 @@ class _SuiteReader:
                         ("variants", variant, "hyperparams", key),
                         f"`{key}` is not a hyper-parameter of {', '.join(refusing)}"
                         f"{f' (did you mean {close[0]!r}?)' if close else ''}: every run of variant {variant!r} "
-                        "would stop at its start.",
+                        "would stop at its start (a setting only some algorithms take: name them in the variant's "
+                        "`algos`).",
                     )
 
     def check_costs(self, envs: list[str]) -> None:
@@ -651,7 +687,7 @@ class _SuiteReader:
                 continue
             env_kwargs = _as_train_reads(settings.get("env_kwargs") or {})
             for env_id in envs:
-                for algo in algos:
+                for algo in variant_algos(algos, settings):
                     error = build(algo, env_id, overrides, env_kwargs)
                     if error is None:
                         continue
@@ -1022,7 +1058,7 @@ def load_suite(name_or_path: str | os.PathLike, dry_build: bool = True) -> Suite
     recipe_version = content.get("recipe_version")
     if recipe_version is not None and (not isinstance(recipe_version, (str, int)) or not str(recipe_version).strip()):
         raise reader.error(("recipe_version",), f"`recipe_version` is a name or a number, got {recipe_version!r}.")
-    variants = reader.variants()
+    variants = reader.variants(algos)
     reader.check_demonstrations(envs, algos, variants)
     reader.check_hyperparams(algos, variants)
     reader.check_costs(envs)
