@@ -104,4 +104,16 @@ def test_a_variant_takes_its_expert_s_forward_learner_and_its_source_env_s_const
     if algo == "irlplusppo":
         assert rest.pop("warmup_timesteps") == n_timesteps // 20
         assert source_rest.pop("warmup_timesteps") == source_params["n_timesteps"] // 20
+        # Resets every 250 PPO updates of each one's own rollout
+        assert rest.pop("reset_every") == 250 * params["n_envs"] * params["n_steps"]
+        assert source_rest.pop("reset_every") == 250 * source_params["n_envs"] * source_params["n_steps"]
     assert rest == source_rest
+
+
+def test_irlplus_on_ppo_resets_every_250_updates_of_each_env_s_rollout() -> None:
+    """The rule that chose it: 250 PPO updates between resets, whatever an env's rollout size."""
+    entries = read_hyperparams_file("irlplusppo")
+    assert len(entries) > 10
+    for env, params in entries.items():
+        assert params["policy_resets"] is True, env
+        assert params["reset_every"] == 250 * params["n_envs"] * params["n_steps"], env
