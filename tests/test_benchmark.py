@@ -58,7 +58,7 @@ def test_shipped_suites_are_the_benchmark():
     table3 = load_suite("table3")
     # The report of record: the paper's seven envs and the three binding variants with an expert, on fresh seeds, its
     # recipes, success rule and headline envs frozen in the file
-    assert len(table3.envs) == 10 and table3.algos == ["gacl", "bc2l", "mecl", "vicrl", "ppo", "ppolag"]
+    assert len(table3.envs) == 10 and table3.algos == ["gacl", "bc2l", "mecl", "vicrl", "irlplusppo", "ppo", "ppolag"]
     assert table3.forward_recipe == "mecl"  # the reference rows learn as MECL's forward learner does
     assert table3.seeds == [1000, 1001, 1002, 1003, 1004] and table3.recipe_version == "table3-v2"
     assert table3.success == {"max_violation_rate": 0.05, "min_normalised_score": 0.5}
