@@ -150,6 +150,20 @@ class RunFolderError(ValueError):
     """A path that is not a finished ``train.py`` run folder, or runs that cannot be compared as asked."""
 
 
+#: Steps per held-out episode when the env declares no time limit
+DEFAULT_EPISODE_STEPS = 1000
+#: An evaluation by episodes stops after this many times the steps of as many full-length episodes: no episode
+#: outlasts its env's time limit, so only the policy of an env without one (its episodes counted as
+#: :data:`DEFAULT_EPISODE_STEPS` long) or with a longer one than registered reaches it
+EPISODE_STEP_CAP = 2
+
+
+def heldout_steps(env_id: str, episodes: int) -> int:
+    """Evaluation steps for ``episodes`` held-out episodes (episodes that end early leave room for more)."""
+    limit = gym.spec(env_id).max_episode_steps or DEFAULT_EPISODE_STEPS
+    return episodes * limit
+
+
 class UnfinishedEpisodesError(RunFolderError):
     """Fewer evaluation episodes ended than were asked for within the step cap: the run's policy, not its files."""
 

@@ -315,3 +315,22 @@ def test_a_policy_whose_episodes_never_end_stops_at_the_step_cap() -> None:
     assert len(evaluation.violations) == 0
     with pytest.raises(ValueError, match="n_episodes must be at least 1, got 0"):
         run_evaluation.run_episodes(_FirstAction(), env, 30, True, 0, n_episodes=0)
+
+
+def test_compare_evaluates_exactly_n_episodes_as_the_reports_do(pendulum_run: str, tmp_path: pathlib.Path, capsys) -> None:
+    from sb3_icrl.zoo.compare import DEFAULT_EVAL_STEPS, evaluation_budget
+
+    # The step cap: twice the steps of as many full-length episodes (BiasedPendulum: 100 steps), or -n when given
+    assert evaluation_budget(pendulum_run, None, 5) == (1000, 5)
+    assert evaluation_budget(pendulum_run, 300, 5) == (300, 5)
+    assert evaluation_budget(pendulum_run, None, None) == (DEFAULT_EVAL_STEPS, None)
+    output = tmp_path / "compare.json"
+    assert main([pendulum_run, "--n-episodes", "4", "--seed", "100", "--json", str(output)]) == 0
+    payload = json.loads(output.read_text())
+    assert payload["eval_episodes"] == 4 and payload["runs"][0]["n_episodes"] == 4
+    expected = evaluate_run(pendulum_run, 800, eval_seed=100, n_episodes=4)
+    assert payload["runs"][0]["feasible_reward"] == pytest.approx(expected.feasible_reward)
+    # Too few steps for the episodes asked for: an error that says so, no table
+    capsys.readouterr()
+    assert main([pendulum_run, "-e", "4", "-n", "10"]) == 2
+    assert "only 0 of its 4 evaluation episodes ended within 10 steps" in capsys.readouterr().err

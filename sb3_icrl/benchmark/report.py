@@ -27,7 +27,6 @@ from collections.abc import Callable, Collection, Sequence
 from dataclasses import asdict, fields
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 import yaml
 
@@ -57,11 +56,13 @@ from sb3_icrl.metrics.transfer import read_transfers, transfer_file
 from sb3_icrl.plots.figures import load_runs, new_figure, save_figure, training_curves_figure
 from sb3_icrl.registry import ICRL_ALGOS, env_name
 from sb3_icrl.run_evaluation import (
+    EPISODE_STEP_CAP,
     OUTCOME_TITLES,
     RunResult,
     UnfinishedEpisodesError,
     evaluate_run,
     format_outcome_rate,
+    heldout_steps,
     summarise,
 )
 from sb3_icrl.run_folder import (
@@ -89,18 +90,6 @@ IDENTIFICATION_COLUMNS = (
 )
 #: What a report can evaluate: each run's final model, or the best model its training chose on learned quantities
 REPORT_MODELS = ("final", "best")
-#: Steps per held-out episode when the env declares no time limit
-DEFAULT_EPISODE_STEPS = 1000
-#: An evaluation by episodes stops after this many times the steps of as many full-length episodes: no episode
-#: outlasts its env's time limit, so only the policy of an env without one (its episodes counted as
-#: :data:`DEFAULT_EPISODE_STEPS` long) or with a longer one than registered reaches it
-EPISODE_STEP_CAP = 2
-
-
-def heldout_steps(env_id: str, episodes: int) -> int:
-    """Evaluation steps for ``episodes`` held-out episodes (episodes that end early leave room for more)."""
-    limit = gym.spec(env_id).max_episode_steps or DEFAULT_EPISODE_STEPS
-    return episodes * limit
 
 
 def heldout_settings(suite: Suite, env_id: str, model: str = "final") -> dict[str, Any]:

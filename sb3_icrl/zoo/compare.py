@@ -6,7 +6,8 @@ Compare finished zoo runs over seeds, as the benchmark reports them::
 
 Each ``RUN`` is a run folder ``<folder>/<algo>/<EnvName>_<N>`` of ``train.py``, or one that rl_zoo3 made (its
 ``<EnvName>`` is the env id with ``/`` turned into ``-``). Its final model (or ``--model best``)
-is run on held-out env seeds, deterministically, as ``enjoy.py`` does; the table gives per run the training seed, the
+is run on held-out env seeds, deterministically, as ``enjoy.py`` does (for ``-n`` steps, or on exactly
+``--n-episodes`` complete episodes as the benchmark's reports do); the table gives per run the training seed, the
 steps trained, the training wall time (the monitor's clock), the true violation rate and the feasible reward (and, for
 the driving envs, a second table of how the held-out episodes ended: collision, off road, time out, goal reached). Per
 algorithm it then gives the mean and std (``ddof=0``) over seeds and, against ``--reference``, the Wilcoxon
@@ -27,14 +28,16 @@ from typing import Any
 from sb3_icrl.common.evaluation import OUTCOME_KEYS, OUTCOME_RATE_KEYS
 from sb3_icrl.common.statistics import MIN_PAIRS_FOR_WILCOXON
 from sb3_icrl.common.utils import atomic_write_json, plain_docstring, write_error_message
-from sb3_icrl.registry import import_gym_packages
+from sb3_icrl.registry import import_gym_packages, resolve_env_id
 from sb3_icrl.run_evaluation import (
+    EPISODE_STEP_CAP,
     OUTCOME_TITLES,
     RunFolderError,
     RunResult,
     describe_run,
     evaluate_run,
     format_outcome_rate,
+    heldout_steps,
     outcome_rate_means,
     read_training_wall_time,
     same_seed_error,
@@ -232,6 +235,28 @@ def outcome_table(results: list[RunResult]) -> list[str]:
     return lines
 
 
+#: Evaluation steps per run when neither -n nor --n-episodes is given
+DEFAULT_EVAL_STEPS = 20000
+
+
+def evaluation_budget(run: str, n_timesteps: int | None, n_episodes: int | None) -> tuple[int, int | None]:
+    """
+    ``(steps, episodes)`` of a run's held-out evaluation: by steps (``n_timesteps``, default :data:`DEFAULT_EVAL_STEPS`)
+    without ``n_episodes``; else exactly ``n_episodes`` complete episodes within ``n_timesteps`` steps (default
+    :data:`~sb3_icrl.run_evaluation.EPISODE_STEP_CAP` times the steps of as many full-length episodes of the run's env).
+
+    :param run: The run folder
+    :param n_timesteps: ``-n``
+    :param n_episodes: ``--n-episodes``
+    """
+    if n_episodes is None:
+        return (n_timesteps or DEFAULT_EVAL_STEPS), None
+    if n_timesteps is not None:
+        return n_timesteps, n_episodes
+    _, env_id, _, _ = describe_run(run)
+    return EPISODE_STEP_CAP * heldout_steps(resolve_env_id(env_id), n_episodes), n_episodes
+
+
 def _check_json_path(path: str) -> None:
     """Fail before the evaluations when ``--json`` cannot be written (its folder missing, a file, or read-only)."""
     folder = os.path.dirname(os.path.abspath(path))
@@ -253,7 +278,22 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
         prog=prog, description=plain_docstring(__doc__), formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("runs", nargs="+", help="Run folders <folder>/<algo>/<EnvName>_<N>")
-    parser.add_argument("-n", "--n-timesteps", type=positive_int, default=20000, help="Evaluation steps per run")
+    parser.add_argument(
+        "-n",
+        "--n-timesteps",
+        type=positive_int,
+        default=None,
+        help="Evaluation steps per run (default 20000); with --n-episodes, the most steps they may take (default: twice "
+        "the steps of as many full-length episodes)",
+    )
+    parser.add_argument(
+        "-e",
+        "--n-episodes",
+        type=positive_int,
+        default=None,
+        help="Evaluate exactly this many complete episodes per run, as the benchmark's reports do (default: every "
+        "episode that ends within -n steps)",
+    )
     parser.add_argument("--seed", type=non_negative_int, default=100, help="Seed of the held-out evaluation episodes")
     parser.add_argument("--model", choices=["final", "best"], default="final", help="Model to evaluate")
     parser.add_argument(
@@ -295,7 +335,10 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
         labels = run_labels(args.runs)
         for run in args.runs:
             print(f"Evaluating {run}")
-            result = evaluate_run(run, args.n_timesteps, args.seed, args.model == "best", wall_time_min=wall_times[run])
+            steps, budget = evaluation_budget(run, args.n_timesteps, args.n_episodes)
+            result = evaluate_run(
+                run, steps, args.seed, args.model == "best", wall_time_min=wall_times[run], n_episodes=budget
+            )
             result.label = labels[run] if labels[run] != result.algo else ""
             results.append(result)
         summary = summarise(results, args.reference)
@@ -309,7 +352,12 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     for warning in wilcoxon_warnings(summary, args.reference):
         print(f"warning: {warning}", file=sys.stderr)
     if args.json:
-        payload = {"runs": [asdict(result) for result in results], "summary": summary, "eval_seed": args.seed}
+        payload = {
+            "runs": [asdict(result) for result in results],
+            "summary": summary,
+            "eval_seed": args.seed,
+            "eval_episodes": args.n_episodes,
+        }
         try:
             atomic_write_json(args.json, payload, indent=2)
         except OSError as error:
