@@ -134,6 +134,40 @@ def test_a_variants_algorithms_are_the_suites(tmp_path, algos, message):
         load_suite(write(tmp_path, text), dry_build=False)
 
 
+def test_an_env_can_have_seeds_of_its_own(tmp_path):
+    text = """\
+envs: [GridWorldWall-v0, GridWorldSquare-v0]
+algos: [bc2l]
+seeds: [0, 1]
+env_seeds: {GridWorldSquare-v0: [0, 1, 2, 3]}
+"""
+    suite = load_suite(write(tmp_path, text), dry_build=False)
+    assert [run.name for run in suite.runs()] == [
+        "base/bc2l/GridWorldWall-v0/seed 0",
+        "base/bc2l/GridWorldWall-v0/seed 1",
+        *(f"base/bc2l/GridWorldSquare-v0/seed {seed}" for seed in range(4)),
+    ]
+    assert [run.seed for run in suite.select({"seed": ["3"]})] == [3]
+    with pytest.raises(SuiteError, match="it has seed: 0, 1, 2, 3"):
+        suite.select({"seed": ["7"]})
+
+
+@pytest.mark.parametrize(
+    "env_seeds, line, message",
+    [
+        ("{GridWorldSquare-v0: [0]}", 4, "GridWorldSquare-v0 is not one of the suite's envs"),
+        ("{GridWorldWall-v0: []}", 4, "the seeds of GridWorldWall-v0 are a non-empty list"),
+        ("{GridWorldWall-v0: [0, -1]}", 4, "seeds are integers >= 0, got -1"),
+        ("{GridWorldWall-v0: [2, 2]}", 4, "`env_seeds.GridWorldWall-v0` repeats an entry"),
+        ("[0, 1]", 4, "`env_seeds` maps an env to its list of seeds"),
+    ],
+)
+def test_bad_env_seeds_name_the_line(tmp_path, env_seeds, line, message):
+    text = f"envs: [GridWorldWall-v0]\nalgos: [bc2l]\nseeds: [0]\nenv_seeds: {env_seeds}\n"
+    with pytest.raises(SuiteError, match=f"line {line}: {message}"):
+        load_suite(write(tmp_path, text), dry_build=False)
+
+
 def test_unknown_suite_name_lists_the_shipped_ones():
     with pytest.raises(SuiteError, match="table3"):
         load_suite("tabel3")

@@ -59,6 +59,7 @@ SUITE_KEYS = {
     "envs": "list of env ids",
     "algos": f"list of algorithms ({', '.join(ALGOS)})",
     "seeds": "list of training seeds",
+    "env_seeds": "mapping env -> its own list of training seeds, instead of `seeds` (e.g. more seeds on a study's main env)",
     "variants": "mapping of variant name to its settings (default: one variant 'base' with none); a variant's `algos` "
     "lists the suite's algorithms that run it (default: all of them), for a setting only some algorithms take",
     "steps": "training steps: an integer, or a mapping env -> integer (default: the recipe's n_timesteps)",
@@ -334,6 +335,8 @@ class Suite:
     beats: BeatsRule | None = None
     #: The aim's thresholds (:data:`AIM_KEYS`), ``None`` when the suite states none
     aim: dict[str, float] | None = None
+    #: Per env with seeds of its own (``env_seeds``), its training seeds; the other envs take ``seeds``
+    env_seeds: dict[str, list[int]] = field(default_factory=dict)
 
     def runs(self) -> list[RunSpec]:
         """Every run, env by env, then variant, algorithm and seed."""
@@ -355,7 +358,7 @@ class Suite:
             for env_id in self.envs
             for variant, settings in self.variants.items()
             for algo in self.variant_algos(variant)
-            for seed in self.seeds
+            for seed in self.env_seeds.get(env_id, self.seeds)
         ]
 
     def variant_algos(self, variant: str) -> list[str]:
@@ -388,7 +391,7 @@ class Suite:
             available = {
                 "env": [env_name(env_id) for env_id in self.envs],
                 "algo": list(self.algos),
-                "seed": [str(seed) for seed in self.seeds],
+                "seed": [str(seed) for seed in dict.fromkeys(run.seed for run in self.runs())],
                 "variant": list(self.variants),
             }
             offered = "; ".join(f"{key}: {', '.join(available[key])}" for key in wanted)
@@ -490,15 +493,39 @@ class _SuiteReader:
         for index, algo in enumerate(algos):
             if algo not in ALGOS:
                 raise self.error(("algos", index), _unknown_algo(algo))
-        seeds = []
-        for index, seed in enumerate(self.content["seeds"]):
-            if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-                raise self.error(("seeds", index), f"seeds are integers >= 0, got {seed!r}.")
-            seeds.append(seed)
-        for key, values in (("envs", envs), ("algos", algos), ("seeds", seeds)):
+        seeds = self.seed_list(self.content["seeds"], ("seeds",))
+        for key, values in (("envs", envs), ("algos", algos)):
             if len(set(values)) != len(values):
                 raise self.error((key,), f"`{key}` repeats an entry: {self.content[key]}.")
         return envs, algos, seeds
+
+    def seed_list(self, raw: list[Any], where: tuple[Any, ...]) -> list[int]:
+        """Training seeds: integers >= 0, each once."""
+        seeds = []
+        for index, seed in enumerate(raw):
+            if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+                raise self.error((*where, index), f"seeds are integers >= 0, got {seed!r}.")
+            seeds.append(seed)
+        if len(set(seeds)) != len(seeds):
+            raise self.error(where, f"`{'.'.join(map(str, where))}` repeats an entry: {raw}.")
+        return seeds
+
+    def env_seeds(self, envs: list[str]) -> dict[str, list[int]]:
+        """``env_seeds``: per env named, its own training seeds (the other envs take ``seeds``)."""
+        raw = self.content.get("env_seeds")
+        if raw is None:
+            return {}
+        if not isinstance(raw, dict) or not raw:
+            raise self.error(("env_seeds",), f"`env_seeds` maps an env to its list of seeds ({SUITE_KEYS['env_seeds']}).")
+        env_seeds: dict[str, list[int]] = {}
+        for key, value in raw.items():
+            env_id = self.env_id(key, ("env_seeds", key))
+            if env_id not in envs:
+                raise self.error(("env_seeds", key), f"{key} is not one of the suite's envs.")
+            if not isinstance(value, list) or not value:
+                raise self.error(("env_seeds", key), f"the seeds of {key} are a non-empty list, got {value!r}.")
+            env_seeds[env_id] = self.seed_list(value, ("env_seeds", key))
+        return env_seeds
 
     def variants(self, algos: list[str]) -> dict[str, dict[str, Any]]:
         variants = self.content.get("variants") or {"base": {}}
@@ -1086,6 +1113,7 @@ def load_suite(name_or_path: str | os.PathLike, dry_build: bool = True) -> Suite
         headline_envs=reader.headline_envs(envs),
         beats=reader.beats(envs, algos, reader.paper()),  # read again: checked in the file's order, paper first
         aim=reader.aim(algos),
+        env_seeds=reader.env_seeds(envs),
     )
     if dry_build:  # last: each cheaper check has passed
         reader.check_envs(envs, variants)
