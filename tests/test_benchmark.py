@@ -87,6 +87,31 @@ def test_shipped_suites_are_the_benchmark():
         ("envs: [GridWorldWall-v0]\nalgos: [bc2l]\nseeds: [0]\ntrain_args: {save_every: 3}\n", 4, "unknown train setting"),
         ("envs: [GridWorldWall-v0]\nalgos: [bc2l]\nseeds: [0]\ntrain_args: {device: 0}\n", 4, "torch device name"),
         ("envs: []\nalgos: [bc2l]\nseeds: [0]\n", 1, "`envs` must be a non-empty list"),
+        (
+            "envs: [GridWorldWall-v0]\nalgos: [bc2l]\nseeds: [0]\nenv_seeds: {GridWorldSquare-v0: [0]}\n",
+            4,
+            "GridWorldSquare-v0 is not one of the suite's envs",
+        ),
+        (
+            "envs: [GridWorldWall-v0]\nalgos: [bc2l]\nseeds: [0]\nenv_seeds: {GridWorldWall-v0: []}\n",
+            4,
+            "the seeds of GridWorldWall-v0 are a non-empty list",
+        ),
+        (
+            "envs: [GridWorldWall-v0]\nalgos: [bc2l]\nseeds: [0]\nenv_seeds: {GridWorldWall-v0: [0, -1]}\n",
+            4,
+            "seeds are integers >= 0, got -1",
+        ),
+        (
+            "envs: [GridWorldWall-v0]\nalgos: [bc2l]\nseeds: [0]\nenv_seeds: {GridWorldWall-v0: [2, 2]}\n",
+            4,
+            "`env_seeds.GridWorldWall-v0` repeats an entry",
+        ),
+        (
+            "envs: [GridWorldWall-v0]\nalgos: [bc2l]\nseeds: [0]\nenv_seeds: [0, 1]\n",
+            4,
+            "`env_seeds` maps an env to its list of seeds",
+        ),
     ],
 )
 def test_bad_suite_files_name_file_and_line(tmp_path, text, line, message):
@@ -150,22 +175,6 @@ env_seeds: {GridWorldSquare-v0: [0, 1, 2, 3]}
     assert [run.seed for run in suite.select({"seed": ["3"]})] == [3]
     with pytest.raises(SuiteError, match="it has seed: 0, 1, 2, 3"):
         suite.select({"seed": ["7"]})
-
-
-@pytest.mark.parametrize(
-    "env_seeds, line, message",
-    [
-        ("{GridWorldSquare-v0: [0]}", 4, "GridWorldSquare-v0 is not one of the suite's envs"),
-        ("{GridWorldWall-v0: []}", 4, "the seeds of GridWorldWall-v0 are a non-empty list"),
-        ("{GridWorldWall-v0: [0, -1]}", 4, "seeds are integers >= 0, got -1"),
-        ("{GridWorldWall-v0: [2, 2]}", 4, "`env_seeds.GridWorldWall-v0` repeats an entry"),
-        ("[0, 1]", 4, "`env_seeds` maps an env to its list of seeds"),
-    ],
-)
-def test_bad_env_seeds_name_the_line(tmp_path, env_seeds, line, message):
-    text = f"envs: [GridWorldWall-v0]\nalgos: [bc2l]\nseeds: [0]\nenv_seeds: {env_seeds}\n"
-    with pytest.raises(SuiteError, match=f"line {line}: {message}"):
-        load_suite(write(tmp_path, text), dry_build=False)
 
 
 def test_unknown_suite_name_lists_the_shipped_ones():
