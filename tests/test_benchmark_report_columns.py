@@ -613,3 +613,42 @@ def test_many_unfinished_runs_are_counted_per_env_few_are_named():
     assert not_finished_text(many) == (
         "Not finished yet (13 runs, all named in summary.json's `runs_missing`): A-v0 12 of 20; A-v0 (noise) 1 of 20."
     )
+
+
+def test_a_study_draws_each_method_against_its_level(tmp_path):
+    from sb3_icrl.benchmark.report import study_axis, study_figure
+
+    text = """\
+envs: [GridWorldWall-v0]
+algos: [bc2l, mecl]
+seeds: [0, 1]
+variants:
+  sigma-0.1: {transition_noise: 0.1}
+  sigma-0.01: {transition_noise: 0.01}
+"""
+    path = tmp_path / "study.yml"
+    path.write_text(text)
+    suite = load_suite(str(path), dry_build=False)
+    key, levels = study_axis(suite)
+    assert key == "transition_noise" and levels == {"sigma-0.1": 0.1, "sigma-0.01": 0.01}
+    values = {("sigma-0.1", "mecl"): [(5.0, 0.5), (7.0, 0.0)], ("sigma-0.01", "mecl"): [(9.0, 0.0), (11.0, 0.0)]}
+    results = [
+        (run, RunResult(run.name, run.algo, run.env_id, run.seed, 100, 1.0, violation, feasible, feasible, 20))
+        for run in suite.runs()
+        if (run.variant, run.algo) in values
+        for feasible, violation in [values[(run.variant, run.algo)][run.seed]]
+    ]
+    figure = study_figure(summarise_suite(suite, suite.runs(), results), key, levels)
+    violation_ax, reward_ax = figure.axes
+    assert violation_ax.get_xscale() == "log" and violation_ax.get_title() == "GridWorldWall-v0"
+    # The means joined by a line, in order of the level; each seed a dot
+    [line] = reward_ax.get_lines()
+    assert list(line.get_xdata()) == [0.01, 0.1] and list(line.get_ydata()) == [10.0, 6.0]
+    assert sorted(np.concatenate([c.get_offsets()[:, 1] for c in reward_ax.collections])) == [5.0, 7.0, 9.0, 11.0]
+    assert list(violation_ax.get_lines()[0].get_ydata()) == [0.0, 0.25]
+    # A suite whose variants do not all set one number is no study
+    path.write_text(text.replace("sigma-0.01: {transition_noise: 0.01}", "plain: {}"))
+    assert study_axis(load_suite(str(path), dry_build=False)) is None
+    shipped = {name: study_axis(load_suite(name, dry_build=False)) for name in ("noise", "imperfect", "table3")}
+    assert shipped["noise"][0] == "transition_noise" and shipped["imperfect"][1]["violating-0.8"] == 0.8
+    assert shipped["table3"] is None

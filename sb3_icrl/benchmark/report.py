@@ -1841,7 +1841,77 @@ def write_figures(
     profile = performance_profile_figure(summary)
     if profile is not None:
         written.append(str(save_figure(profile, os.path.join(output, "performance_profile.png"))))
+    axis = study_axis(suite)
+    if axis is not None:
+        study = study_figure(summary, *axis)
+        if study is not None:
+            written.append(str(save_figure(study, os.path.join(output, "study.png"))))
     return written
+
+
+#: The variant settings a study varies, with the axis label of its figure (the noise on a log scale)
+STUDY_AXES = {
+    "transition_noise": "transition noise sigma",
+    "violating_fraction": "share of violating demonstrations",
+}
+
+
+def study_axis(suite: Suite) -> tuple[str, dict[str, float]] | None:
+    """
+    The setting a study's variants vary (:data:`STUDY_AXES`) and each variant's level, when every variant of the
+    suite (two at least) sets it to a number; ``None`` for a suite that is not such a study.
+    """
+    if len(suite.variants) < 2:
+        return None
+    for key in STUDY_AXES:
+        levels = {variant: settings.get(key) for variant, settings in suite.variants.items()}
+        if all(isinstance(level, (int, float)) and not isinstance(level, bool) for level in levels.values()):
+            return key, {variant: float(level) for variant, level in levels.items()}  # type: ignore[arg-type]
+    return None
+
+
+def study_figure(summary: dict[str, Any], key: str, levels: dict[str, float]) -> Any:
+    """
+    The paper's study figure from ours: one column per env, the violation rate (top) and the feasible reward (bottom)
+    of each method against the study's level (:func:`study_axis`), its mean over seeds joined by a line and each
+    seed's value a dot; ``None`` when the summary has no cell of those variants.
+
+    :param summary: A summary of :func:`summarise_suite`
+    :param key: The setting varied (a key of :data:`STUDY_AXES`)
+    :param levels: Each variant's level
+    """
+    cells = [cell for cell in summary["cells"] if cell["variant"] in levels]
+    if not cells:
+        return None
+    envs = list(dict.fromkeys(cell["env"] for cell in cells))
+    algos = list(dict.fromkeys(cell["algo"] for cell in cells))
+    figure = new_figure(width=max(4.8, 3.6 * len(envs)), height=6.4)
+    axes = np.asarray(figure.subplots(2, len(envs), squeeze=False))
+    colours = {algo: f"C{index % 10}" for index, algo in enumerate(algos)}
+    for column, env in enumerate(envs):
+        for row, (metric, title) in enumerate((("violation_rate", "violation rate"), ("feasible_reward", "feasible reward"))):
+            ax = axes[row, column]
+            for algo in algos:
+                mine = sorted(
+                    ((levels[cell["variant"]], cell) for cell in cells if cell["env"] == env and cell["algo"] == algo),
+                    key=lambda pair: pair[0],
+                )
+                if not mine:
+                    continue
+                xs = [level for level, _ in mine]
+                ax.plot(xs, [cell[f"{metric}_mean"] for _, cell in mine], marker="o", color=colours[algo], label=algo)
+                for level, cell in mine:
+                    values = [seed[metric] for seed in cell["per_seed"] if math.isfinite(seed[metric])]
+                    ax.scatter([level] * len(values), values, s=8, color=colours[algo], alpha=0.35)
+            if key == "transition_noise":
+                ax.set_xscale("log")
+            ax.set_xlabel(STUDY_AXES[key])
+            ax.set_ylabel(title)
+            if row == 0:
+                ax.set_title(env)
+    axes[0, 0].legend(fontsize=7)
+    figure.tight_layout()
+    return figure
 
 
 #: Thresholds of the performance profile: normalised scores from PPO's (0) to beyond the oracle's (1)
