@@ -364,6 +364,13 @@ def test_figures_follow_the_cells_the_report_keeps(tmp_path, monkeypatch):
     written = write_figures(summary, suite, str(tmp_path / "logs"), str(tmp_path / "report"))
     assert loaded == ["sb3_icrl/GridWorldWall-v0"]
     assert [os.path.basename(path) for path in written] == ["curves_GridWorldWall-v0_base.png"]
+    # A method with no finished run yet (a suite part-way): the others' curves are drawn, without it
+    asked = []
+    monkeypatch.setattr(report, "load_runs", lambda folder, algos, env_id, skip_missing: asked.append(algos) or [])
+    first = [run for run in kept if run.algo == suite.algos[0]]
+    summary = summarise_suite(suite, kept, [(run, _result(run.algo, run.seed, 1.0, 0.0)) for run in first])
+    write_figures(summary, suite, str(tmp_path / "logs"), str(tmp_path / "report"))
+    assert asked == [[suite.algos[0]]]
 
 
 def test_an_updated_report_draws_the_rerun_methods_and_says_so(tmp_path, monkeypatch):

@@ -1792,13 +1792,16 @@ def write_figures(
     """
     written = []
     reported = {(cell["env"], cell["variant"]) for cell in summary["cells"]}  # the report's cells (its --only filter)
+    # The algorithms with a cell there: one with no finished run yet (a suite part-way) leaves the others' curves drawn
+    reported_cells = {(cell["env"], cell["variant"], cell["algo"]) for cell in summary["cells"]}
     drawn_cells = None if runs_drawn is None else {run.cell for run in runs_drawn}
     for env_id in suite.envs:
         for variant in suite.variants:
             algos = [
                 algo
                 for algo in suite.variant_algos(variant)
-                if drawn_cells is None or (env_name(env_id), variant, algo) in drawn_cells
+                if (env_name(env_id), variant, algo) in reported_cells
+                and (drawn_cells is None or (env_name(env_id), variant, algo) in drawn_cells)
             ]
             if (env_name(env_id), variant) not in reported or not algos:
                 continue
