@@ -341,3 +341,45 @@ def test_a_verdict_with_runs_still_coming_is_the_verdict_so_far(tmp_path):
     # A reference row's runs missing leave "beats" final (it judges ICRL cells alone) but not the aim
     summary = summary_of(suite, {key: pairs for key, pairs in AIM_VALUES.items() if key[1] != "ppo"}, LAST)
     assert summary["beats_judgement"]["pending_runs"] == 0 and summary["aim"]["pending_runs"] == 4
+
+
+def test_a_variant_some_methods_do_not_run_is_judged_for_those_that_do(tmp_path):
+    text = (
+        SUITE.replace(
+            "algos: [bc2l, mecl, ppo, ppolag]",
+            "algos: [bc2l, mecl, ppo, ppolag]\nvariants:\n  base: {}\n" "  only-mecl: {algos: [mecl, ppo, ppolag]}",
+        )
+        + BEATS.replace("[heldout, last_training]", "[heldout]")
+        + AIM
+    )
+    suite = load_suite(write(tmp_path, text), dry_build=False)
+    results = []
+    for run in suite.runs():
+        feasible, violation = AIM_VALUES[(run.env_id.split("/")[-1], run.algo)][suite.seeds.index(run.seed)]
+        results.append((run, RunResult(run.name, run.algo, run.env_id, run.seed, 100, 1.0, violation, feasible, feasible, 20)))
+    summary = summarise_suite(suite, suite.runs(), results)
+    judgement = summary["beats_judgement"]
+    methods = {method["algo"]: method for method in judgement["methods"]}
+    # BC2L is judged on the two base tasks only, and decided there: no "not decided yet" for a variant it does not run
+    assert methods["bc2l"]["n_tasks"] == 2 and methods["mecl"]["n_tasks"] == 4
+    assert methods["bc2l"]["undecided"] == [] and judgement["pending_runs"] == 0
+    assert judgement["outcome"] is not None
+    table = markdown_table(summary)
+    assert "| bc2l | " in table and "not run" in table
+    # The aggregates take every method over the same envs: the variant without BC2L is left out, and why
+    assert summary["aggregated_envs"] == [["GridWorldWall-v0", "base"], ["GridWorldSquare-v0", "base"]]
+    reasons = {entry["variant"]: entry["reason"] for entry in summary["aggregates_left_out"]}
+    assert reasons == {"only-mecl": "the variant does not run bc2l (its `algos`)"}
+
+
+def test_a_partial_report_keeps_its_verdict_provisional(tmp_path):
+    suite = load_suite(write(tmp_path, SUITE + AIM.replace("0.05", "0.2")), dry_build=False)
+    chosen = [run for run in suite.runs() if run.seed == 0]
+    results = []
+    for run in chosen:
+        feasible, violation = AIM_VALUES[(run.env_id.split("/")[-1], run.algo)][0]
+        results.append((run, RunResult(run.name, run.algo, run.env_id, run.seed, 100, 1.0, violation, feasible, feasible, 20)))
+    # A report of seed 0 alone (--only seed=0): every run it selected is in, the suite's seed 1 is not
+    summary = summarise_suite(suite, chosen, results)
+    assert summary["runs_missing"] == [] and summary["aim"]["pending_runs"] == 8
+    assert "so far (provisional: 8 runs of the headline envs not finished)" in aim_text_of(summary["aim"])

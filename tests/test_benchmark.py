@@ -175,6 +175,9 @@ env_seeds: {GridWorldSquare-v0: [0, 1, 2, 3]}
     assert [run.seed for run in suite.select({"seed": ["3"]})] == [3]
     with pytest.raises(SuiteError, match="it has seed: 0, 1, 2, 3"):
         suite.select({"seed": ["7"]})
+    # Values that each exist but never together: the error says which seeds each env runs
+    with pytest.raises(SuiteError, match=r"no run has them all \(GridWorldWall-v0 runs seeds 0, 1\)"):
+        suite.select({"env": ["GridWorldWall-v0"], "seed": ["3"]})
 
 
 def test_unknown_suite_name_lists_the_shipped_ones():

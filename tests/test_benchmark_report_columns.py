@@ -652,3 +652,42 @@ variants:
     shipped = {name: study_axis(load_suite(name, dry_build=False)) for name in ("noise", "imperfect", "table3")}
     assert shipped["noise"][0] == "transition_noise" and shipped["imperfect"][1]["violating-0.8"] == 0.8
     assert shipped["table3"] is None
+
+
+def test_unfinished_runs_are_counted_per_env_over_the_reports_runs(tmp_path):
+    text = "envs: [GridWorldWall-v0, GridWorldSquare-v0]\nalgos: [bc2l]\nseeds: [0, 1]\n"
+    text += "env_seeds: {GridWorldSquare-v0: [0, 1, 2]}\n"
+    path = tmp_path / "suite.yml"
+    path.write_text(text)
+    suite = load_suite(str(path), dry_build=False)
+    finished = [run for run in suite.runs() if run.seed == 0]
+    results = [(run, RunResult(run.name, run.algo, run.env_id, run.seed, 100, 1.0, 0.0, 1.0, 1.0, 20)) for run in finished]
+    summary = summarise_suite(suite, suite.runs(), results)
+    assert summary["runs_missing_by_env"] == [["GridWorldWall-v0", "base", 1, 2], ["GridWorldSquare-v0", "base", 2, 3]]
+    # An updated report passes the runs it re-selected; the finished ones it keeps still count in the totals
+    unfinished = [run for run in suite.runs() if run.seed != 0]
+    summary = summarise_suite(suite, unfinished, results)
+    assert summary["runs_missing_by_env"] == [["GridWorldWall-v0", "base", 1, 2], ["GridWorldSquare-v0", "base", 2, 3]]
+
+
+def test_a_study_report_writes_its_figure(tmp_path, monkeypatch):
+    import sb3_icrl.benchmark.report as report_module
+    from sb3_icrl.benchmark.report import write_figures
+
+    text = """\
+envs: [GridWorldWall-v0]
+algos: [bc2l]
+seeds: [0]
+variants:
+  none: {violating_fraction: 0.0}
+  most: {violating_fraction: 0.8}
+"""
+    path = tmp_path / "study.yml"
+    path.write_text(text)
+    suite = load_suite(str(path), dry_build=False)
+    results = [(run, RunResult(run.name, run.algo, run.env_id, run.seed, 100, 1.0, 0.0, 1.0, 1.0, 20)) for run in suite.runs()]
+    summary = summarise_suite(suite, suite.runs(), results)
+    monkeypatch.setattr(report_module, "load_runs", lambda *args, **kwargs: (_ for _ in ()).throw(FileNotFoundError()))
+    monkeypatch.setattr(report_module, "constraint_figures", lambda *args, **kwargs: [])
+    written = write_figures(summary, suite, str(tmp_path / "logs"), str(tmp_path / "report"))
+    assert [os.path.basename(path) for path in written] == ["study.png"] and os.path.isfile(written[0])

@@ -714,10 +714,14 @@ def aggregated_envs(cells: list[dict[str, Any]], suite: Suite) -> tuple[list[tup
             continue
         for variant in suite.variants:
             present = rows.get((env, variant), {})
-            missing = [algo for algo in algos if algo not in present and algo in suite.variant_algos(variant)]
+            # Every method over the same envs: a variant that some of them do not run (its `algos`) is left out
+            absent = [algo for algo in algos if algo not in suite.variant_algos(variant)]
+            missing = [algo for algo in algos if algo not in present]
             problems = [cell["normalisation_problem"] for cell in present.values() if "normalisation_problem" in cell]
             unscored = [algo for algo in algos if algo in present and "normalised_score_mean" not in present[algo]]
-            if missing:
+            if absent:
+                reason = f"the variant does not run {', '.join(absent)} (its `algos`)"
+            elif missing:
                 reason = f"no finished run of {', '.join(missing)}"
             elif problems:
                 reason = f"no normalised scores: {problems[0]}"
@@ -944,20 +948,22 @@ def summarise_suite(
     finished = {run for run, _ in results}
     unfinished = [run for run in runs if run not in finished]
     missing = [run.name for run in unfinished]
-    # The suite's own judgements, only where it writes them: other suites' summaries stay as they were
-    judgements: dict[str, Any] = {}
+    # A judgement is final only when every run of its envs in the whole suite is in, whatever part this report takes
+    to_come = [run for run in suite.runs() if run not in finished]
+    judgements: dict[str, Any] = {}  # the suite's own, only where it writes them: other summaries stay as they were
     if suite.beats is not None:
         judged = {(env_name(env), variant) for env in suite.beats.envs for variant in suite.variants}
         judgements["beats_judgement"] = beats_judgement(cells, suite)
-        judgements["beats_judgement"]["pending_runs"] = _count_runs(unfinished, judged, ICRL_ALGOS)
+        judgements["beats_judgement"]["pending_runs"] = _count_runs(to_come, judged, ICRL_ALGOS)
     if suite.aim is not None:
         headline = {
-            (env_name(run.env_id), run.variant)
-            for run in runs
-            if suite.headline_envs is None or env_name(run.env_id) in suite.headline_envs
+            (env_name(env_id), variant)
+            for env_id in suite.envs
+            for variant in suite.variants
+            if suite.headline_envs is None or env_name(env_id) in suite.headline_envs
         }
         judgements["aim"] = aim_outcome(cells, aggregated, left_out, suite)
-        judgements["aim"]["pending_runs"] = _count_runs(unfinished, headline)
+        judgements["aim"]["pending_runs"] = _count_runs(to_come, headline)
     return {
         "suite": suite.name,
         "model": model,
@@ -975,7 +981,7 @@ def summarise_suite(
         "aggregates_left_out": left_out,
         "success_rule": suite.success,
         "runs_missing": missing,
-        "runs_missing_by_env": _missing_by_task(runs, unfinished),
+        "runs_missing_by_env": _missing_by_task(suite, [*runs, *(finished - set(runs))], unfinished),
         "others_sources": list(suite.others),
         "core_hours": _core_hours(list(wall_time.values())),
         "core_hours_runs": sum(value is not None for value in wall_time.values()),
@@ -993,9 +999,15 @@ def _runs_text(count: int) -> str:
     return f"{count} run" + "s" * (count != 1)
 
 
-def _missing_by_task(runs: Sequence[RunSpec], unfinished: Sequence[RunSpec]) -> list[list[Any]]:
-    """``[env, variant, runs not finished, runs]`` per env and variant with an unfinished run, in the suite's order."""
+def _missing_by_task(suite: Suite, runs: Sequence[RunSpec], unfinished: Sequence[RunSpec]) -> list[list[Any]]:
+    """
+    ``[env, variant, runs not finished, runs]`` per env and variant with an unfinished run, in the suite's order: of
+    ``runs``, the report's runs (finished or not, those an updated report keeps included).
+    """
     counts: dict[tuple[str, str], list[int]] = {}
+    for env_id in suite.envs:
+        for variant in suite.variants:
+            counts[(env_name(env_id), variant)] = [0, 0]
     for run in runs:
         counts.setdefault((env_name(run.env_id), run.variant), [0, 0])[1] += 1
     for run in unfinished:
@@ -1048,10 +1060,13 @@ def beats_judgement(cells: list[dict[str, Any]], suite: Suite) -> dict[str, Any]
     assert rule is not None
     rows = {(cell["env"], cell["variant"], cell["algo"]): cell for cell in cells}
     tasks = [(env, variant) for env in rule.envs for variant in suite.variants]
-    methods = []
+    methods: list[dict[str, Any]] = []
     for algo in (algo for algo in suite.algos if algo in ICRL_ALGOS):
         entries = []
         for env, variant in tasks:
+            if algo not in suite.variant_algos(variant):  # a variant it does not run (its `algos`): not judged there
+                entries.append({"env": env, "variant": variant, "runs": False})
+                continue
             pair = suite.paper[env][rule.against]
             cell = rows.get((env, variant, algo))
             verdicts: dict[str, bool | None] = {
@@ -1061,18 +1076,20 @@ def beats_judgement(cells: list[dict[str, Any]], suite: Suite) -> dict[str, Any]
             if cell is not None:
                 cell["beats_judgement"] = dict(verdicts)
             entries.append({"env": env, "variant": variant, **verdicts})
+        judged = [entry for entry in entries if entry.get("runs", True)]
         methods.append(
             {
                 "algo": algo,
                 "tasks": entries,
+                "n_tasks": len(judged),
                 **{
-                    name: [[entry["env"], entry["variant"]] for entry in entries if entry["beats"] is verdict]
+                    name: [[entry["env"], entry["variant"]] for entry in judged if entry["beats"] is verdict]
                     for name, verdict in (("beaten", True), ("not_beaten", False), ("undecided", None))
                 },
             }
         )
     most = max(len(method["beaten"]) for method in methods)
-    everywhere = [method["algo"] for method in methods if len(method["beaten"]) == len(tasks)]
+    everywhere = [method["algo"] for method in methods if method["n_tasks"] and len(method["beaten"]) == method["n_tasks"]]
     return {
         "against": rule.against,
         "columns": list(rule.columns),
@@ -1114,7 +1131,8 @@ def beats_judgement_text(judgement: dict[str, Any]) -> str:
         undecided = len(method["undecided"])
         notes = [named] * bool(named) + [f"{undecided} not decided yet"] * bool(undecided)
         parts.append(
-            f"{method['algo'].upper()} on {len(method['beaten'])} of {n_tasks}" + (f" ({'; '.join(notes)})" if notes else "")
+            f"{method['algo'].upper()} on {len(method['beaten'])} of {method.get('n_tasks', n_tasks)}"
+            + (f" ({'; '.join(notes)})" if notes else "")
         )
     best = " and ".join(algo.upper() for algo in judgement["best"])
     most = max(len(method["beaten"]) for method in judgement["methods"])
@@ -1153,10 +1171,12 @@ def beats_judgement_lines(summary: dict[str, Any]) -> list[str]:
         "|---" * (len(headings) + 2) + "|",
     ]
     for method in judgement["methods"]:
-        entries = [" / ".join(_verdict_text(entry[column]) for column in columns) for entry in method["tasks"]]
-        lines.append(
-            f"| {method['algo']} | " + " | ".join(entries) + f" | {len(method['beaten'])} of {len(judgement['tasks'])} |"
-        )
+        entries = [
+            " / ".join(_verdict_text(entry[column]) for column in columns) if entry.get("runs", True) else "not run"
+            for entry in method["tasks"]
+        ]
+        judged = method.get("n_tasks", len(judgement["tasks"]))
+        lines.append(f"| {method['algo']} | " + " | ".join(entries) + f" | {len(method['beaten'])} of {judged} |")
     text = beats_judgement_text(judgement)
     return [*lines, "", text[0].upper() + text[1:]]
 
@@ -1907,12 +1927,21 @@ def study_figure(summary: dict[str, Any], key: str, levels: dict[str, float]) ->
                     values = [seed[metric] for seed in cell["per_seed"] if math.isfinite(seed[metric])]
                     ax.scatter([level] * len(values), values, s=8, color=colours[algo], alpha=0.35)
             if key == "transition_noise":
-                ax.set_xscale("log")
+                # Levels a decade apart; a level of 0 (no noise) needs the linear stretch of a symlog axis to show
+                positive = [level for level in levels.values() if level > 0]
+                if len(positive) < len(levels):
+                    ax.set_xscale("symlog", linthresh=min(positive, default=1.0))
+                else:
+                    ax.set_xscale("log")
             ax.set_xlabel(STUDY_AXES[key])
             ax.set_ylabel(title)
             if row == 0:
                 ax.set_title(env)
-    axes[0, 0].legend(fontsize=7)
+    # One legend with every method, whichever env it has cells on
+    from matplotlib.lines import Line2D
+
+    handles = [Line2D([], [], marker="o", color=colours[algo], label=algo) for algo in algos]
+    axes[0, 0].legend(handles=handles, fontsize=7)
     figure.tight_layout()
     return figure
 

@@ -395,6 +395,21 @@ class Suite:
                 "variant": list(self.variants),
             }
             offered = "; ".join(f"{key}: {', '.join(available[key])}" for key in wanted)
+            if all(values <= set(available[key]) for key, values in wanted.items()):
+                # Each value exists, their combination does not: an env's own seeds, or a variant's own algorithms
+                combos = [
+                    f"{env_name(env_id)} runs seeds {', '.join(map(str, self.env_seeds.get(env_id, self.seeds)))}"
+                    for env_id in self.envs
+                    if "seed" in wanted and ("env" not in wanted or env_name(env_id) in wanted["env"])
+                ] + [
+                    f"variant {variant} runs {', '.join(self.variant_algos(variant))}"
+                    for variant in self.variants
+                    if "algo" in wanted and ("variant" not in wanted or variant in wanted["variant"])
+                ]
+                raise SuiteError(
+                    f"--only {only}: each value is one of suite {self.name!r}'s own, but no run has them all"
+                    + (f" ({'; '.join(combos)})." if combos else ".")
+                )
             raise SuiteError(
                 f"--only {only} matches none of the {len(self.runs())} runs of suite {self.name!r}; it has {offered}."
             )
