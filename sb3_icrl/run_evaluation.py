@@ -164,6 +164,11 @@ def heldout_steps(env_id: str, episodes: int) -> int:
     return episodes * limit
 
 
+def episode_step_cap(env_id: str, episodes: int) -> int:
+    """The most steps an evaluation of exactly ``episodes`` episodes may take: :data:`EPISODE_STEP_CAP` times theirs."""
+    return EPISODE_STEP_CAP * heldout_steps(env_id, episodes)
+
+
 class UnfinishedEpisodesError(RunFolderError):
     """Fewer evaluation episodes ended than were asked for within the step cap: the run's policy, not its files."""
 

@@ -646,6 +646,13 @@ variants:
     assert list(line.get_xdata()) == [0.01, 0.1] and list(line.get_ydata()) == [10.0, 6.0]
     assert sorted(np.concatenate([c.get_offsets()[:, 1] for c in reward_ax.collections])) == [5.0, 7.0, 9.0, 11.0]
     assert list(violation_ax.get_lines()[0].get_ydata()) == [0.0, 0.25]
+    # A level of 0 (no noise) stays on the axis: symlog, linear up to the smallest level above 0
+    assert (
+        study_figure(summarise_suite(suite, suite.runs(), results), key, {"sigma-0.1": 0.1, "sigma-0.01": 0.0})
+        .axes[0]
+        .get_xscale()
+        == "symlog"
+    )
     # A suite whose variants do not all set one number is no study
     path.write_text(text.replace("sigma-0.01: {transition_noise: 0.01}", "plain: {}"))
     assert study_axis(load_suite(str(path), dry_build=False)) is None

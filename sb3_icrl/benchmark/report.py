@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 import yaml
+from matplotlib.lines import Line2D
 
 from sb3_icrl.benchmark.suite import BEATS_COLUMNS, RunSpec, Suite, result_current
 from sb3_icrl.common.evaluation import CONSTRAINT_VIOLATION_PREFIX, OUTCOME_KEYS, OUTCOME_RATE_KEYS
@@ -56,10 +57,10 @@ from sb3_icrl.metrics.transfer import read_transfers, transfer_file
 from sb3_icrl.plots.figures import load_runs, new_figure, save_figure, training_curves_figure
 from sb3_icrl.registry import ICRL_ALGOS, env_name
 from sb3_icrl.run_evaluation import (
-    EPISODE_STEP_CAP,
     OUTCOME_TITLES,
     RunResult,
     UnfinishedEpisodesError,
+    episode_step_cap,
     evaluate_run,
     format_outcome_rate,
     heldout_steps,
@@ -124,9 +125,10 @@ def evaluate_finished(
     a cache whose fields are not those of :class:`RunResult`, written by another version, is evaluated again).
 
     The suite's ``eval_budget`` says what is run: ``episodes``, exactly ``eval_episodes`` complete episodes from
-    ``eval_seed`` (a run whose policy has not ended them within :data:`EPISODE_STEP_CAP` times the steps of as many
-    full-length episodes is left out, and said so); ``steps``, the steps of ``eval_episodes`` full-length episodes,
-    every episode that ends in them counted (more of them where episodes end early).
+    ``eval_seed`` (a run whose policy has not ended them within
+    :func:`~sb3_icrl.run_evaluation.episode_step_cap` steps is left out, and said so); ``steps``, the steps of
+    ``eval_episodes`` full-length episodes, every episode that ends in them counted (more of them where episodes end
+    early).
 
     :param runs: The suite's runs
     :param root: The log root
@@ -187,7 +189,7 @@ def evaluate_finished(
                 budget: dict[str, Any] = {}
             else:
                 log(f"evaluating {run.name}{' (best model)' if best else ''} on {suite.eval_episodes} held-out episodes")
-                steps *= EPISODE_STEP_CAP  # the cap: a policy whose episodes do not end stops there
+                steps = episode_step_cap(run.env_id, suite.eval_episodes)  # a policy whose episodes never end stops
                 budget = {"n_episodes": suite.eval_episodes}
             try:
                 cached = evaluate_run(folder, steps, suite.eval_seed, load_best=best, env_kwargs=env_kwargs, **budget)
@@ -952,9 +954,9 @@ def summarise_suite(
     to_come = [run for run in suite.runs() if run not in finished]
     judgements: dict[str, Any] = {}  # the suite's own, only where it writes them: other summaries stay as they were
     if suite.beats is not None:
-        judged = {(env_name(env), variant) for env in suite.beats.envs for variant in suite.variants}
-        judgements["beats_judgement"] = beats_judgement(cells, suite)
-        judgements["beats_judgement"]["pending_runs"] = _count_runs(to_come, judged, ICRL_ALGOS)
+        judgement = beats_judgement(cells, suite)
+        judged = {(env, variant) for env, variant in judgement["tasks"]}
+        judgements["beats_judgement"] = {**judgement, "pending_runs": _count_runs(to_come, judged, ICRL_ALGOS)}
     if suite.aim is not None:
         headline = {
             (env_name(env_id), variant)
@@ -1911,6 +1913,13 @@ def study_figure(summary: dict[str, Any], key: str, levels: dict[str, float]) ->
     figure = new_figure(width=max(4.8, 3.6 * len(envs)), height=6.4)
     axes = np.asarray(figure.subplots(2, len(envs), squeeze=False))
     colours = {algo: f"C{index % 10}" for index, algo in enumerate(algos)}
+    # Noise levels a decade apart: a log axis; a level of 0 (no noise) needs the linear stretch of a symlog one
+    scale: dict[str, Any] = {}
+    if key == "transition_noise":
+        positive = [level for level in levels.values() if level > 0]
+        scale = (
+            {"value": "log"} if len(positive) == len(levels) else {"value": "symlog", "linthresh": min(positive, default=1.0)}
+        )
     for column, env in enumerate(envs):
         for row, (metric, title) in enumerate((("violation_rate", "violation rate"), ("feasible_reward", "feasible reward"))):
             ax = axes[row, column]
@@ -1922,24 +1931,17 @@ def study_figure(summary: dict[str, Any], key: str, levels: dict[str, float]) ->
                 if not mine:
                     continue
                 xs = [level for level, _ in mine]
-                ax.plot(xs, [cell[f"{metric}_mean"] for _, cell in mine], marker="o", color=colours[algo], label=algo)
+                ax.plot(xs, [cell[f"{metric}_mean"] for _, cell in mine], marker="o", color=colours[algo])
                 for level, cell in mine:
                     values = [seed[metric] for seed in cell["per_seed"] if math.isfinite(seed[metric])]
                     ax.scatter([level] * len(values), values, s=8, color=colours[algo], alpha=0.35)
-            if key == "transition_noise":
-                # Levels a decade apart; a level of 0 (no noise) needs the linear stretch of a symlog axis to show
-                positive = [level for level in levels.values() if level > 0]
-                if len(positive) < len(levels):
-                    ax.set_xscale("symlog", linthresh=min(positive, default=1.0))
-                else:
-                    ax.set_xscale("log")
+            if scale:
+                ax.set_xscale(**scale)
             ax.set_xlabel(STUDY_AXES[key])
             ax.set_ylabel(title)
             if row == 0:
                 ax.set_title(env)
     # One legend with every method, whichever env it has cells on
-    from matplotlib.lines import Line2D
-
     handles = [Line2D([], [], marker="o", color=colours[algo], label=algo) for algo in algos]
     axes[0, 0].legend(handles=handles, fontsize=7)
     figure.tight_layout()

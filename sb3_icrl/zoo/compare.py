@@ -30,14 +30,13 @@ from sb3_icrl.common.statistics import MIN_PAIRS_FOR_WILCOXON
 from sb3_icrl.common.utils import atomic_write_json, plain_docstring, write_error_message
 from sb3_icrl.registry import import_gym_packages, resolve_env_id
 from sb3_icrl.run_evaluation import (
-    EPISODE_STEP_CAP,
     OUTCOME_TITLES,
     RunFolderError,
     RunResult,
     describe_run,
+    episode_step_cap,
     evaluate_run,
     format_outcome_rate,
-    heldout_steps,
     outcome_rate_means,
     read_training_wall_time,
     same_seed_error,
@@ -243,7 +242,7 @@ def evaluation_budget(run: str, n_timesteps: int | None, n_episodes: int | None)
     """
     ``(steps, episodes)`` of a run's held-out evaluation: by steps (``n_timesteps``, default :data:`DEFAULT_EVAL_STEPS`)
     without ``n_episodes``; else exactly ``n_episodes`` complete episodes within ``n_timesteps`` steps (default
-    :data:`~sb3_icrl.run_evaluation.EPISODE_STEP_CAP` times the steps of as many full-length episodes of the run's env).
+    :func:`~sb3_icrl.run_evaluation.episode_step_cap` of the run's env).
 
     :param run: The run folder
     :param n_timesteps: ``-n``
@@ -254,7 +253,7 @@ def evaluation_budget(run: str, n_timesteps: int | None, n_episodes: int | None)
     if n_timesteps is not None:
         return n_timesteps, n_episodes
     _, env_id, _, _ = describe_run(run)
-    return EPISODE_STEP_CAP * heldout_steps(resolve_env_id(env_id), n_episodes), n_episodes
+    return episode_step_cap(resolve_env_id(env_id), n_episodes), n_episodes
 
 
 def _check_json_path(path: str) -> None:
