@@ -4,12 +4,12 @@ one method's row of the paper, under each evaluation column) and the aim (the ke
 feasible reward as a fraction of the oracle's, with its violation rate); in summary.json, table.md and README's table.
 """
 
-import importlib.util
 import json
 import pathlib
 
 import numpy as np
 import pytest
+from script_loader import load_script
 
 from sb3_icrl.benchmark import load_suite, summarise_suite
 from sb3_icrl.benchmark.report import finite_or_null, markdown_table
@@ -17,10 +17,7 @@ from sb3_icrl.benchmark.suite import BeatsRule, SuiteError
 from sb3_icrl.common.statistics import stratified_bootstrap_ci
 from sb3_icrl.zoo.compare import RunResult
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-spec = importlib.util.spec_from_file_location("readme_table", ROOT / "benchmarks" / "readme_table.py")
-readme_table = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(readme_table)
+readme_table = load_script("benchmarks/readme_table.py")
 
 SUITE = """\
 description: judgements

@@ -6,7 +6,6 @@ our expert's return, and the compute the runs took; in summary.json, the tables 
 import csv
 import dataclasses
 import functools
-import importlib.util
 import io
 import json
 import os
@@ -16,6 +15,7 @@ import shutil
 import numpy as np
 import pytest
 import yaml
+from script_loader import load_script
 
 from sb3_icrl.benchmark import load_suite, report, summarise_suite
 from sb3_icrl.benchmark import suite as suite_module
@@ -32,10 +32,7 @@ from sb3_icrl.data import Trajectory, save
 from sb3_icrl.zoo.compare import RunResult
 from sb3_icrl.zoo.runs import FINISHED_FILE, run_wall_time
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-spec = importlib.util.spec_from_file_location("readme_table", ROOT / "benchmarks" / "readme_table.py")
-readme_table = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(readme_table)
+readme_table = load_script("benchmarks/readme_table.py")
 
 # GridWorldWall has shipped demonstrations (every trajectory returns 1.0), GridWorld-v0 has none
 SUITE = """\

@@ -1,25 +1,19 @@
 """The examples of the documentation run and do what their pages say."""
 
-import importlib.util
-import pathlib
 from types import ModuleType
 
 import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
+from script_loader import load_script
 
-EXAMPLES = pathlib.Path(__file__).resolve().parent.parent / "examples"
 GRID_ID = "sb3_icrl/GridWorldWall-v0"
 
 
 def load_example(name: str) -> ModuleType:
     """Import ``examples/<name>.py`` as a module (its ``__main__`` block does not run)."""
-    spec = importlib.util.spec_from_file_location(f"example_{name}", EXAMPLES / f"{name}.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script(f"examples/{name}.py", f"example_{name}")
 
 
 def random_policy_pairs(n_steps: int = 500, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:

@@ -1,17 +1,13 @@
 """benchmarks/pooled_rule.py: the pooled-means rule that decides between two recipes from report runs.csv files."""
 
 import csv
-import importlib.util
 import json
 from pathlib import Path
 
 import pytest
+from script_loader import load_script
 
-ROOT = Path(__file__).resolve().parents[1]
-spec = importlib.util.spec_from_file_location("pooled_rule", ROOT / "benchmarks" / "pooled_rule.py")
-assert spec is not None and spec.loader is not None
-pooled_rule = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(pooled_rule)
+pooled_rule = load_script("benchmarks/pooled_rule.py")
 
 ENV = "BlockedHalfCheetah-v0"
 

@@ -1,16 +1,14 @@
 """The README's and the results page's benchmark tables are generated from the committed suite summaries, and kept up to
 date; the README stays short."""
 
-import importlib.util
 import json
 import pathlib
 
 import pytest
+from script_loader import load_script
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-spec = importlib.util.spec_from_file_location("readme_table", ROOT / "benchmarks" / "readme_table.py")
-readme_table = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(readme_table)
+readme_table = load_script("benchmarks/readme_table.py")
 
 
 def test_tables_are_not_stale():
