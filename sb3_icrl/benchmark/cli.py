@@ -3,6 +3,7 @@
 
     sb3-icrl benchmark run table3 -f logs/ --jobs 2
     sb3-icrl benchmark run table3 -f logs/ --only env=BlockedHalfCheetah-v0 algo=mecl,vicrl
+    sb3-icrl benchmark run table3 -f logs/ --start-within 2h30m
     sb3-icrl benchmark run table3 -f logs/ --backend ray --address auto
     sb3-icrl benchmark run table3 -f /shared/logs --backend ray --runtime-env runtime_env.yml
     sb3-icrl benchmark status table3 -f logs/
@@ -20,6 +21,7 @@ import contextlib
 import dataclasses
 import json
 import os
+import re
 import sys
 import time
 from typing import Any
@@ -50,6 +52,22 @@ def _only(values: list[str] | None) -> dict[str, list[str]]:
             raise SuiteError(f"--only takes key=value[,value...] (env, algo, seed, variant), got {item!r}.")
         only.setdefault(key, []).extend(part for part in value.split(",") if part)
     return only
+
+
+def duration_seconds(text: str) -> float:
+    """
+    A duration such as ``2h30m``, ``90m``, ``1.5h``, ``600s`` or ``600`` (seconds), in seconds (argparse type).
+
+    :raises argparse.ArgumentTypeError: On anything else, or a duration that is not positive
+    """
+    match = re.fullmatch(r"\s*(?:(\d+(?:\.\d+)?)h)?\s*(?:(\d+(?:\.\d+)?)m)?\s*(?:(\d+(?:\.\d+)?)s?)?\s*", text.lower())
+    if not text.strip() or match is None or not any(match.groups()):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a duration: write it as 2h30m, 90m, 1.5h, 600s or 600 (seconds)")
+    hours, minutes, seconds = (float(group or 0) for group in match.groups())
+    total = 3600 * hours + 60 * minutes + seconds
+    if total <= 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: the duration must be more than zero")
+    return total
 
 
 def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
@@ -90,6 +108,15 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
         default=None,
         help="Ray runtime_env for the workers (--backend ray): a JSON object or a YAML file, e.g. "
         '\'{"working_dir": "."}\' to ship this clone to every node',
+    )
+    run.add_argument(
+        "--start-within",
+        type=duration_seconds,
+        default=None,
+        metavar="DURATION",
+        help="start no run (nor a failed run's second try) later than this after the command starts, e.g. 2h30m, 90m, "
+        "600s: the runs under way go on to their end, the others are left for the next call (a job's time limit less "
+        "a run's length)",
     )
     run.add_argument("--no-report", action="store_true", help="do not write the report once the runs are done")
     status.add_argument("-v", "--verbose", action="store_true", help="list the finished runs too")
@@ -191,9 +218,12 @@ def run_command(args: argparse.Namespace) -> int:
     )
     print(f"suite {suite.name}: {len(runs)} runs in {os.path.join(args.log_folder, suite.name)} ({where})", flush=True)
     print(f"before this run: {status_lines(suite_status(runs, args.log_folder))[-1]}", flush=True)
+    start_until = None if args.start_within is None else time.time() + args.start_within
+    if start_until is not None:
+        print(f"no run starts after {time.strftime('%Y-%m-%d %H:%M:%S', time.localtime(start_until))}", flush=True)
     display = Display(len(runs))
     try:
-        outcomes = run_all(runs, args.log_folder, backend, on_event=display)
+        outcomes = run_all(runs, args.log_folder, backend, on_event=display, start_until=start_until)
     finally:
         display.close()
     failed = [outcome for outcome in outcomes if outcome.status in ("failed", "busy")]
@@ -201,6 +231,14 @@ def run_command(args: argparse.Namespace) -> int:
         print(f"\n{outcome.status.upper()}: {outcome.run.name} ({outcome.run.log_file(args.log_folder)})")
         for line in outcome.log_tail:
             print(f"    {line}")
+    left = [outcome for outcome in outcomes if outcome.status == "left"]
+    if left:
+        print(
+            f"\nNOT STARTED: {len(left)} run{'s' if len(left) > 1 else ''}, the --start-within time having passed "
+            f"(the same command starts {'them' if len(left) > 1 else 'it'}): "
+            + ", ".join(outcome.run.name for outcome in left[:5])
+            + (f" and {len(left) - 5} more" if len(left) > 5 else "")
+        )
     if not args.no_report:
         report_command(argparse.Namespace(**{**vars(args), "output": None, "no_figures": False}))
     return 1 if failed else 0

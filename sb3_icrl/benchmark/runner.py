@@ -52,7 +52,7 @@ class RunOutcome:
 
     :param run: The run
     :param status: ``"done"`` (trained now), ``"skipped"`` (had finished before), ``"busy"`` (another process holds
-        it), or ``"failed"``
+        it), ``"failed"``, or ``"left"`` (not started: the time to start runs had passed)
     :param attempts: How many times it was started
     :param seconds: Wall time of its last attempt
     :param log_tail: The end of its log, when it failed
@@ -409,6 +409,7 @@ def run_all(
     root: str,
     backend: Backend,
     on_event: Callable[[str, RunOutcome | None, dict[str, int]], None] | None = None,
+    start_until: float | None = None,
 ) -> list[RunOutcome]:
     """
     Run every run to its end; finished runs are skipped, failed ones retried once.
@@ -417,6 +418,8 @@ def run_all(
     :param root: The log root (``-f``)
     :param backend: Where the runs go
     :param on_event: Called with ``("start" | "end", outcome, counts)`` as runs start and end (for the display)
+    :param start_until: A time (``time.time()``) after which no run starts, nor starts again after a failure: the runs
+        under way go on to their end, the others stay ``"left"`` (``None``: no such time)
     :return: One outcome per run, in the order of ``runs``
     """
     outcomes = {run: RunOutcome(run, "left") for run in runs}
@@ -429,6 +432,13 @@ def run_all(
 
     try:
         while queue or pending:
+            if start_until is not None and time.time() >= start_until:
+                for run in queue:  # (the others stay "left")
+                    if run.complete(root):
+                        outcomes[run].status = "skipped"
+                queue.clear()
+                if not pending:
+                    break
             while queue and len(pending) < backend.capacity:
                 run = queue.pop(0)
                 if run.complete(root):
