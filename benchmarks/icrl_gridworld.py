@@ -1,5 +1,5 @@
 """
-Constraint recovery on the grid world: BC2L, MECL and VICRL, each from the shipped expert demonstrations. Prints,
+Constraint recovery on the grid world: BC2L, MECL, VICRL and IRL-Plus, each from the shipped expert demonstrations. Prints,
 per algorithm, the recovered map next to the true one, its precision and recall against the true unsafe cells, and
 the violation and goal-reaching rates of the final policy (deterministic, against the true cost: evaluation only),
 with the wall time::
@@ -12,6 +12,10 @@ Forward solver: ``pilag`` (default) plans exactly on the learned cost table with
 its grid worlds (:func:`sb3_icrl.icrl.tabular.tabular_icrl`); ``ppo`` runs the ``BC2L``/``MECL``/``VICRL`` classes
 (PPO-Lagrangian on the learned cost). Both update the same constraint model with the same trainers. The constraint
 net sees the cell only (``use_action=False``), so its cost is a map of cells.
+
+IRL-Plus learns a cost as a negative reward (a :class:`~sb3_icrl.constraints.CostNet`, no upper bound, L2 penalty 0.1
+on the expert's costs) and holds the multiplier at 1 (``IRLPlusPPO``; the planner holds it too), with the same loop
+settings as the others (iterations, nominal episodes, passes, learning rate, net).
 
 BC2L classifies whole trajectories (a trajectory is feasible when all its pairs are; expert trajectories 1, nominal
 ones 0), as the reference code does on its grid worlds (``train_traj_nn``); ``--bc2l-per-pair`` gives the per-pair
@@ -37,11 +41,13 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 from sb3_icrl.bc2l import BC2L, BC2LTrainer
 from sb3_icrl.common.evaluation import evaluate_constraint
-from sb3_icrl.constraints import BetaFeasibilityNet, FeasibilityNet
+from sb3_icrl.constraints import BetaFeasibilityNet, CostNet, FeasibilityNet
 from sb3_icrl.data import load_demonstrations
 from sb3_icrl.envs.grid_world import GridWorldEnv
 from sb3_icrl.icrl import ICRLTrainer, LagrangianICRL
 from sb3_icrl.icrl.tabular import cost_table, precision_recall, tabular_icrl
+from sb3_icrl.irlplus import IRLPlusPPO, IRLPlusTrainer
+from sb3_icrl.irlplus.irlplus import IRLPLUS_LAGRANGE_KWARGS
 from sb3_icrl.mecl import MECL, MECLTrainer
 from sb3_icrl.vicrl import VICRL, VICRLTrainer
 
@@ -50,6 +56,7 @@ ALGOS: dict[str, tuple[type[LagrangianICRL], type[ICRLTrainer], type]] = {
     "bc2l": (BC2L, BC2LTrainer, FeasibilityNet),
     "mecl": (MECL, MECLTrainer, FeasibilityNet),
     "vicrl": (VICRL, VICRLTrainer, BetaFeasibilityNet),
+    "irlplus": (IRLPlusPPO, IRLPlusTrainer, CostNet),
 }
 #: The constraint net of every run: the cell only, one small hidden layer
 NET_KWARGS: dict[str, Any] = dict(hidden_sizes=[64], normalize_input=False, use_action=False)
@@ -80,11 +87,13 @@ def trainer_kwargs(algo: str, env_id: str, bc2l_per_pair: bool = False) -> dict[
     """
     Trainer arguments of one algorithm on the grid world: BC2L labels whole trajectories unless ``bc2l_per_pair``.
 
-    :param algo: ``"bc2l"``, ``"mecl"`` or ``"vicrl"``
+    :param algo: ``"bc2l"``, ``"mecl"``, ``"vicrl"`` or ``"irlplus"``
     :param env_id: The grid world (its shipped demonstrations give the expert episode lengths)
     :param bc2l_per_pair: Whether BC2L classifies pairs instead of trajectories
     :return: Keyword arguments for the trainer
     """
+    if algo == "irlplus":
+        return dict(l2_coef=0.1)
     if algo != "bc2l" or bc2l_per_pair:
         return {}
     return dict(expert_episode_lengths=[len(trajectory) for trajectory in load_demonstrations(env_id)])
@@ -94,7 +103,7 @@ def run(algo: str, env_id: str, solver: str, budget: int, seed: int, bc2l_per_pa
     """
     Learn the constraint with one algorithm and forward solver, then evaluate the final policy against the true cost.
 
-    :param algo: ``"bc2l"``, ``"mecl"`` or ``"vicrl"``
+    :param algo: ``"bc2l"``, ``"mecl"``, ``"vicrl"`` or ``"irlplus"``
     :param env_id: The grid world, e.g. ``"GridWorldZigzag-v0"``
     :param solver: ``"pilag"`` or ``"ppo"``
     :param budget: PI-Lag iterations (``pilag``) or policy timesteps (``ppo``)
@@ -119,6 +128,8 @@ def run(algo: str, env_id: str, solver: str, budget: int, seed: int, bc2l_per_pa
             constraint_learning_rate=CONSTRAINT_LEARNING_RATE,
             constraint_steps=CONSTRAINT_STEPS,
             trainer_kwargs=kwargs,
+            # IRL-Plus weighs its cost as a negative reward: the multiplier it holds, not one that adapts
+            planner_kwargs=held_planner_multiplier(algo),
             seed=seed,
         )
         policy: Any = result.planner
@@ -132,7 +143,7 @@ def run(algo: str, env_id: str, solver: str, budget: int, seed: int, bc2l_per_pa
             constraint_learning_rate=CONSTRAINT_LEARNING_RATE,
             constraint_steps=CONSTRAINT_STEPS,
             trainer_kwargs=kwargs,
-            **PPO_KWARGS,
+            **{**PPO_KWARGS, **({"lagrange_kwargs": IRLPLUS_LAGRANGE_KWARGS} if algo == "irlplus" else {})},
         )
         policy.learn(budget)
         net = policy.constraint_net
@@ -142,6 +153,16 @@ def run(algo: str, env_id: str, solver: str, budget: int, seed: int, bc2l_per_pa
     # Deterministic env and policy: the 10 episodes are identical, kept for the metrics' definitions
     evaluation = evaluate_constraint(policy, make_env(env_id), n_episodes=10, deterministic=True, seed=seed)
     return dict(algo=algo, env_id=env_id, solver=solver, grid=grid, costs=costs, evaluation=evaluation, wall_time=wall_time)
+
+
+def held_planner_multiplier(algo: str) -> dict[str, float] | None:
+    """
+    :param algo: The algorithm
+    :return: The PI-Lagrangian arguments that hold the multiplier at IRL-Plus's 1 (``None``: the planner's defaults)
+    """
+    if algo != "irlplus":
+        return None
+    return dict(lagrange_init=float(IRLPLUS_LAGRANGE_KWARGS["init"]), lagrange_lr=0.0)
 
 
 def expert_cells(env_id: str, grid: GridWorldEnv) -> np.ndarray:

@@ -413,13 +413,71 @@ def test_irlplusppo_recipes_learn_on_mecl_s_forward_learner() -> None:
     mecl = yaml.safe_load(hyperparams_file("mecl").read_text())
     forward_keys = ("n_timesteps", "n_envs", "policy", "normalize", "n_steps", "batch_size", "n_epochs", "gamma")
     forward_keys += ("gae_lambda", "learning_rate", "ent_coef", "clip_range", "max_grad_norm", "vf_coef", "policy_kwargs")
-    assert "BlockedHalfCheetah-v0" in irlplusppo and not any(env.startswith("GridWorld") for env in irlplusppo)
+    forward_keys += ("forward_solver", "planner_kwargs")
+    assert "BlockedHalfCheetah-v0" in irlplusppo and "GridWorldWall-v0" in irlplusppo
     for env, entry in irlplusppo.items():
         assert {key: entry.get(key) for key in forward_keys} == {key: mecl[env].get(key) for key in forward_keys}, env
         assert entry["l2_coef"] == 0.1 and entry["constraint_steps"] == 1 and entry["n_nominal_trajectories"] == 5, env
         assert entry["warmup_timesteps"] == int(float(entry["n_timesteps"])) // 20, env
     assert irlplusppo["BlockedHalfCheetah-v0"]["constraint_learning_rate"] == 1e-4
     assert irlplusppo["BlockedSwimmer-v0"]["constraint_learning_rate"] == 1e-3
+    # The grid worlds: the other methods' cell-only cost net and learning rate, nothing to reset under a planner
+    for env in ("GridWorld-v0", "GridWorldWall-v0", "GridWorldSquare-v0", "GridWorldBigSquare-v0", "GridWorldZigzag-v0"):
+        grid = irlplusppo[env]
+        assert grid["forward_solver"] == "pi_lagrangian" and grid["policy_resets"] is False, env
+        assert (grid["constraint_net_kwargs"], grid["constraint_learning_rate"]) == (
+            mecl[env]["constraint_net_kwargs"],
+            mecl[env]["constraint_learning_rate"],
+        ), env
+
+
+def test_held_multiplier_of_the_planner() -> None:
+    """GACL and a model that holds its multiplier (IRL-Plus) plan with it held; a learning multiplier is the planner's."""
+    from types import SimpleNamespace
+
+    from sb3_icrl.icrl.tabular import held_multiplier
+
+    assert held_multiplier(SimpleNamespace(log_d_eps=1e-5)) == 1.0
+    assert held_multiplier(SimpleNamespace(lagrange_kwargs={"init": 2.0, "lr": 0.0})) == 2.0
+    assert held_multiplier(SimpleNamespace(lagrange_kwargs={"init": 0.1, "lr": 0.05})) is None
+    assert held_multiplier(SimpleNamespace(lagrange_kwargs={})) is None
+
+
+def test_a_planner_is_never_paid_by_an_irlplus_cost() -> None:
+    """The cost net's LeakyReLU dips below 0; the planning table floors it at 0, as PPO-Lagrangian gets it."""
+    from sb3_icrl.icrl.tabular import cost_table
+
+    env = gym.make("sb3_icrl/GridWorldWall-v0")
+    net = CostNet.from_spaces(env.observation_space, env.action_space, hidden_sizes=[8], normalize_input=False)
+    output = [module for module in net.modules() if isinstance(module, th.nn.Linear)][-1]
+    with th.no_grad():
+        output.weight.zero_()
+        output.bias.fill_(-3.0)  # a cost of -0.03 everywhere before the floor
+    assert np.all(net.cost(np.arange(3), np.zeros(3, dtype=int)) < 0)
+    np.testing.assert_array_equal(cost_table(net, 49, 8), np.zeros((49, 8)))
+
+
+@pytest.mark.parametrize("warmup, updated", [(10**6, False), (0, True)])
+def test_irlplus_on_the_grid_plans_with_the_multiplier_at_1_after_its_warmup(warmup: int, updated: bool) -> None:
+    """On a grid world the planner holds IRL-Plus's multiplier at 1 and makes no cost update before the warm-up ends."""
+    from sb3_icrl.icrl.tabular import learn_with_planner
+
+    model = IRLPlusPPO(
+        "MlpPolicy",
+        "sb3_icrl/GridWorldWall-v0",
+        demonstrations="GridWorldWall-v0",
+        n_steps=64,
+        batch_size=32,
+        n_nominal_trajectories=5,
+        warmup_timesteps=warmup,
+        policy_resets=False,
+        constraint_net_kwargs=dict(hidden_sizes=[8], normalize_input=False, use_action=False),
+        seed=0,
+        device="cpu",
+    )
+    planner = learn_with_planner(model, 400, planner_kwargs=dict(planner_iterations=20))
+    assert (model.n_constraint_updates > 0) == updated
+    assert planner.lagrange_multiplier == 1.0 and model.lagrange_multiplier.value == 1.0
 
 
 def test_train_cli_runs_irlplusppo_on_blocked_half_cheetah(tmp_path) -> None:

@@ -111,9 +111,15 @@ def test_a_variant_takes_its_expert_s_forward_learner_and_its_source_env_s_const
 
 
 def test_irlplus_on_ppo_resets_every_250_updates_of_each_env_s_rollout() -> None:
-    """The rule that chose it: 250 PPO updates between resets, whatever an env's rollout size."""
+    """
+    The rule that chose it: 250 PPO updates between resets, whatever an env's rollout size (the grid worlds plan
+    exactly on the learned cost: there is no policy layer to reset).
+    """
     entries = read_hyperparams_file("irlplusppo")
     assert len(entries) > 10
     for env, params in entries.items():
+        if params.get("forward_solver") == "pi_lagrangian":
+            assert params["policy_resets"] is False, env
+            continue
         assert params["policy_resets"] is True, env
         assert params["reset_every"] == 250 * params["n_envs"] * params["n_steps"], env

@@ -19,7 +19,7 @@ import gymnasium as gym
 import numpy as np
 import torch as th
 
-from sb3_icrl.constraints.networks import BetaFeasibilityNet, _ConstraintNet
+from sb3_icrl.constraints.networks import BetaFeasibilityNet, CostNet, _ConstraintNet
 from sb3_icrl.data.serialize import check_spaces
 from sb3_icrl.data.types import Demonstrations
 from sb3_icrl.icrl.recorder import NominalData, NominalTrajectory
@@ -56,7 +56,8 @@ def precision_recall(recovered: np.ndarray, true_unsafe: np.ndarray) -> tuple[fl
 
 def cost_table(constraint_net: _ConstraintNet, n_states: int, n_actions: int) -> np.ndarray:
     """
-    The learned cost of every state-action pair (VICRL: of the Beta's mean, a planning table must be deterministic).
+    The learned cost of every state-action pair (VICRL: of the Beta's mean, a planning table must be deterministic;
+    IRL-Plus: floored at 0).
 
     :param constraint_net: A constraint model for ``Discrete`` observations and actions
     :param n_states: Number of states
@@ -67,6 +68,10 @@ def cost_table(constraint_net: _ConstraintNet, n_states: int, n_actions: int) ->
     states, actions = state_grid.ravel(), action_grid.ravel()
     if isinstance(constraint_net, BetaFeasibilityNet):
         costs = 1.0 - constraint_net.predict_feasibility(states, actions, cost_mode="mean")
+    elif isinstance(constraint_net, CostNet):
+        # IRL-Plus's cost dips slightly below 0 (LeakyReLU output); a planner paid to stay in such cells would rather
+        # wander than reach the goal, so it is floored at 0, as IRLPlusPPO gives it to PPO-Lagrangian
+        costs = np.maximum(constraint_net.cost(states, actions), 0.0)
     else:
         costs = constraint_net.cost(states, actions)
     return np.asarray(costs, dtype=np.float64).reshape(n_states, n_actions)
@@ -283,16 +288,18 @@ def learn_with_planner(
     progress_bar: bool = False,
 ) -> PILagrangian:
     """
-    Train an ICRL model of the zoo (BC2L, MECL, VICRL, GACL) with exact planning as its forward solver, on a tabular
-    env: the paper's grid-world setting, driven like SB3's ``learn`` (steps counted in the env, callbacks called at
-    every step, so evaluation, checkpoints and the progress bar work as usual).
+    Train an ICRL model of the zoo (BC2L, MECL, VICRL, GACL, IRL-Plus on PPO) with exact planning as its forward
+    solver, on a tabular env: the paper's grid-world setting, driven like SB3's ``learn`` (steps counted in the env,
+    callbacks called at every step, so evaluation, checkpoints and the progress bar work as usual).
 
     Each iteration plans with :class:`~sb3_icrl.PILagrangian` on the learned cost (GACL: on ``r + log D``, a cost
     ``-log D`` with the multiplier fixed at 1), runs the plan in the model's env (random tie-breaks) until
     ``n_nominal_trajectories`` episodes have ended, and updates the constraint model with the model's own trainer
-    class and settings on expert vs those trajectories. The learner reads nothing but the raw states and actions of
-    its episodes. After each planning, the model's policy is taught the planned actions (:func:`distill_planner`), so
-    evaluations and the saved model act as planned; the multiplier of a Lagrangian model is set to the planner's.
+    class and settings on expert vs those trajectories (none before the trainer's ``warmup_timesteps``, if it has
+    one). A model that holds its multiplier fixed (:func:`held_multiplier`) plans with it held. The learner reads
+    nothing but the raw states and actions of its episodes. After each planning, the model's policy is taught the
+    planned actions (:func:`distill_planner`), so evaluations and the saved model act as planned; the multiplier of a
+    Lagrangian model is set to the planner's.
 
     :param model: A built ICRL model with its env and demonstrations
     :param total_timesteps: Env steps to run
@@ -358,6 +365,9 @@ def learn_with_planner(
     # The planner reads no cost from the env: step below the learned-cost wrapper when nothing else sits above it
     stepper = recorder if model.env is model.constraint_wrapper else env
     planner_iterations = int(loop.get("planner_iterations", 1000))
+    held = held_multiplier(model)
+    # A trainer with a warm-up (IRL-Plus) leaves the cost at its start until then: the planner follows the reward alone
+    warmup_timesteps = int(getattr(trainer, "warmup_timesteps", 0))
     observations = model._last_obs
     distilled: np.ndarray | None = None
     keep_going = True
@@ -369,8 +379,8 @@ def learn_with_planner(
             # random tie-breaks spread its first trajectories over all of them, not over the one an untrained net favours
             costs[:] = 0.0
         planner.set_cost_table(costs)
-        if hasattr(model, "log_d_eps"):  # GACL: r + log D, no multiplier to learn
-            planner.lagrange_multiplier, planner.lagrange_lr = 1.0, 0.0
+        if held is not None:  # GACL's r + log D, IRL-Plus's cost as a negative reward: no multiplier to learn
+            planner.lagrange_multiplier, planner.lagrange_lr = held, 0.0
         planner.learn(total_iterations=planner_iterations)
         if distilled is None or not np.array_equal(distilled, planner.policy_table):
             distill_planner(model.policy, planner, max_steps=int(loop.get("distill_steps", 2000)))
@@ -389,7 +399,8 @@ def learn_with_planner(
                 break
         model._last_obs = observations
         trajectories = recorder.pop_trajectories(n_nominal)
-        if keep_going and trajectories and model.num_timesteps <= total_timesteps:
+        warmed_up = model.num_timesteps >= warmup_timesteps
+        if keep_going and trajectories and warmed_up and model.num_timesteps <= total_timesteps:
             if buffer_size > 0:
                 trajectories = mix_with_buffer(trajectories, buffer, buffer_size, n_nominal, buffer_rng)
             stats = trainer.update(NominalData.from_trajectories(trajectories))
@@ -413,6 +424,23 @@ def learn_with_planner(
     _set_multiplier(model, planner.lagrange_multiplier)
     callback.on_training_end()
     return planner
+
+
+def held_multiplier(model: Any) -> float | None:
+    """
+    The multiplier a model holds fixed instead of learning it, which its planner must hold too: GACL's 1 (it plans on
+    ``r + log D``), or the ``init`` of a model whose ``lagrange_kwargs`` has ``lr`` 0 (IRL-Plus: the cost as a negative
+    reward).
+
+    :param model: An ICRL model of the zoo
+    :return: The value, or ``None`` when the model learns its multiplier
+    """
+    if hasattr(model, "log_d_eps"):
+        return 1.0
+    lagrange_kwargs = getattr(model, "lagrange_kwargs", None) or {}
+    if "lr" in lagrange_kwargs and float(lagrange_kwargs["lr"]) == 0.0:
+        return float(lagrange_kwargs.get("init", 1.0))
+    return None
 
 
 def _set_multiplier(model: Any, value: float) -> None:
