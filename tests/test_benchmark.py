@@ -310,6 +310,19 @@ def test_the_held_out_episode_length_goes_with_each_seed(tmp_path):
     assert [row["episode_length"] for row in rows] == ["12.5", "", "", ""]
 
 
+def _learned_cost(algo: str) -> dict:
+    """What a report keeps of one run's learned cost (a threshold on one feature)."""
+    curve = {"values": [-0.02, -0.01, 0.0], "mean_cost": [0.9, 0.6, 0.1]}
+    features = {"x_position": {"threshold": -0.015, "op": "<=", "curve": curve}}
+    return {"run": f"r/{algo}", "env": "sb3_icrl/BiasedPendulum-v0", "algo": algo, "features": features}
+
+
+def _curves(n_evals: int = 3) -> dict:
+    """What a report keeps of one run's training curves."""
+    steps = [256.0 * (i + 1) for i in range(n_evals)]
+    return {"timesteps": steps, "violations": [0.5] * n_evals, "feasible_rewards": [1.0] * n_evals, "results": [1.0] * n_evals}
+
+
 def test_constraint_figures_draw_the_scored_runs_of_each_env(tmp_path, monkeypatch):
     """One learned-cost figure per env and variant, from the runs the report scored; none where nothing can be drawn."""
     import matplotlib
@@ -325,26 +338,67 @@ def test_constraint_figures_draw_the_scored_runs_of_each_env(tmp_path, monkeypat
     summary = summarise_suite(suite, suite.runs(), results)
     for cell in summary["cells"]:
         cell["per_seed"][0]["identification_auroc"] = 0.9  # seed 0 of each algorithm was scored, seed 1 not
+    data = {run.name: {"learned_cost": _learned_cost(run.algo)} for run in suite.runs()}
     drawn = []
 
-    def fake_methods_figure(runs, title=None, **kwargs):
-        drawn.append((list(runs), title))
+    def fake_figure(curves, title=None, **kwargs):
+        drawn.append(([curve["algo"] for curve in curves], title))
         return Figure()
 
-    monkeypatch.setattr(report, "methods_figure", fake_methods_figure)
-    root, output = str(tmp_path / "logs"), str(tmp_path / "report")
-    written = constraint_figures(summary, suite, root, output)
+    monkeypatch.setattr(report, "learned_cost_figure", fake_figure)
+    output = str(tmp_path / "report")
+    written = constraint_figures(summary, suite, output, data)
     assert written == [os.path.join(output, "constraint_GridWorldWall-v0_base.png")] and os.path.isfile(written[0])
-    expected = [
-        RunSpec(suite.name, "base", algo, "sb3_icrl/GridWorldWall-v0", 0, 512).run_folder(root) for algo in suite.algos
-    ]
-    assert drawn == [(expected, "GridWorldWall-v0 (base): learned cost")]
+    assert drawn == [(list(suite.algos), "GridWorldWall-v0 (base): learned cost")]
+    # A scored run with no curve kept: the title names the methods drawn
+    drawn.clear()
+    del data[RunSpec(suite.name, "base", suite.algos[0], "sb3_icrl/GridWorldWall-v0", 0, 512).name]
+    constraint_figures(summary, suite, output, data)
+    assert drawn == [([suite.algos[1]], f"GridWorldWall-v0 (base, curves of {suite.algos[1]} only): learned cost")]
 
-    def no_feature(runs, title=None, **kwargs):
+    def no_feature(curves, title=None, **kwargs):
         raise ValueError("the env's constraint is not a threshold on a feature")
 
-    monkeypatch.setattr(report, "methods_figure", no_feature)
-    assert constraint_figures(summary, suite, root, str(tmp_path / "none")) == []
+    monkeypatch.setattr(report, "learned_cost_figure", no_feature)
+    assert constraint_figures(summary, suite, str(tmp_path / "none"), data) == []
+
+
+def test_figure_data_from_run_folders_else_from_the_earlier_report(tmp_path):
+    """A run's figure data come from its folder; a run whose folder is gone keeps what the earlier report had."""
+    from sb3_icrl.benchmark.report import FIGURE_DATA_FILE, figure_data, run_figure_data
+    from sb3_icrl.metrics.identification import identification_file
+
+    suite = load_suite(write(tmp_path, TINY_SUITE))
+    results = [(run, _result(run.algo, run.seed, 1.0, 0.0)) for run in suite.runs()]
+    summary = summarise_suite(suite, suite.runs(), results)
+    root, output = str(tmp_path / "logs"), tmp_path / "report"
+    here, gone, *_ = suite.runs()
+    folder = pathlib.Path(here.run_folder(root))
+    folder.mkdir(parents=True)
+    # Two evaluations of two episodes each: the curves keep each evaluation's mean
+    np.savez(
+        folder / "evaluations.npz",
+        timesteps=np.array([256, 512]),
+        results=np.array([[1.0, 0.0], [1.0, 1.0]]),
+        violations=np.array([[1.0, 0.0], [0.0, 0.0]]),
+        feasible_rewards=np.array([[0.0, 0.0], [1.0, 0.5]]),
+    )
+    scores = {"features": {"x": {"threshold": 0.5, "op": ">=", "curve": {"values": [0, 1], "mean_cost": [0.1, 0.8]}}}}
+    identification = {"run": str(folder), "env": here.env_id, "algo": here.algo, "scores": scores, "settings": {}}
+    (folder / identification_file("final")).write_text(json.dumps(identification))
+    kept = run_figure_data(here, root)
+    assert kept["curves"] == {
+        "timesteps": [256.0, 512.0],
+        "results": [0.5, 1.0],
+        "violations": [0.5, 0.0],
+        "feasible_rewards": [0.0, 0.75],
+    }
+    assert kept["learned_cost"]["features"]["x"]["curve"] == {"values": [0, 1], "mean_cost": [0.1, 0.8]}
+    assert run_figure_data(gone, root) == {}
+    output.mkdir()
+    (output / FIGURE_DATA_FILE).write_text(json.dumps({"runs": {gone.name: {"curves": _curves()}, here.name: {"curves": {}}}}))
+    data = figure_data(summary, suite, root, str(output))
+    assert data == {here.name: kept, gone.name: {"curves": _curves()}}  # the folder's data replace the report's
 
 
 def test_figures_follow_the_cells_the_report_keeps(tmp_path, monkeypatch):
@@ -355,54 +409,38 @@ def test_figures_follow_the_cells_the_report_keeps(tmp_path, monkeypatch):
     from matplotlib.figure import Figure
 
     import sb3_icrl.benchmark.report as report
-    from sb3_icrl.benchmark.report import write_figures
+    from sb3_icrl.benchmark.report import FIGURE_DATA_FILE, write_figures
 
     text = TINY_SUITE.replace("envs: [GridWorldWall-v0]", "envs: [GridWorldWall-v0, GridWorldSquare-v0]")
     suite = load_suite(write(tmp_path, text))
     kept = [run for run in suite.runs() if run.env_id.endswith("GridWorldWall-v0")]
     summary = summarise_suite(suite, kept, [(run, _result(run.algo, run.seed, 1.0, 0.0)) for run in kept])
-    loaded = []
-    monkeypatch.setattr(report, "load_runs", lambda folder, algos, env_id, skip_missing: loaded.append(env_id) or [])
-    monkeypatch.setattr(report, "training_curves_figure", lambda runs, title: Figure())
-    written = write_figures(summary, suite, str(tmp_path / "logs"), str(tmp_path / "report"))
-    assert loaded == ["sb3_icrl/GridWorldWall-v0"]
-    assert [os.path.basename(path) for path in written] == ["curves_GridWorldWall-v0_base.png"]
-    # A method with no finished run yet (a suite part-way): the others' curves are drawn, without it
-    asked = []
-    monkeypatch.setattr(report, "load_runs", lambda folder, algos, env_id, skip_missing: asked.append(algos) or [])
+    data = {run.name: {"curves": _curves()} for run in suite.runs()}
+    monkeypatch.setattr(report, "figure_data", lambda *args: data)
+    drawn = []
+    monkeypatch.setattr(report, "training_curves_figure", lambda runs, title: drawn.append((sorted(runs), title)) or Figure())
+    monkeypatch.setattr(report, "constraint_figures", lambda *args: [])
+    output = tmp_path / "report"
+    written = write_figures(summary, suite, str(tmp_path / "logs"), str(output))
+    assert [os.path.basename(path) for path in written] == [FIGURE_DATA_FILE, "curves_GridWorldWall-v0_base.png"]
+    assert drawn == [(["BC2L", "VICRL"], "GridWorldWall-v0 (base)")]
+    assert json.loads((output / FIGURE_DATA_FILE).read_text())["runs"] == data
+    # A method with no finished run yet (a suite part-way): the others' curves are drawn, without it, and said so
+    drawn.clear()
     first = [run for run in kept if run.algo == suite.algos[0]]
     summary = summarise_suite(suite, kept, [(run, _result(run.algo, run.seed, 1.0, 0.0)) for run in first])
-    write_figures(summary, suite, str(tmp_path / "logs"), str(tmp_path / "report"))
-    assert asked == [[suite.algos[0]]]
-
-
-def test_an_updated_report_draws_the_rerun_methods_and_says_so(tmp_path, monkeypatch):
-    """``report --update``: the figures of the re-run cells' envs show those methods, titled as such; others stay."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    from matplotlib.figure import Figure
-
-    import sb3_icrl.benchmark.report as report
-    from sb3_icrl.benchmark.report import write_figures
-
-    text = TINY_SUITE.replace("envs: [GridWorldWall-v0]", "envs: [GridWorldWall-v0, GridWorldSquare-v0]")
-    suite = load_suite(write(tmp_path, text))
-    summary = summarise_suite(suite, suite.runs(), [(run, _result(run.algo, run.seed, 1.0, 0.0)) for run in suite.runs()])
-    drawn = []
-    monkeypatch.setattr(report, "load_runs", lambda folder, algos, env_id, skip_missing: drawn.append((env_id, algos)) or [])
-    titles = []
-    monkeypatch.setattr(report, "training_curves_figure", lambda runs, title: titles.append(title) or Figure())
-    rerun = [run for run in suite.runs() if run.env_id.endswith("GridWorldWall-v0") and run.algo == suite.algos[0]]
-    written = write_figures(summary, suite, str(tmp_path / "logs"), str(tmp_path / "report"), runs_drawn=rerun)
-    assert drawn == [("sb3_icrl/GridWorldWall-v0", [suite.algos[0]])]
-    assert titles == [f"GridWorldWall-v0 (base, re-run: {suite.algos[0]})"]
-    assert [os.path.basename(path) for path in written] == ["curves_GridWorldWall-v0_base.png"]
-    # Every method of the env re-run: a plain title
-    titles.clear()
-    every = [run for run in suite.runs() if run.env_id.endswith("GridWorldWall-v0")]
-    write_figures(summary, suite, str(tmp_path / "logs"), str(tmp_path / "report"), runs_drawn=every)
-    assert titles == ["GridWorldWall-v0 (base)"]
+    write_figures(summary, suite, str(tmp_path / "logs"), str(output))
+    assert drawn == [(["BC2L"], "GridWorldWall-v0 (base)")]
+    # A finished run with no curve kept (its folder gone, an earlier report without them): named in the title
+    drawn.clear()
+    summary = summarise_suite(suite, kept, [(run, _result(run.algo, run.seed, 1.0, 0.0)) for run in kept])
+    data = {run.name: {"curves": _curves()} for run in first}
+    write_figures(summary, suite, str(tmp_path / "logs"), str(output))
+    assert drawn == [(["BC2L"], "GridWorldWall-v0 (base, curves of bc2l only)")]
+    # Nothing to draw: no figure written, the one there stays
+    data = {}
+    written = write_figures(summary, suite, str(tmp_path / "logs"), str(output))
+    assert [os.path.basename(path) for path in written] == [FIGURE_DATA_FILE]
 
 
 # ---------------------------------------------------------------- the held-out evaluation budget

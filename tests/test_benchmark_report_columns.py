@@ -691,7 +691,8 @@ variants:
     suite = load_suite(str(path), dry_build=False)
     results = [(run, RunResult(run.name, run.algo, run.env_id, run.seed, 100, 1.0, 0.0, 1.0, 1.0, 20)) for run in suite.runs()]
     summary = summarise_suite(suite, suite.runs(), results)
-    monkeypatch.setattr(report_module, "load_runs", lambda *args, **kwargs: (_ for _ in ()).throw(FileNotFoundError()))
+    monkeypatch.setattr(report_module, "figure_data", lambda *args: {})  # no run folder: no curves
     monkeypatch.setattr(report_module, "constraint_figures", lambda *args, **kwargs: [])
     written = write_figures(summary, suite, str(tmp_path / "logs"), str(tmp_path / "report"))
-    assert [os.path.basename(path) for path in written] == ["study.png"] and os.path.isfile(written[0])
+    assert [os.path.basename(path) for path in written] == [report_module.FIGURE_DATA_FILE, "study.png"]
+    assert os.path.isfile(written[1])

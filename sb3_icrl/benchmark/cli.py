@@ -353,13 +353,12 @@ def report_command(args: argparse.Namespace) -> int:
             f"`sb3-icrl benchmark run {args.suite} -f {args.log_folder}` (or check -f and --only)."
         )
     metrics = constraint_metrics(results, args.log_folder, model=model)
-    fresh = [run for run, _ in results]
     if update:
         runs, results, metrics = _with_earlier_report(suite, runs, results, metrics, output, args.log_folder, model)
     summary = summarise_suite(suite, runs, results, metrics, model=model)
     written = write_report(summary, output)
     if not args.no_figures:
-        written += write_figures(summary, suite, args.log_folder, output, runs_drawn=fresh if update else None)
+        written += write_figures(summary, suite, args.log_folder, output)
     print(markdown_table(summary))
     print("wrote " + ", ".join(written))
     return 0

@@ -52,9 +52,15 @@ from sb3_icrl.common.utils import atomic_write_bytes, atomic_write_json
 from sb3_icrl.data import load_demonstrations
 from sb3_icrl.envs import heldout_env_kwargs
 from sb3_icrl.envs.constraint_spec import get_constraint_spec
-from sb3_icrl.metrics.identification import headline, identification_file, identify_run, methods_figure
+from sb3_icrl.metrics.identification import (
+    headline,
+    identification_file,
+    identify_run,
+    learned_cost_curves,
+    learned_cost_figure,
+)
 from sb3_icrl.metrics.transfer import read_transfers, transfer_file
-from sb3_icrl.plots.figures import load_runs, new_figure, save_figure, training_curves_figure
+from sb3_icrl.plots.figures import load_evaluations, new_figure, save_figure, training_curves_figure
 from sb3_icrl.registry import ICRL_ALGOS, env_name
 from sb3_icrl.run_evaluation import (
     OUTCOME_TITLES,
@@ -315,7 +321,8 @@ def previous_results(
 ) -> tuple[list[tuple[RunSpec, RunResult]], dict[str, dict[str, Any]], list[RunSpec]]:
     """
     An earlier report's runs, read back from its ``summary.json``: what ``sb3-icrl benchmark report --update`` keeps
-    of the cells that its fresh runs do not replace (their run folders may be gone; their figures are not redrawn).
+    of the cells that its fresh runs do not replace (their run folders may be gone; what their figures draw is in the
+    report's :data:`FIGURE_DATA_FILE`).
 
     :param summary: The earlier report's summary
     :param suite: The suite it reported (its name must match)
@@ -1755,89 +1762,144 @@ def write_report(summary: dict[str, Any], output: str) -> list[str]:
     return written
 
 
-def constraint_figures(
-    summary: dict[str, Any], suite: Suite, root: str, output: str, runs_drawn: Collection[RunSpec] | None = None
-) -> list[str]:
-    """
-    Per env and variant: each method's learned cost over the constrained feature, one line per seed, the true threshold
-    marked (:func:`~sb3_icrl.metrics.identification.methods_figure`, from the runs' cached identification scores of the
-    summary's model).
-    Written as ``constraint_<EnvName>_<variant>.png`` for the runs the report scored; none for envs whose constraint
-    is not a threshold on a feature (the grid worlds).
+#: Per run of a report, what its figures draw (training curves, learned-cost curves): kept in the report folder, so
+#: that a report updated once the earlier runs' folders are gone (another machine) still draws them
+FIGURE_DATA_FILE = "figure_data.json"
+#: The ``evaluations.npz`` arrays a report's training curves read (their mean over each evaluation's episodes)
+_CURVE_KEYS = ("violations", "feasible_rewards", "results")
 
-    :param runs_drawn: The runs to draw (default: every run of the summary); an env and variant without any keeps the
-        figure it has
-    :return: The paths written
+
+def run_figure_data(run: RunSpec, root: str, model: str = "final") -> dict[str, Any]:
     """
-    names = None if runs_drawn is None else {run.name for run in runs_drawn}
-    folders: dict[tuple[str, str], list[str]] = {}
+    What a report's figures draw of one run, read from its folder: ``curves`` (evaluation timesteps and, per
+    evaluation, the mean over its episodes of each of :data:`_CURVE_KEYS`) and ``learned_cost`` (its cached
+    identification's :func:`~sb3_icrl.metrics.identification.learned_cost_curves`, for the report's model).
+
+    :param run: The run
+    :param root: The log root
+    :param model: ``"final"`` or ``"best"``
+    :return: Those of the two the folder has (an empty dict when it has neither)
+    """
+    folder = run.run_folder(root)
+    data: dict[str, Any] = {}
+    try:
+        arrays = load_evaluations(folder)
+    except (FileNotFoundError, ValueError):  # no folder, not evaluated, or a damaged file: no curve
+        arrays = None
+    if arrays is not None:
+        curves = {"timesteps": np.asarray(arrays["timesteps"], dtype=float).tolist()}
+        for key in _CURVE_KEYS:
+            if key in arrays:
+                values = np.asarray(arrays[key], dtype=float)
+                curves[key] = values.reshape(len(values), -1).mean(axis=1).tolist()
+        data["curves"] = curves
+    cache = os.path.join(folder, identification_file(model))
+    if os.path.isfile(cache):
+        try:
+            with open(cache) as file:
+                data["learned_cost"] = learned_cost_curves(json.load(file))
+        except (OSError, ValueError, KeyError, TypeError):  # a cache cut short or of another layout: no curve
+            pass
+    return data
+
+
+def figure_data(summary: dict[str, Any], suite: Suite, root: str, output: str) -> dict[str, dict[str, Any]]:
+    """
+    Per run of the summary (by name), what its figures draw: read from its folder where it has one, else kept from
+    the report already in ``output`` (``report --update`` of runs trained elsewhere).
+
+    :return: ``{run name: run_figure_data(...)}``, runs with nothing to draw left out
+    """
+    earlier: dict[str, Any] = {}
+    path = os.path.join(output, FIGURE_DATA_FILE)
+    if os.path.isfile(path):
+        try:
+            with open(path) as file:
+                earlier = json.load(file).get("runs", {})
+        except (OSError, ValueError, AttributeError):  # unreadable: the runs with folders are drawn, the others not
+            earlier = {}
+    model = summary.get("model", "final")
+    data: dict[str, dict[str, Any]] = {}
     for cell in summary["cells"]:
         for seed in cell["per_seed"]:
             run = RunSpec(suite.name, cell["variant"], cell["algo"], cell["env"], int(seed["seed"]), 0)
-            if "identification_auroc" in seed and (names is None or run.name in names):
-                folders.setdefault((cell["env"], cell["variant"]), []).append(run.run_folder(root))
+            fresh = run_figure_data(run, root, model) if os.path.isdir(run.run_folder(root)) else {}
+            entry = fresh or earlier.get(run.name) or {}
+            if entry:
+                data[run.name] = entry
+    return data
+
+
+def _partial(summary: dict[str, Any], env: str, variant: str, drawn: Collection[str]) -> str:
+    """``", curves of mecl, vicrl only"`` in a figure's title when it draws only some of the env and variant's methods."""
+    algos = [cell["algo"] for cell in summary["cells"] if (cell["env"], cell["variant"]) == (env_name(env), variant)]
+    shown = [algo for algo in algos if algo in drawn]
+    return "" if len(shown) == len(algos) else f", curves of {', '.join(shown)} only"
+
+
+def constraint_figures(summary: dict[str, Any], suite: Suite, output: str, data: dict[str, dict[str, Any]]) -> list[str]:
+    """
+    Per env and variant: each method's learned cost over the constrained feature, one line per seed, the true threshold
+    marked (:func:`~sb3_icrl.metrics.identification.learned_cost_figure`), for the runs the report scored.
+    Written as ``constraint_<EnvName>_<variant>.png``; none for envs whose constraint is not a threshold on a feature
+    (the grid worlds), and none where no scored run has its curve (the figure already there stays).
+
+    :param data: :func:`figure_data`
+    :return: The paths written
+    """
+    runs: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for cell in summary["cells"]:
+        for seed in cell["per_seed"]:
+            name = RunSpec(suite.name, cell["variant"], cell["algo"], cell["env"], int(seed["seed"]), 0).name
+            if "identification_auroc" in seed and "learned_cost" in data.get(name, {}):
+                runs.setdefault((cell["env"], cell["variant"]), []).append(data[name]["learned_cost"])
     written = []
-    model = summary.get("model", "final")
-    suffix = " (best models)" if model == "best" else ""
-    for (env_id, variant), runs in folders.items():
-        title = f"{env_name(env_id)} ({variant}{_partial(summary, env_id, variant, runs_drawn)}): learned cost{suffix}"
+    suffix = " (best models)" if summary.get("model", "final") == "best" else ""
+    for (env_id, variant), curves in runs.items():
+        drawn = {str(curve["algo"]) for curve in curves}
+        title = f"{env_name(env_id)} ({variant}{_partial(summary, env_id, variant, drawn)}): learned cost{suffix}"
         try:
-            figure = methods_figure(runs, title=title, model=model)
-        except (ValueError, OSError):  # no feature threshold to draw against, or a run's files unreadable: no figure
+            figure = learned_cost_figure(curves, title=title)
+        except ValueError:  # no feature threshold to draw against
             continue
         written.append(str(save_figure(figure, os.path.join(output, f"constraint_{env_name(env_id)}_{variant}.png"))))
     return written
 
 
-def _partial(summary: dict[str, Any], env: str, variant: str, runs_drawn: Collection[RunSpec] | None) -> str:
-    """``", re-run: mecl, vicrl"`` in a figure's title when it draws only some of the env and variant's methods."""
-    if runs_drawn is None:
-        return ""
-    cells = [cell for cell in summary["cells"] if (cell["env"], cell["variant"]) == (env_name(env), variant)]
-    drawn_cells = {run.cell for run in runs_drawn}
-    drawn = [cell["algo"] for cell in cells if (cell["env"], variant, cell["algo"]) in drawn_cells]
-    return "" if len(drawn) == len(cells) else f", re-run: {', '.join(drawn)}"
-
-
-def write_figures(
-    summary: dict[str, Any], suite: Suite, root: str, output: str, runs_drawn: Collection[RunSpec] | None = None
-) -> list[str]:
+def write_figures(summary: dict[str, Any], suite: Suite, root: str, output: str) -> list[str]:
     """
-    Per env and variant: training curves (mean +- std over seeds, from ``evaluations.npz``) and each method's learned
-    cost over the constrained feature (:func:`constraint_figures`); per suite: ours against the paper, cell by cell.
-    PNG files in ``output``.
+    Per env and variant: training curves (mean +- std over the seeds of each method, from their ``evaluations.npz``)
+    and each method's learned cost over the constrained feature (:func:`constraint_figures`); per suite: ours against
+    the paper, cell by cell. PNG files in ``output``, with the data they draw in :data:`FIGURE_DATA_FILE`: a report
+    updated where some runs' folders are gone draws them from it.
 
-    :param runs_drawn: The runs whose learned costs, and whose cells' training curves (every seed in ``root``), to draw
-        (default: every run in ``root``): a report updated with the re-runs of some cells draws those, and keeps the
-        other envs' figures
     :return: The paths written
     """
-    written = []
-    reported = {(cell["env"], cell["variant"]) for cell in summary["cells"]}  # the report's cells (its --only filter)
-    # The algorithms with a cell there: one with no finished run yet (a suite part-way) leaves the others' curves drawn
-    reported_cells = {(cell["env"], cell["variant"], cell["algo"]) for cell in summary["cells"]}
-    drawn_cells = None if runs_drawn is None else {run.cell for run in runs_drawn}
+    data = figure_data(summary, suite, root, output)
+    path = os.path.join(output, FIGURE_DATA_FILE)
+    atomic_write_json(path, {"model": summary.get("model", "final"), "runs": data}, sort_keys=True)
+    written = [path]
     for env_id in suite.envs:
         for variant in suite.variants:
-            algos = [
-                algo
-                for algo in suite.variant_algos(variant)
-                if (env_name(env_id), variant, algo) in reported_cells
-                and (drawn_cells is None or (env_name(env_id), variant, algo) in drawn_cells)
-            ]
-            if (env_name(env_id), variant) not in reported or not algos:
+            runs: dict[str, list[dict[str, np.ndarray]]] = {}
+            for cell in summary["cells"]:
+                if (cell["env"], cell["variant"]) != (env_name(env_id), variant):
+                    continue
+                for seed in cell["per_seed"]:
+                    name = RunSpec(suite.name, variant, cell["algo"], cell["env"], int(seed["seed"]), 0).name
+                    curves = data.get(name, {}).get("curves")
+                    if curves is not None:
+                        arrays = {key: np.asarray(values, dtype=float) for key, values in curves.items()}
+                        runs.setdefault(cell["algo"], []).append(arrays)
+            if not runs:  # nothing to draw: the figure already there, if any, stays
                 continue
+            title = f"{env_name(env_id)} ({variant}{_partial(summary, env_id, variant, runs)})"
             try:
-                runs = load_runs(os.path.join(root, suite.name, variant), algos, env_id, skip_missing=True)
-            except (FileNotFoundError, ValueError):
-                continue
-            title = f"{env_name(env_id)} ({variant}{_partial(summary, env_id, variant, runs_drawn)})"
-            try:
-                figure = training_curves_figure(runs, title=title)
+                figure = training_curves_figure({algo.upper(): seeds for algo, seeds in runs.items()}, title=title)
             except ValueError:
                 continue
             written.append(str(save_figure(figure, os.path.join(output, f"curves_{env_name(env_id)}_{variant}.png"))))
-    written += constraint_figures(summary, suite, root, output, runs_drawn)
+    written += constraint_figures(summary, suite, output, data)
     compared = [cell for cell in summary["cells"] if cell["paper_feasible_reward"] is not None]
     if compared:
         figure = new_figure(width=max(6.4, 0.5 * len(compared)), height=4.8)

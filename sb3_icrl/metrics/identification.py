@@ -903,22 +903,65 @@ def methods_figure(
     """
     if not run_folders:
         raise ValueError("No run folder given: pass the ICRL runs to compare.")
+    results = [identify_run(folder, model=model, n_episodes=n_episodes) for folder in run_folders]
+    return learned_cost_figure([learned_cost_curves(result) for result in results], feature, level, title)
+
+
+def learned_cost_curves(result: Mapping[str, Any]) -> dict[str, Any]:
+    """
+    What :func:`learned_cost_figure` draws of one run: its env, algorithm and, per constrained feature, the true
+    threshold and the learned cost's partial dependence curve (a few KB, kept in a report so that its figure can be
+    drawn again once the run folder is gone).
+
+    :param result: A result of :func:`identify_run`
+    :return: ``{"run", "env", "algo", "features": {name: {"threshold", "op", "curve": {"values", "mean_cost"}}}}``
+    """
+    features = result["scores"].get("features", {})
+    return {
+        "run": str(result.get("run", "")),
+        "env": result["env"],
+        "algo": result["algo"],
+        "features": {
+            name: {
+                "threshold": entry["threshold"],
+                "op": entry["op"],
+                "curve": {"values": list(entry["curve"]["values"]), "mean_cost": list(entry["curve"]["mean_cost"])},
+            }
+            for name, entry in features.items()
+        },
+    }
+
+
+def learned_cost_figure(
+    runs: Sequence[Mapping[str, Any]], feature: str | None = None, level: float | None = 0.5, title: str | None = None
+) -> Any:
+    """
+    :func:`methods_figure` from each run's :func:`learned_cost_curves`.
+
+    :param runs: The runs' curves, all on one env
+    :param feature: The constrained feature to plot (default: the first)
+    :param level: A level ``t`` drawn as a dotted line
+    :param title: Figure title (default: the env)
+    :return: The figure
+    :raises ValueError: With no run, runs on several envs, or an env whose constraint is no threshold on a feature
+    """
+    if not runs:
+        raise ValueError("No run given: pass the ICRL runs to compare.")
     curves: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
     envs: set[str] = set()
     chosen, threshold, op = feature, float("nan"), "<="
-    for folder in run_folders:
-        result = identify_run(folder, model=model, n_episodes=n_episodes)
-        envs.add(result["env"])
-        features = result["scores"].get("features", {})
+    for run in runs:
+        envs.add(run["env"])
+        features = run["features"]
         if not features:
-            raise ValueError(f"{folder}: the env's constraint is not a threshold on a feature (a grid world?): no curve.")
+            raise ValueError(f"{run['run']}: the env's constraint is not a threshold on a feature (a grid world?): no curve.")
         chosen = chosen or next(iter(features))
         if chosen not in features:
-            raise ValueError(f"Unknown feature {chosen!r} for {folder}: its env constrains {', '.join(features)}.")
+            raise ValueError(f"Unknown feature {chosen!r} for {run['run']}: its env constrains {', '.join(features)}.")
         entry = features[chosen]
         threshold, op = entry["threshold"], entry["op"]
         curve = (np.asarray(entry["curve"]["values"]), np.asarray(entry["curve"]["mean_cost"]))
-        curves.setdefault(str(result["algo"]).upper(), []).append(curve)
+        curves.setdefault(str(run["algo"]).upper(), []).append(curve)
     if len(envs) > 1:
         raise ValueError(f"The runs trained on different envs ({sorted(envs)}): plot one env at a time.")
     env = envs.pop().split("/")[-1]
