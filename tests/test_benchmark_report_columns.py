@@ -29,6 +29,7 @@ from sb3_icrl.benchmark.report import (
 )
 from sb3_icrl.benchmark.suite import SuiteError
 from sb3_icrl.data import Trajectory, save
+from sb3_icrl.registry import env_name
 from sb3_icrl.zoo.compare import RunResult
 from sb3_icrl.zoo.runs import FINISHED_FILE, run_wall_time
 
@@ -696,3 +697,24 @@ variants:
     written = write_figures(summary, suite, str(tmp_path / "logs"), str(tmp_path / "report"))
     assert [os.path.basename(path) for path in written] == [report_module.FIGURE_DATA_FILE, "study.png"]
     assert os.path.isfile(written[1])
+
+
+def test_training_provenance_says_which_code_and_how_many_starts(tmp_path, finished_suite):
+    """A run's code revision (versions.yml at its start) and its training starts (command.txt lines) reach the CSV."""
+    from sb3_icrl.benchmark.report import training_provenance
+
+    run = tmp_path / "run"
+    (run / "Env-v0").mkdir(parents=True)
+    assert training_provenance(run) == {}
+    (run / "Env-v0" / "versions.yml").write_text("git_revision: abc123\nsb3_icrl: 0.1.0\n")
+    (run / "command.txt").write_text("python train.py --seed 1\npython train.py --seed 1\n")  # resumed once
+    assert training_provenance(run) == {"git_revision": "abc123", "training_starts": 2}
+    suite, root, results = finished_suite
+    folder = os.path.join(root, results[0][1].run)
+    (pathlib.Path(folder) / "command.txt").write_text("python train.py\n")
+    summary = summarise_suite(suite, suite.runs(), results, constraint_metrics(results, root, log=lambda line: None))
+    rows = list(csv.DictReader(io.StringIO(csv_rows(summary))))
+    first = results[0][0]
+    starts = {(row["env"], row["algo"], row["seed"]): (row["training_starts"], row["git_revision"]) for row in rows}
+    assert starts.pop((env_name(first.env_id), first.algo, str(first.seed))) == ("1", "")
+    assert set(starts.values()) == {("", "")}  # the others record neither

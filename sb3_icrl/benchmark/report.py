@@ -284,9 +284,10 @@ def constraint_metrics(
 
 def run_facts(results: Sequence[tuple[RunSpec, RunResult]], root: str) -> dict[str, dict[str, Any]]:
     """
-    Per finished run, its training time (``wall_time_s``, from ``finished.json``, see :func:`run_wall_time`) and the
+    Per finished run, its training time (``wall_time_s``, from ``finished.json``, see :func:`run_wall_time`), the
     mean return of the demonstrations it learned from (``expert_return``, see :func:`demonstrations_source`; NaN when
-    there are none, e.g. an env without a shipped dataset).
+    there are none, e.g. an env without a shipped dataset), its recipe version, its :func:`training_provenance` and
+    its last training episodes.
 
     :param results: ``(run, held-out result)`` of the finished runs (:func:`evaluate_finished`)
     :param root: The log root
@@ -304,6 +305,7 @@ def run_facts(results: Sequence[tuple[RunSpec, RunResult]], root: str) -> dict[s
         version = recorded_recipe_version(folder)
         if version is not None:
             entry["recipe_version"] = version
+        entry.update(training_provenance(folder))
         last = last_training_episodes(folder)
         if last is not None:  # the paper's protocol: the last training episodes of the stochastic policy
             entry["last_training_violation_rate"] = last["violation_rate"]
@@ -419,9 +421,9 @@ def _transfer_text(seed: dict[str, Any]) -> str:
     return ", ".join(parts) or "-"
 
 
-def _run_args(folder: str | os.PathLike | None) -> dict[str, Any] | None:
-    """A run folder's ``args.yml`` (``None`` when it has none, or it cannot be read)."""
-    found = sorted(pathlib.Path(folder).glob("*/args.yml")) if folder is not None else []
+def _run_args(folder: str | os.PathLike | None, file_name: str = "args.yml") -> dict[str, Any] | None:
+    """A run folder's ``args.yml`` (or another yml file beside it; ``None`` when it has none, or it cannot be read)."""
+    found = sorted(pathlib.Path(folder).glob(f"*/{file_name}")) if folder is not None else []
     if not found:
         return None
     try:
@@ -430,6 +432,27 @@ def _run_args(folder: str | os.PathLike | None) -> dict[str, Any] | None:
     except (OSError, yaml.YAMLError):
         return None
     return content if isinstance(content, dict) else None
+
+
+def training_provenance(folder: str | os.PathLike) -> dict[str, Any]:
+    """
+    How a run was trained, for a reader who trains it again: ``git_revision``, the code it started with (its
+    ``versions.yml``), and ``training_starts``, how many times its training started (the lines of its
+    ``command.txt``: 1 when it ran uninterrupted; a resumed run goes on with fresh random streams, so it is not
+    bit-identical to one that was not).
+
+    :return: Those of the two the folder records
+    """
+    provenance: dict[str, Any] = {}
+    revision = (_run_args(folder, "versions.yml") or {}).get("git_revision")
+    if revision is not None:
+        provenance["git_revision"] = str(revision)
+    try:
+        with open(os.path.join(folder, "command.txt")) as file:
+            provenance["training_starts"] = sum(1 for line in file if line.strip())
+    except OSError:
+        pass
+    return provenance
 
 
 def recorded_recipe_version(folder: str | os.PathLike) -> str | None:
@@ -1688,6 +1711,8 @@ def csv_rows(summary: dict[str, Any]) -> str:
             *TRANSFER_COLUMNS,
             *LAST_TRAINING_COLUMNS,
             "wall_time_s",
+            "training_starts",
+            "git_revision",
             "expert_return",
             *published,
         ]
@@ -1712,6 +1737,8 @@ def csv_rows(summary: dict[str, Any]) -> str:
                     *(_csv_number(seed.get(column)) for column in (*OUTCOME_COLUMNS, *per_constraint)),
                     *(seed.get(column, "") for column in (*IDENTIFICATION_COLUMNS, *TRANSFER_COLUMNS, *LAST_TRAINING_COLUMNS)),
                     seed.get("wall_time_s", ""),
+                    seed.get("training_starts", ""),
+                    seed.get("git_revision", ""),
                     *("" if value is None else value for value in (cell.get("expert_return"), *numbers)),
                 ]
             )
