@@ -1904,7 +1904,10 @@ def write_figures(summary: dict[str, Any], suite: Suite, root: str, output: str)
     """
     data = figure_data(summary, suite, root, output)
     path = os.path.join(output, FIGURE_DATA_FILE)
-    atomic_write_json(path, {"model": summary.get("model", "final"), "runs": data}, sort_keys=True)
+    # (strict JSON, as summary.json: a non-finite value is written null and read back as NaN)
+    atomic_write_json(
+        path, finite_or_null({"model": summary.get("model", "final"), "runs": data}), sort_keys=True, allow_nan=False
+    )
     written = [path]
     for env_id in suite.envs:
         for variant in suite.variants:

@@ -960,7 +960,8 @@ def learned_cost_figure(
             raise ValueError(f"Unknown feature {chosen!r} for {run['run']}: its env constrains {', '.join(features)}.")
         entry = features[chosen]
         threshold, op = entry["threshold"], entry["op"]
-        curve = (np.asarray(entry["curve"]["values"]), np.asarray(entry["curve"]["mean_cost"]))
+        # (dtype float: a curve read back from strict JSON has None where a value was not finite)
+        curve = (np.asarray(entry["curve"]["values"], dtype=float), np.asarray(entry["curve"]["mean_cost"], dtype=float))
         curves.setdefault(str(run["algo"]).upper(), []).append(curve)
     if len(envs) > 1:
         raise ValueError(f"The runs trained on different envs ({sorted(envs)}): plot one env at a time.")
