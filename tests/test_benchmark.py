@@ -363,6 +363,19 @@ def test_constraint_figures_draw_the_scored_runs_of_each_env(tmp_path, monkeypat
     assert constraint_figures(summary, suite, str(tmp_path / "none"), data) == []
 
 
+def test_a_learned_cost_figure_does_not_miss_the_reference_rows(tmp_path):
+    """The reference rows learn no cost: a learned-cost figure of every ICRL method says nothing is missing."""
+    from sb3_icrl.benchmark.report import _partial
+    from sb3_icrl.registry import ICRL_ALGOS
+
+    suite = load_suite(write(tmp_path, TINY_SUITE.replace("algos: [bc2l, vicrl]", "algos: [bc2l, vicrl, ppolag]")))
+    summary = summarise_suite(suite, suite.runs(), [(run, _result(run.algo, run.seed, 1.0, 0.0)) for run in suite.runs()])
+    env = "sb3_icrl/GridWorldWall-v0"
+    assert _partial(summary, env, "base", {"bc2l", "vicrl"}, ICRL_ALGOS) == ""
+    assert _partial(summary, env, "base", {"bc2l"}, ICRL_ALGOS) == ", curves of bc2l only"
+    assert _partial(summary, env, "base", {"bc2l", "vicrl"}) == ", curves of bc2l, vicrl only"  # training curves: all rows
+
+
 def test_figure_data_from_run_folders_else_from_the_earlier_report(tmp_path):
     """A run's figure data come from its folder; a run whose folder is gone keeps what the earlier report had."""
     from sb3_icrl.benchmark.report import FIGURE_DATA_FILE, figure_data, run_figure_data
@@ -396,9 +409,21 @@ def test_figure_data_from_run_folders_else_from_the_earlier_report(tmp_path):
     assert kept["learned_cost"]["features"]["x"]["curve"] == {"values": [0, 1], "mean_cost": [0.1, 0.8]}
     assert run_figure_data(gone, root) == {}
     output.mkdir()
-    (output / FIGURE_DATA_FILE).write_text(json.dumps({"runs": {gone.name: {"curves": _curves()}, here.name: {"curves": {}}}}))
+    earlier = {gone.name: {"curves": _curves()}, here.name: {"curves": {}, "learned_cost": _learned_cost("bc2l")}}
+    (output / FIGURE_DATA_FILE).write_text(json.dumps({"suite": suite.name, "model": "final", "runs": earlier}))
+    # A folder whose run has not finished (trained again) gives nothing: the report's data stand
+    assert figure_data(summary, suite, root, str(output)) == earlier
+    (folder / "finished.json").write_text(json.dumps({"num_timesteps": 512}))
     data = figure_data(summary, suite, root, str(output))
     assert data == {here.name: kept, gone.name: {"curves": _curves()}}  # the folder's data replace the report's
+    # Key by key: a finished folder without its identification keeps the report's learned cost
+    (folder / identification_file("final")).unlink()
+    data = figure_data(summary, suite, root, str(output))
+    assert data[here.name] == {"curves": kept["curves"], "learned_cost": _learned_cost("bc2l")}
+    # Another suite's or model's file in the folder draws nothing here
+    for other in ({"suite": "other", "model": "final"}, {"suite": suite.name, "model": "best"}):
+        (output / FIGURE_DATA_FILE).write_text(json.dumps({**other, "runs": earlier}))
+        assert figure_data(summary, suite, root, str(output)) == {here.name: {"curves": kept["curves"]}}
 
 
 def test_figures_follow_the_cells_the_report_keeps(tmp_path, monkeypatch):
@@ -425,6 +450,7 @@ def test_figures_follow_the_cells_the_report_keeps(tmp_path, monkeypatch):
     written = write_figures(summary, suite, str(tmp_path / "logs"), str(output))
     assert [os.path.basename(path) for path in written] == [FIGURE_DATA_FILE, "curves_GridWorldWall-v0_base.png"]
     assert drawn == [(["BC2L", "VICRL"], "GridWorldWall-v0 (base)")]
+
     def strict(constant):
         raise ValueError(f"{constant} in strict JSON")
 

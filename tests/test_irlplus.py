@@ -457,24 +457,28 @@ def test_a_planner_is_never_paid_by_an_irlplus_cost() -> None:
     np.testing.assert_array_equal(cost_table(net, 49, 8), np.zeros((49, 8)))
 
 
-@pytest.mark.parametrize("warmup, updated", [(10**6, False), (0, True)])
-def test_irlplus_on_the_grid_plans_with_the_multiplier_at_1_after_its_warmup(warmup: int, updated: bool) -> None:
-    """On a grid world the planner holds IRL-Plus's multiplier at 1 and makes no cost update before the warm-up ends."""
-    from sb3_icrl.icrl.tabular import learn_with_planner
-
-    model = IRLPlusPPO(
+def grid_irlplus(**kwargs) -> IRLPlusPPO:
+    """IRL-Plus on PPO on GridWorldWall, small, for the planner (``learn_with_planner``)."""
+    return IRLPlusPPO(
         "MlpPolicy",
         "sb3_icrl/GridWorldWall-v0",
         demonstrations="GridWorldWall-v0",
         n_steps=64,
         batch_size=32,
-        n_nominal_trajectories=5,
-        warmup_timesteps=warmup,
         policy_resets=False,
         constraint_net_kwargs=dict(hidden_sizes=[8], normalize_input=False, use_action=False),
         seed=0,
         device="cpu",
+        **kwargs,
     )
+
+
+@pytest.mark.parametrize("warmup, updated", [(10**6, False), (0, True)])
+def test_irlplus_on_the_grid_plans_with_the_multiplier_at_1_after_its_warmup(warmup: int, updated: bool) -> None:
+    """On a grid world the planner holds IRL-Plus's multiplier at 1 and makes no cost update before the warm-up ends."""
+    from sb3_icrl.icrl.tabular import learn_with_planner
+
+    model = grid_irlplus(n_nominal_trajectories=5, warmup_timesteps=warmup)
     planner = learn_with_planner(model, 400, planner_kwargs=dict(planner_iterations=20))
     assert (model.n_constraint_updates > 0) == updated
     assert planner.lagrange_multiplier == 1.0 and model.lagrange_multiplier.value == 1.0
@@ -490,3 +494,16 @@ def test_train_cli_runs_irlplusppo_on_blocked_half_cheetah(tmp_path) -> None:
     model = IRLPlusPPO.load(tmp_path / "irlplusppo" / "BlockedHalfCheetah-v0_1" / "BlockedHalfCheetah-v0.zip", device="cpu")
     assert model.num_timesteps == 2048 and model.n_constraint_updates >= 1 and model.l2_coef == 0.1
     assert model.lagrange_multiplier.value == 1.0  # held at 1, as the reference
+
+
+def test_the_planner_holds_the_multiplier_even_with_no_step_to_run() -> None:
+    """A run resumed at its last step plans once on the final cost: with the multiplier held, not learned from it."""
+    from sb3_icrl.icrl.tabular import learn_with_planner
+
+    model = grid_irlplus()
+    output = [module for module in model.constraint_net.modules() if isinstance(module, th.nn.Linear)][-1]
+    with th.no_grad():
+        output.weight.zero_()
+        output.bias.fill_(0.5)  # a cost of 0.5 everywhere: a learned multiplier would rise above 1
+    planner = learn_with_planner(model, 0, planner_kwargs=dict(planner_iterations=50))
+    assert planner.lagrange_multiplier == 1.0 and model.lagrange_multiplier.value == 1.0

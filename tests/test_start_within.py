@@ -1,5 +1,7 @@
 """``benchmark run --start-within``: no run starts after the time, the runs under way end, the others are left."""
 
+import os
+
 import pytest
 
 from sb3_icrl.benchmark import cli, runner
@@ -62,11 +64,16 @@ def test_no_run_starts_after_the_time(clock, finished):
     assert outcomes[3].attempts == 0
 
 
-def test_a_failed_run_is_not_tried_again_after_the_time(clock, finished):
+def test_a_failed_run_is_not_tried_again_after_the_time_and_says_it_failed(clock, finished, tmp_path):
     backend = _TenSecondRuns(clock, finished, failing={RUNS[0]})
-    outcomes = run_all(RUNS[:2], "logs", backend, start_until=5)
+    log = RUNS[0].log_file(str(tmp_path))
+    os.makedirs(os.path.dirname(log))
+    with open(log, "w") as file:
+        file.write("Traceback (most recent call last):\nValueError: a broken recipe\n")
+    outcomes = run_all(RUNS[:2], str(tmp_path), backend, start_until=5)
     assert backend.submitted == [RUNS[0]]
-    assert [(outcome.status, outcome.attempts) for outcome in outcomes] == [("left", 1), ("left", 0)]
+    assert [(outcome.status, outcome.attempts) for outcome in outcomes] == [("failed", 1), ("left", 0)]
+    assert "ValueError: a broken recipe" in outcomes[0].log_tail
 
 
 def test_without_a_time_every_run_starts(clock, finished):
@@ -79,7 +86,7 @@ def test_durations(text, seconds):
     assert cli.duration_seconds(text) == seconds
 
 
-@pytest.mark.parametrize("text", ["", "soon", "2d", "-5m", "0"])
+@pytest.mark.parametrize("text", ["", "soon", "2d", "-5m", "0", "1h30"])
 def test_a_bad_duration_is_refused_with_the_forms_it_takes(text, capsys, tmp_path):
     with pytest.raises(SystemExit):
         cli.main(["run", "smoke", "-f", str(tmp_path), f"--start-within={text}"])

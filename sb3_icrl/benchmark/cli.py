@@ -60,10 +60,13 @@ def duration_seconds(text: str) -> float:
 
     :raises argparse.ArgumentTypeError: On anything else, or a duration that is not positive
     """
-    match = re.fullmatch(r"\s*(?:(\d+(?:\.\d+)?)h)?\s*(?:(\d+(?:\.\d+)?)m)?\s*(?:(\d+(?:\.\d+)?)s?)?\s*", text.lower())
-    if not text.strip() or match is None or not any(match.groups()):
+    match = re.fullmatch(r"\s*(?:(\d+(?:\.\d+)?)h)?\s*(?:(\d+(?:\.\d+)?)m)?\s*(?:(\d+(?:\.\d+)?)(s?))?\s*", text.lower())
+    # (a bare number after a unit, "1h30", is ambiguous: refused)
+    if match is not None and match.group(3) and not match.group(4) and (match.group(1) or match.group(2)):
+        match = None
+    if not text.strip() or match is None or not any(match.groups()[:3]):
         raise argparse.ArgumentTypeError(f"{text!r} is not a duration: write it as 2h30m, 90m, 1.5h, 600s or 600 (seconds)")
-    hours, minutes, seconds = (float(group or 0) for group in match.groups())
+    hours, minutes, seconds = (float(group or 0) for group in match.groups()[:3])
     total = 3600 * hours + 60 * minutes + seconds
     if total <= 0:
         raise argparse.ArgumentTypeError(f"{text!r}: the duration must be more than zero")

@@ -1811,15 +1811,15 @@ def run_figure_data(run: RunSpec, root: str, model: str = "final") -> dict[str, 
     data: dict[str, Any] = {}
     try:
         arrays = load_evaluations(folder)
-    except (FileNotFoundError, ValueError):  # no folder, not evaluated, or a damaged file: no curve
-        arrays = None
-    if arrays is not None:
         curves = {"timesteps": np.asarray(arrays["timesteps"], dtype=float).tolist()}
         for key in _CURVE_KEYS:
             if key in arrays:
                 values = np.asarray(arrays[key], dtype=float)
                 curves[key] = values.reshape(len(values), -1).mean(axis=1).tolist()
-        data["curves"] = curves
+        if curves["timesteps"]:
+            data["curves"] = curves
+    except (FileNotFoundError, ValueError):  # no folder, not evaluated, or a damaged file: no curve
+        pass
     cache = os.path.join(folder, identification_file(model))
     if os.path.isfile(cache):
         try:
@@ -1837,29 +1837,42 @@ def figure_data(summary: dict[str, Any], suite: Suite, root: str, output: str) -
 
     :return: ``{run name: run_figure_data(...)}``, runs with nothing to draw left out
     """
+    model = summary.get("model", "final")
     earlier: dict[str, Any] = {}
     path = os.path.join(output, FIGURE_DATA_FILE)
     if os.path.isfile(path):
         try:
             with open(path) as file:
-                earlier = json.load(file).get("runs", {})
+                content = json.load(file)
+            # (another suite's or model's file in the same folder draws nothing here)
+            if content.get("suite") == suite.name and content.get("model", "final") == model:
+                earlier = dict(content.get("runs", {}))
         except (OSError, ValueError, AttributeError):  # unreadable: the runs with folders are drawn, the others not
             earlier = {}
-    model = summary.get("model", "final")
     data: dict[str, dict[str, Any]] = {}
     for cell in summary["cells"]:
         for seed in cell["per_seed"]:
             run = RunSpec(suite.name, cell["variant"], cell["algo"], cell["env"], int(seed["seed"]), 0)
-            fresh = run_figure_data(run, root, model) if os.path.isdir(run.run_folder(root)) else {}
-            entry = fresh or earlier.get(run.name) or {}
+            # A folder whose run is not finished (trained again since the summary's result) draws nothing of it
+            fresh = run_figure_data(run, root, model) if is_finished(run.run_folder(root)) else {}
+            entry = {**(earlier.get(run.name) or {}), **fresh}
             if entry:
                 data[run.name] = entry
     return data
 
 
-def _partial(summary: dict[str, Any], env: str, variant: str, drawn: Collection[str]) -> str:
-    """``", curves of mecl, vicrl only"`` in a figure's title when it draws only some of the env and variant's methods."""
-    algos = [cell["algo"] for cell in summary["cells"] if (cell["env"], cell["variant"]) == (env_name(env), variant)]
+def _partial(
+    summary: dict[str, Any], env: str, variant: str, drawn: Collection[str], candidates: Collection[str] | None = None
+) -> str:
+    """
+    ``", curves of mecl, vicrl only"`` in a figure's title when it draws only some of the env and variant's methods
+    (of ``candidates``, default all: a learned-cost figure has none of the reference rows to draw).
+    """
+    algos = [
+        cell["algo"]
+        for cell in summary["cells"]
+        if (cell["env"], cell["variant"]) == (env_name(env), variant) and (candidates is None or cell["algo"] in candidates)
+    ]
     shown = [algo for algo in algos if algo in drawn]
     return "" if len(shown) == len(algos) else f", curves of {', '.join(shown)} only"
 
@@ -1884,7 +1897,7 @@ def constraint_figures(summary: dict[str, Any], suite: Suite, output: str, data:
     suffix = " (best models)" if summary.get("model", "final") == "best" else ""
     for (env_id, variant), curves in runs.items():
         drawn = {str(curve["algo"]) for curve in curves}
-        title = f"{env_name(env_id)} ({variant}{_partial(summary, env_id, variant, drawn)}): learned cost{suffix}"
+        title = f"{env_name(env_id)} ({variant}{_partial(summary, env_id, variant, drawn, ICRL_ALGOS)}): learned cost{suffix}"
         try:
             figure = learned_cost_figure(curves, title=title)
         except ValueError:  # no feature threshold to draw against
@@ -1905,9 +1918,8 @@ def write_figures(summary: dict[str, Any], suite: Suite, root: str, output: str)
     data = figure_data(summary, suite, root, output)
     path = os.path.join(output, FIGURE_DATA_FILE)
     # (strict JSON, as summary.json: a non-finite value is written null and read back as NaN)
-    atomic_write_json(
-        path, finite_or_null({"model": summary.get("model", "final"), "runs": data}), sort_keys=True, allow_nan=False
-    )
+    kept = {"suite": suite.name, "model": summary.get("model", "final"), "runs": data}
+    atomic_write_json(path, finite_or_null(kept), sort_keys=True, allow_nan=False)
     written = [path]
     for env_id in suite.envs:
         for variant in suite.variants:

@@ -419,7 +419,8 @@ def run_all(
     :param backend: Where the runs go
     :param on_event: Called with ``("start" | "end", outcome, counts)`` as runs start and end (for the display)
     :param start_until: A time (``time.time()``) after which no run starts, nor starts again after a failure: the runs
-        under way go on to their end, the others stay ``"left"`` (``None``: no such time)
+        under way go on to their end, the others stay ``"left"``, a run that failed once is ``"failed"`` (``None``: no
+        such time)
     :return: One outcome per run, in the order of ``runs``
     """
     outcomes = {run: RunOutcome(run, "left") for run in runs}
@@ -477,6 +478,10 @@ def run_all(
                     outcome.log_tail = outcome.log_tail or log_tail(run.log_file(root))
                 if on_event:
                     on_event("end", outcome, counts())
+        for outcome in outcomes.values():
+            if outcome.status == "left" and outcome.attempts:  # failed, its second try left by the start time
+                outcome.status = "failed"
+                outcome.log_tail = outcome.log_tail or log_tail(outcome.run.log_file(root))
     except KeyboardInterrupt:
         backend.stop()
         raise

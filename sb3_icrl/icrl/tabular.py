@@ -366,6 +366,8 @@ def learn_with_planner(
     stepper = recorder if model.env is model.constraint_wrapper else env
     planner_iterations = int(loop.get("planner_iterations", 1000))
     held = held_multiplier(model)
+    if held is not None:  # GACL's r + log D, IRL-Plus's cost as a negative reward: no multiplier to learn
+        planner.lagrange_multiplier, planner.lagrange_lr = held, 0.0
     # A trainer with a warm-up (IRL-Plus) leaves the cost at its start until then: the planner follows the reward alone
     warmup_timesteps = int(getattr(trainer, "warmup_timesteps", 0))
     observations = model._last_obs
@@ -379,8 +381,6 @@ def learn_with_planner(
             # random tie-breaks spread its first trajectories over all of them, not over the one an untrained net favours
             costs[:] = 0.0
         planner.set_cost_table(costs)
-        if held is not None:  # GACL's r + log D, IRL-Plus's cost as a negative reward: no multiplier to learn
-            planner.lagrange_multiplier, planner.lagrange_lr = held, 0.0
         planner.learn(total_iterations=planner_iterations)
         if distilled is None or not np.array_equal(distilled, planner.policy_table):
             distill_planner(model.policy, planner, max_steps=int(loop.get("distill_steps", 2000)))
