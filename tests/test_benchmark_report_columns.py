@@ -468,6 +468,27 @@ def test_update_keeps_the_runs_whose_folders_are_elsewhere(finished_suite, tmp_p
     assert here.name in json.loads(pathlib.Path(output, "summary.json").read_text())["runs_missing"]
 
 
+def test_update_lists_a_run_still_to_come_once(finished_suite, tmp_path, monkeypatch):
+    """A run the earlier report listed as not finished, still not started here, is counted once."""
+    from sb3_icrl.benchmark import cli
+
+    suite, root, results = finished_suite
+    path = write(tmp_path, SUITE)
+    output = str(tmp_path / "results" / "suite")
+    waiting = results[0][0]
+    write_report(summarise_suite(suite, suite.runs(), results[1:], run_facts(results[1:], root)), output)
+    shutil.rmtree(waiting.run_folder(root))
+    monkeypatch.setattr(
+        cli, "evaluate_finished", lambda runs, *args, **kwargs: [item for item in results[1:] if item[0] in runs]
+    )
+    assert cli.main(["report", path, "-f", root, "-o", output, "--no-figures", "--update"]) == 0
+    updated = json.loads(pathlib.Path(output, "summary.json").read_text())
+    expected = sorted({run.name for run in suite.runs()} - {run.name for run, _ in results[1:]})
+    assert waiting.name in expected and sorted(updated["runs_missing"]) == expected  # each once
+    assert sum(left for _, _, left, _ in updated["runs_missing_by_env"]) == len(expected)
+    assert all(left <= total for _, _, left, total in updated["runs_missing_by_env"])
+
+
 def test_update_replaces_the_rerun_seeds_and_keeps_every_other_cell(finished_suite, tmp_path, monkeypatch, capsys):
     from sb3_icrl.benchmark import cli
 

@@ -335,7 +335,8 @@ def _with_earlier_report(
     metrics = {**metrics, **{result.run: kept_metrics[result.run] for _, result in kept}}
     if not results:  # the earlier report's runs, no more: a report of part of a suite stays one
         return [run for run, _ in kept] + missing, kept, metrics
-    return runs + [run for run in missing if run not in selected], kept + results, metrics
+    # (a selected run the earlier report listed as not finished is listed once)
+    return runs + [run for run in missing if run not in chosen], kept + results, metrics
 
 
 def report_command(args: argparse.Namespace) -> int:
