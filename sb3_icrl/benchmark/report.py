@@ -345,7 +345,7 @@ def previous_results(
         for seed in cell["per_seed"]:
             run = by_cell_and_seed.get((cell["env"], cell["variant"], cell["algo"], int(seed["seed"])))
             if run is None:
-                gone = RunSpec(suite.name, cell["variant"], cell["algo"], cell["env"], int(seed["seed"]), 0)
+                gone = summary_run(suite, cell, seed)
                 raise ValueError(
                     f"The report to update holds run {gone.name!r}, which suite {suite.name!r} no longer has: report "
                     "into another -o folder (or without --update)."
@@ -1830,6 +1830,11 @@ def run_figure_data(run: RunSpec, root: str, model: str = "final") -> dict[str, 
     return data
 
 
+def summary_run(suite: Suite, cell: dict[str, Any], seed: dict[str, Any]) -> RunSpec:
+    """The run of one seed of a summary's cell (its name and folder; steps are not known there: 0)."""
+    return RunSpec(suite.name, cell["variant"], cell["algo"], cell["env"], int(seed["seed"]), 0)
+
+
 def figure_data(summary: dict[str, Any], suite: Suite, root: str, output: str) -> dict[str, dict[str, Any]]:
     """
     Per run of the summary (by name), what its figures draw: read from its folder where it has one, else kept from
@@ -1852,7 +1857,7 @@ def figure_data(summary: dict[str, Any], suite: Suite, root: str, output: str) -
     data: dict[str, dict[str, Any]] = {}
     for cell in summary["cells"]:
         for seed in cell["per_seed"]:
-            run = RunSpec(suite.name, cell["variant"], cell["algo"], cell["env"], int(seed["seed"]), 0)
+            run = summary_run(suite, cell, seed)
             # A folder whose run is not finished (trained again since the summary's result) draws nothing of it
             fresh = run_figure_data(run, root, model) if is_finished(run.run_folder(root)) else {}
             entry = {**(earlier.get(run.name) or {}), **fresh}
@@ -1890,7 +1895,7 @@ def constraint_figures(summary: dict[str, Any], suite: Suite, output: str, data:
     runs: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for cell in summary["cells"]:
         for seed in cell["per_seed"]:
-            name = RunSpec(suite.name, cell["variant"], cell["algo"], cell["env"], int(seed["seed"]), 0).name
+            name = summary_run(suite, cell, seed).name
             if "identification_auroc" in seed and "learned_cost" in data.get(name, {}):
                 runs.setdefault((cell["env"], cell["variant"]), []).append(data[name]["learned_cost"])
     written = []
@@ -1921,18 +1926,17 @@ def write_figures(summary: dict[str, Any], suite: Suite, root: str, output: str)
     kept = {"suite": suite.name, "model": summary.get("model", "final"), "runs": data}
     atomic_write_json(path, finite_or_null(kept), sort_keys=True, allow_nan=False)
     written = [path]
+    # Per env and variant, each method's seeds with curves
+    by_task: dict[tuple[str, str], dict[str, list[dict[str, np.ndarray]]]] = {}
+    for cell in summary["cells"]:
+        for seed in cell["per_seed"]:
+            curves = data.get(summary_run(suite, cell, seed).name, {}).get("curves")
+            if curves is not None:
+                arrays = {key: np.asarray(values, dtype=float) for key, values in curves.items()}
+                by_task.setdefault((cell["env"], cell["variant"]), {}).setdefault(cell["algo"], []).append(arrays)
     for env_id in suite.envs:
         for variant in suite.variants:
-            runs: dict[str, list[dict[str, np.ndarray]]] = {}
-            for cell in summary["cells"]:
-                if (cell["env"], cell["variant"]) != (env_name(env_id), variant):
-                    continue
-                for seed in cell["per_seed"]:
-                    name = RunSpec(suite.name, variant, cell["algo"], cell["env"], int(seed["seed"]), 0).name
-                    curves = data.get(name, {}).get("curves")
-                    if curves is not None:
-                        arrays = {key: np.asarray(values, dtype=float) for key, values in curves.items()}
-                        runs.setdefault(cell["algo"], []).append(arrays)
+            runs = by_task.get((env_name(env_id), variant))
             if not runs:  # nothing to draw: the figure already there, if any, stays
                 continue
             title = f"{env_name(env_id)} ({variant}{_partial(summary, env_id, variant, runs)})"
