@@ -45,7 +45,7 @@ from sb3_icrl.constraints import BetaFeasibilityNet, CostNet, FeasibilityNet
 from sb3_icrl.data import load_demonstrations
 from sb3_icrl.envs.grid_world import GridWorldEnv
 from sb3_icrl.icrl import ICRLTrainer, LagrangianICRL
-from sb3_icrl.icrl.tabular import cost_table, precision_recall, tabular_icrl
+from sb3_icrl.icrl.tabular import cost_table, held_planner_kwargs, precision_recall, tabular_icrl
 from sb3_icrl.irlplus import IRLPlusPPO, IRLPlusTrainer
 from sb3_icrl.irlplus.irlplus import IRLPLUS_LAGRANGE_KWARGS
 from sb3_icrl.mecl import MECL, MECLTrainer
@@ -162,7 +162,7 @@ def held_planner_multiplier(algo: str) -> dict[str, float] | None:
     """
     if algo != "irlplus":
         return None
-    return dict(lagrange_init=float(IRLPLUS_LAGRANGE_KWARGS["init"]), lagrange_lr=0.0)
+    return held_planner_kwargs(IRLPLUS_LAGRANGE_KWARGS["init"])
 
 
 def expert_cells(env_id: str, grid: GridWorldEnv) -> np.ndarray:

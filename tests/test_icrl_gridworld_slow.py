@@ -16,8 +16,9 @@ from sb3_icrl.common.evaluation import evaluate_constraint
 from sb3_icrl.constraints import BetaFeasibilityNet, CostNet, FeasibilityNet
 from sb3_icrl.data import load_demonstrations
 from sb3_icrl.icrl import ICRLTrainer
-from sb3_icrl.icrl.tabular import tabular_icrl
+from sb3_icrl.icrl.tabular import held_planner_kwargs, tabular_icrl
 from sb3_icrl.irlplus import IRLPlusTrainer
+from sb3_icrl.irlplus.irlplus import IRLPLUS_LAGRANGE_KWARGS
 from sb3_icrl.mecl import MECLTrainer
 from sb3_icrl.vicrl import VICRLTrainer
 
@@ -48,7 +49,7 @@ def test_grid_world_recovery_reaches_the_goal_safely(algo: str, env_id: str) -> 
     if algo == "bc2l":  # BC2L labels whole trajectories, as the reference code does on its grid worlds
         trainer_kwargs = dict(expert_episode_lengths=[len(t) for t in demonstrations])
     elif algo == "irlplus":
-        trainer_kwargs, planner_kwargs = dict(l2_coef=0.1), dict(lagrange_init=1.0, lagrange_lr=0.0)
+        trainer_kwargs, planner_kwargs = dict(l2_coef=0.1), held_planner_kwargs(IRLPLUS_LAGRANGE_KWARGS["init"])
     result = tabular_icrl(
         trainer_class,
         net,

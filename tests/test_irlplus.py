@@ -435,12 +435,16 @@ def test_held_multiplier_of_the_planner() -> None:
     """GACL and a model that holds its multiplier (IRL-Plus) plan with it held; a learning multiplier is the planner's."""
     from types import SimpleNamespace
 
-    from sb3_icrl.icrl.tabular import held_multiplier
+    from sb3_icrl.icrl.tabular import held_multiplier, held_planner_kwargs
+    from sb3_icrl.pi_lagrangian import PILagrangian
 
     assert held_multiplier(SimpleNamespace(log_d_eps=1e-5)) == 1.0
     assert held_multiplier(SimpleNamespace(lagrange_kwargs={"init": 2.0, "lr": 0.0})) == 2.0
     assert held_multiplier(SimpleNamespace(lagrange_kwargs={"init": 0.1, "lr": 0.05})) is None
     assert held_multiplier(SimpleNamespace(lagrange_kwargs={})) is None
+    # Held at 0, the planner walks through the wall and keeps the multiplier there all the same (a learning one rises)
+    planner = PILagrangian(gym.make("sb3_icrl/GridWorldWall-v0"), **held_planner_kwargs(0.0)).learn(total_iterations=5)
+    assert planner.lagrange_multiplier == 0.0
 
 
 def test_a_planner_is_never_paid_by_an_irlplus_cost() -> None:

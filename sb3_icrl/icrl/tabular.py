@@ -443,6 +443,14 @@ def held_multiplier(model: Any) -> float | None:
     return None
 
 
+def held_planner_kwargs(multiplier: float) -> dict[str, float]:
+    """
+    :param multiplier: The multiplier a planner must hold (see :func:`held_multiplier`)
+    :return: The :class:`~sb3_icrl.PILagrangian` arguments that start it there and never move it
+    """
+    return dict(lagrange_init=float(multiplier), lagrange_lr=0.0)
+
+
 def _set_multiplier(model: Any, value: float) -> None:
     """Give a Lagrangian model the planner's multiplier (both price a whole episode's cost against a budget of 0)."""
     multiplier = getattr(model, "lagrange_multiplier", None)
