@@ -459,6 +459,10 @@ def test_a_planner_is_never_paid_by_an_irlplus_cost() -> None:
         output.bias.fill_(-3.0)  # a cost of -0.03 everywhere before the floor
     assert np.all(net.cost(np.arange(3), np.zeros(3, dtype=int)) < 0)
     np.testing.assert_array_equal(cost_table(net, 49, 8), np.zeros((49, 8)))
+    np.testing.assert_array_equal(net.paid_cost(np.arange(3), np.zeros(3, dtype=int)), np.zeros(3))
+    with th.no_grad():
+        output.bias.fill_(0.5)  # above 0 the charged cost is the cost itself
+    np.testing.assert_allclose(net.paid_cost(np.arange(3), np.zeros(3, dtype=int)), np.full(3, 0.5))
 
 
 def grid_irlplus(**kwargs) -> IRLPlusPPO:

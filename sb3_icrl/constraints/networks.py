@@ -708,6 +708,18 @@ class CostNet(_ConstraintNet):
         with th.no_grad():
             return self.cost_tensor(obs, actions).cpu().numpy().astype(np.float32)
 
+    def paid_cost(self, obs: np.ndarray, actions: np.ndarray | None) -> np.ndarray:
+        """
+        The cost a forward learner or a planner is charged: :meth:`cost` floored at 0. A constrained learner takes costs
+        that count violations (>= 0), and a planner paid a little for every step in a cell below 0 would rather wander
+        there than end its episode at the goal; the cost update itself still sees (and gets gradients from) the dip.
+
+        :param obs: Observations as the env returned them, ``(batch, obs_dim)``
+        :param actions: Actions as sent to the env, ``(batch, action_dim)``
+        :return: Costs >= 0, float32 of shape ``(batch,)``
+        """
+        return np.maximum(self.cost(obs, actions), np.float32(0))
+
     def predict_feasibility(self, obs: ArrayLike, actions: ArrayLike | None) -> np.ndarray:
         """
         ``exp(-c)`` for a batch: 1 at zero cost, towards 0 as the cost grows (for logging).

@@ -68,10 +68,8 @@ def cost_table(constraint_net: _ConstraintNet, n_states: int, n_actions: int) ->
     states, actions = state_grid.ravel(), action_grid.ravel()
     if isinstance(constraint_net, BetaFeasibilityNet):
         costs = 1.0 - constraint_net.predict_feasibility(states, actions, cost_mode="mean")
-    elif isinstance(constraint_net, CostNet):
-        # IRL-Plus's cost dips slightly below 0 (LeakyReLU output); a planner paid to stay in such cells would rather
-        # wander than reach the goal, so it is floored at 0, as IRLPlusPPO gives it to PPO-Lagrangian
-        costs = np.maximum(constraint_net.cost(states, actions), 0.0)
+    elif isinstance(constraint_net, CostNet):  # IRL-Plus: the cost its forward learner is charged, as IRLPlusPPO's
+        costs = constraint_net.paid_cost(states, actions)
     else:
         costs = constraint_net.cost(states, actions)
     return np.asarray(costs, dtype=np.float64).reshape(n_states, n_actions)

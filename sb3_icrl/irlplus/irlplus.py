@@ -291,14 +291,15 @@ class IRLPlusPPO(_IRLPlusOptions, LagrangianICRL):
 
     def constraint_cost(self, observations: np.ndarray, actions: np.ndarray) -> np.ndarray:
         """
-        The learned cost, floored at 0: PPO-Lagrangian takes costs that count violations (>= 0), while the cost net's
-        LeakyReLU output dips slightly below 0 (slope 0.01), where the cost update still gets gradients.
+        The learned cost floored at 0 (:meth:`~sb3_icrl.constraints.CostNet.paid_cost`): PPO-Lagrangian takes costs
+        that count violations (>= 0), while the cost net's LeakyReLU output dips slightly below 0 (slope 0.01).
 
         :param observations: ``(batch, obs_dim)``
         :param actions: ``(batch, action_dim)``
         :return: Costs, ``(batch,)``
         """
-        return np.maximum(super().constraint_cost(observations, actions), 0.0)
+        assert isinstance(self.constraint_net, CostNet)
+        return self.constraint_net.paid_cost(observations, actions)
 
     def reset_policy_layers(self) -> None:
         """Draw new weights for the actor's output layer and the cost critic's last layer, as SB3 initialises them."""
