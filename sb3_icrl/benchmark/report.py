@@ -169,8 +169,8 @@ def evaluate_finished(
             continue
         steps = heldout_steps(run.env_id, suite.eval_episodes)
         cache = os.path.join(folder, HELDOUT_BEST_FILE if best else HELDOUT_FILE)
-        env_kwargs = heldout_env_kwargs(run.env_id)
         settings = heldout_settings(suite, run.env_id, model)
+        env_kwargs = dict(settings.get("env_kwargs", {}))  # the env's held-out data, read once with the settings
         cached = None
         saved: dict[str, Any] = {}
         if os.path.isfile(cache):
