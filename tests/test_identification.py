@@ -314,12 +314,24 @@ def test_a_learned_net_is_read_against_an_untrained_one_of_its_shape(expert):
     assert [tuple(p.shape) for p in copy.parameters()] == [tuple(p.shape) for p in net.parameters()]
     assert not any(th.equal(a, b) for a, b in zip(copy.parameters(), net.parameters(), strict=True))
     assert all(th.equal(a, b) for a, b in zip(copy.parameters(), untrained_copy(net, seed=3).parameters(), strict=True))
-    scores = identify_model(net, CHEETAH, expert, seed=0)
-    assert 0.0 <= scores["untrained_auroc"] <= 1.0
-    assert headline(scores)["untrained_auroc"] == scores["untrained_auroc"]
+    scores = identify_model(net, CHEETAH, expert, seed=0, n_untrained=3)
+    # The baseline: the median of three initialisations (seeds 0, 1, 2), each scored as a learned net is
+    draws = [identify_model(untrained_copy(net, seed=s), CHEETAH, expert, seed=0, n_untrained=1)["auroc"] for s in range(3)]
+    assert scores["untrained_draws"] == pytest.approx(draws)
+    assert scores["untrained_auroc"] == pytest.approx(sorted(draws)[1])
+    assert scores["untrained_auroc_range"] == pytest.approx([min(draws), max(draws)])
+    row = headline(scores)
+    assert (row["untrained_auroc"], row["untrained_auroc_low"], row["untrained_auroc_high"]) == pytest.approx(
+        (sorted(draws)[1], min(draws), max(draws))
+    )
     assert "untrained_auroc" not in identify_model(step_cost(-3.0), CHEETAH, expert, seed=0)  # a function has no shape
+    with pytest.raises(ValueError, match="n_untrained"):
+        identify_model(net, CHEETAH, expert, seed=0, n_untrained=0)
     from sb3_icrl.benchmark.report import _identification_text
 
+    seed = {"identification_auroc": 0.9, "untrained_auroc": 0.5, "untrained_auroc_low": 0.02, "threshold_error": 0.5}
+    assert _identification_text({**seed, "untrained_auroc_high": 0.97}) == "0.90 (untrained 0.50, 0.02-0.97) / 0.50"
+    # A run scored when the baseline was one net says so
     assert _identification_text({"identification_auroc": 0.9, "untrained_auroc": 0.87, "threshold_error": 0.5}) == (
-        "0.90 (untrained 0.87) / 0.50"
+        "0.90 (untrained 0.87, one draw) / 0.50"
     )

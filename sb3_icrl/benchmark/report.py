@@ -94,6 +94,8 @@ IDENTIFICATION_COLUMNS = (
     "learner_cost",
     "cost_budget",
     "untrained_auroc",
+    "untrained_auroc_low",
+    "untrained_auroc_high",
 )
 #: What a report can evaluate: each run's final model, or the best model its training chose on learned quantities
 REPORT_MODELS = ("final", "best")
@@ -398,7 +400,8 @@ TRANSFER_COLUMNS = tuple(
 def _identification_text(seed: dict[str, Any]) -> str:
     """
     ``AUROC / threshold error`` of one seed: ``-`` where the learned cost never reaches 0.5 (or there is no
-    threshold), ``everywhere`` where it stays at or above 0.5 up to the safe end of the feature's range.
+    threshold), ``everywhere`` where it stays at or above 0.5 up to the safe end of the feature's range. Beside the
+    AUROC, untrained nets' median and range (``one draw`` for a run scored when the baseline was a single net).
     """
     if "identification_auroc" not in seed:
         return "-"
@@ -406,8 +409,13 @@ def _identification_text(seed: dict[str, Any]) -> str:
     # (a summary read back from JSON has null for both non-finite errors: its crossing tells them apart)
     everywhere = seed.get("threshold_crossing") == "everywhere" or (error is not None and math.isinf(error))
     error_text = "everywhere" if everywhere else _fmt(error, 2) if error is not None and math.isfinite(error) else "-"
-    untrained = seed.get("untrained_auroc")
-    baseline = f" (untrained {_fmt(untrained, 2)})" if untrained is not None else ""
+    untrained, low, high = (seed.get(key) for key in ("untrained_auroc", "untrained_auroc_low", "untrained_auroc_high"))
+    if untrained is None:
+        baseline = ""
+    elif low is None or high is None:  # scored before the baseline took several initialisations
+        baseline = f" (untrained {_fmt(untrained, 2)}, one draw)"
+    else:
+        baseline = f" (untrained {_fmt(untrained, 2)}, {_fmt(low, 2)}-{_fmt(high, 2)})"
     return f"{_fmt(seed['identification_auroc'], 2)}{baseline} / {error_text}"
 
 

@@ -65,8 +65,12 @@ def identification_file(model: str) -> str:
     return f"identification_{pathlib.Path(model).stem}.json"
 
 
-#: Bumped when the scores change meaning, so that cached results are computed again
-IDENTIFICATION_VERSION = 1
+#: Bumped when the scores change meaning, so that cached results are computed again (2: the untrained baseline is the
+#: median of several initialisations, not one)
+IDENTIFICATION_VERSION = 2
+#: Initialisations of the untrained baseline: on a probe set whose label is a threshold on one feature, any roughly
+#: monotone random net scores near 0 or near 1, so a single draw says nothing
+UNTRAINED_DRAWS = 10
 #: Default bins of the expected calibration error
 DEFAULT_CALIBRATION_BINS = 10
 
@@ -610,9 +614,13 @@ def identify_model(
     n_sweep_values: int = 51,
     n_sweep_states: int = 100,
     seed: int = 0,
+    n_untrained: int = UNTRAINED_DRAWS,
 ) -> dict[str, Any]:
     """
     Identification scores of a learned constraint (an ICRL model, a constraint net or a cost function) on an env.
+    For a constraint net, ``untrained_auroc`` is what its shape and input scaling alone give on the same probes: the
+    median AUROC of ``n_untrained`` fresh initialisations (seeds ``seed``, ``seed + 1``, ...), with their range in
+    ``untrained_auroc_range`` and each draw in ``untrained_draws``.
 
     :param model: The learned constraint
     :param env_id: The env it was learned on (gives the true constraint, for evaluation only)
@@ -623,10 +631,13 @@ def identify_model(
     :param n_sweep_values: Values per swept feature
     :param n_sweep_states: Visited pairs each swept value is set in
     :param seed: Seed of the draws
+    :param n_untrained: Initialisations of the untrained baseline (a net's only)
     :return: See :func:`identification_scores` (grid worlds: :func:`grid_identification`)
     """
     import gymnasium as gym
 
+    if n_untrained < 1:
+        raise ValueError(f"`n_untrained` must be at least 1 (initialisations of the untrained baseline), got {n_untrained}.")
     cost_fn = learned_cost_fn(model)
     if budget is None and getattr(model, "cost_budget", None) is not None:
         budget = float(np.asarray(model.cost_budget).reshape(-1)[0])
@@ -642,9 +653,16 @@ def identify_model(
     scores = identification_scores(cost_fn, probes, constraints, budget=budget, seed=seed)
     if isinstance(net, th.nn.Module) and hasattr(net, "cost"):
         # What the net's shape and input scaling alone give on these probes: a learned cost should beat it
-        untrained_cost = learned_cost_fn(untrained_copy(net, seed))
-        costs = np.asarray(untrained_cost(np.array(probes.observations), np.array(probes.actions)), dtype=np.float64)
-        scores["untrained_auroc"] = auroc(costs.reshape(-1), true_cost_labels(probes.observations, constraints))
+        labels = true_cost_labels(probes.observations, constraints)
+        observations, actions = np.array(probes.observations), np.array(probes.actions)
+        draws = []
+        for draw_seed in range(seed, seed + n_untrained):
+            untrained_cost = learned_cost_fn(untrained_copy(net, draw_seed))
+            costs = np.asarray(untrained_cost(observations, actions), dtype=np.float64)
+            draws.append(auroc(costs.reshape(-1), labels))
+        scores["untrained_auroc"] = float(np.median(draws))
+        scores["untrained_auroc_range"] = [float(np.min(draws)), float(np.max(draws))]
+        scores["untrained_draws"] = [float(value) for value in draws]
     return scores
 
 
@@ -857,7 +875,8 @@ def headline(scores: Mapping[str, Any]) -> dict[str, float | str]:
 
     :param scores: Scores of :func:`identification_scores` or :func:`grid_identification`
     :return: ``{"identification_auroc": ..., "threshold_error": ..., "threshold_crossing": ...}`` (and
-        ``untrained_auroc``, an untrained net's of the same shape on the same probes, where scored), the crossing
+        ``untrained_auroc``, the median of untrained nets' of the same shape on the same probes, where scored, with
+        ``untrained_auroc_low`` and ``untrained_auroc_high``, their range), the crossing
         ``"crosses"`` (a finite error), ``"everywhere"`` (the cost stays at or above 0.5 up to the safe end of the
         range: an infinite error) or ``"nowhere"`` (it never reaches 0.5: NaN). Strict JSON writes both non-finite
         errors as ``null``; the crossing keeps them apart. Where the probe set has them, also ``learner_cost`` (the
@@ -867,6 +886,8 @@ def headline(scores: Mapping[str, Any]) -> dict[str, float | str]:
     row: dict[str, float | str] = {"identification_auroc": float(scores["auroc"])}
     if "untrained_auroc" in scores:
         row["untrained_auroc"] = float(scores["untrained_auroc"])
+    if "untrained_auroc_range" in scores:
+        row["untrained_auroc_low"], row["untrained_auroc_high"] = (float(value) for value in scores["untrained_auroc_range"])
     learner = scores.get("sources", {}).get("learner")
     if learner is not None:
         row["learner_cost"] = float(learner["mean_cost"])
