@@ -331,7 +331,22 @@ def test_a_learned_net_is_read_against_an_untrained_one_of_its_shape(expert):
 
     seed = {"identification_auroc": 0.9, "untrained_auroc": 0.5, "untrained_auroc_low": 0.02, "threshold_error": 0.5}
     assert _identification_text({**seed, "untrained_auroc_high": 0.97}) == "0.90 (untrained 0.50, 0.02-0.97) / 0.50"
+    assert _identification_text({**seed, "untrained_auroc_high": 0.02}) == "0.90 (untrained 0.50, one draw) / 0.50"
+    assert _identification_text({**seed, "untrained_auroc": float("nan")}) == "0.90 / 0.50"
     # A run scored when the baseline was one net says so
     assert _identification_text({"identification_auroc": 0.9, "untrained_auroc": 0.87, "threshold_error": 0.5}) == (
         "0.90 (untrained 0.87, one draw) / 0.50"
     )
+
+
+def test_a_cache_of_an_older_version_of_the_scores_is_not_current(tmp_path):
+    from sb3_icrl.metrics.identification import IDENTIFICATION_VERSION, identification_cached, identification_file
+
+    assert not identification_cached(tmp_path)
+    cache = tmp_path / identification_file("final")
+    cache.write_text(json.dumps({"settings": {"version": IDENTIFICATION_VERSION - 1}, "scores": {}}))
+    assert not identification_cached(tmp_path)  # scored again, and the report says so
+    cache.write_text(json.dumps({"settings": {"version": IDENTIFICATION_VERSION}, "scores": {}}))
+    assert identification_cached(tmp_path) and not identification_cached(tmp_path, "best")
+    cache.write_text("{cut short")
+    assert not identification_cached(tmp_path)

@@ -54,6 +54,7 @@ from sb3_icrl.envs import heldout_env_kwargs
 from sb3_icrl.envs.constraint_spec import get_constraint_spec
 from sb3_icrl.metrics.identification import (
     headline,
+    identification_cached,
     identification_file,
     identify_run,
     learned_cost_curves,
@@ -266,7 +267,7 @@ def constraint_metrics(
         folder = os.path.join(root, result.run)
         entry = metrics.setdefault(result.run, {})
         if run.algo in ICRL_ALGOS:
-            if not os.path.isfile(os.path.join(folder, identification_file(model))):
+            if not identification_cached(folder, model):
                 log(f"scoring the learned constraint of {run.name} against the true one")
             try:
                 entry.update(headline(identify_run(folder, model=model)["scores"]))
@@ -410,9 +411,9 @@ def _identification_text(seed: dict[str, Any]) -> str:
     everywhere = seed.get("threshold_crossing") == "everywhere" or (error is not None and math.isinf(error))
     error_text = "everywhere" if everywhere else _fmt(error, 2) if error is not None and math.isfinite(error) else "-"
     untrained, low, high = (seed.get(key) for key in ("untrained_auroc", "untrained_auroc_low", "untrained_auroc_high"))
-    if untrained is None:
+    if untrained is None or (isinstance(untrained, float) and math.isnan(untrained)):
         baseline = ""
-    elif low is None or high is None:  # scored before the baseline took several initialisations
+    elif low is None or high is None or low == high:  # one net (scored before the baseline took several)
         baseline = f" (untrained {_fmt(untrained, 2)}, one draw)"
     else:
         baseline = f" (untrained {_fmt(untrained, 2)}, {_fmt(low, 2)}-{_fmt(high, 2)})"

@@ -443,6 +443,8 @@ def held_multiplier(model: Any) -> float | None:
 
 def held_planner_kwargs(multiplier: float) -> dict[str, float]:
     """
+    The planner's arguments for a model that holds its multiplier (a planner learns its own from the budget otherwise).
+
     :param multiplier: The multiplier a planner must hold (see :func:`held_multiplier`)
     :return: The :class:`~sb3_icrl.PILagrangian` arguments that start it there and never move it
     """

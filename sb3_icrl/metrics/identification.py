@@ -817,6 +817,23 @@ def run_probes(
     return RunProbes(learner, env_id, env_kwargs, expert, other, args)
 
 
+def identification_cached(run_folder: str | os.PathLike, model: str = "final") -> bool:
+    """
+    Whether a run has identification scores cached by this version of the scores (what progress lines say before
+    :func:`identify_run` scores a run; it checks the other settings and the model's age itself).
+
+    :param run_folder: The run folder
+    :param model: ``"final"`` or ``"best"``
+    :return: Whether ``identification.json`` (``identification_best.json``) is there, reads, and has this version
+    """
+    try:
+        with open(pathlib.Path(run_folder) / identification_file(model)) as file:
+            saved = json.load(file)
+    except (OSError, ValueError):
+        return False
+    return isinstance(saved, dict) and (saved.get("settings") or {}).get("version") == IDENTIFICATION_VERSION
+
+
 def identify_run(
     run_folder: str | os.PathLike,
     model: str = "final",
