@@ -201,3 +201,62 @@ def test_a_finished_run_whose_tensor_entry_is_cut_short_gets_a_note(suite_in_fiv
     )
     assert benchmark_main(["status", suite.path, "-f", root, "--only", "seed=0"]) == 0
     assert "its tensor entry 'policy.pth' is cut short" in capsys.readouterr().out
+
+
+def _committed_report(folder, suite_name: str, seeds: dict[int, float], recipe_version: str | None = None) -> str:
+    """A report's summary.json holding bc2l on GridWorldWall, seed -> training time (1000 steps each)."""
+    os.makedirs(folder, exist_ok=True)
+    per_seed = [
+        {"seed": seed, "wall_time_s": wall_time, "timesteps": 1000, "recipe_version": recipe_version}
+        for seed, wall_time in seeds.items()
+    ]
+    cell = {"env": "GridWorldWall-v0", "variant": "base", "algo": "bc2l", "per_seed": per_seed}
+    with open(os.path.join(folder, "summary.json"), "w") as file:
+        json.dump({"suite": suite_name, "cells": [cell]}, file)
+    return str(folder)
+
+
+def test_runs_a_committed_report_holds_count_as_reported(suite_in_five_states, tmp_path):
+    from sb3_icrl.benchmark.status import mark_reported, reported_runs
+
+    suite, root, runs = suite_in_five_states
+    # Seed 0 finished here, seed 2 stopped part-way here, seed 4 has no folder: only seed 4 takes the report's word
+    report = _committed_report(tmp_path / "report", suite.name, {0: 900.0, 2: 900.0, 4: 300.0})
+    statuses = mark_reported(suite_status(runs, root), reported_runs(report, suite.name, suite.recipe_version))
+    assert [status.state for status in statuses] == ["finished", "failed", "interrupted", "interrupted", "reported"]
+    assert (statuses[4].steps_done, statuses[4].wall_time_s) == (1000, 300.0)
+    assert statuses[0].wall_time_s == 500.0  # a folder here is read, not the report
+    # The pace is the finished and reported runs' (0.5 and 0.3 s a step): (800 + 600 + 400) steps left
+    assert seconds_left(statuses) == (pytest.approx(1800 * 0.4), 0)
+    assert status_lines(statuses)[-1].startswith(
+        "1 finished · 1 reported · 0 running · 2 interrupted · 1 failed · 0 not started · 0.2 core-hours in the finished "
+        "and reported runs"
+    )
+
+
+def test_a_report_at_another_recipe_version_or_of_another_suite_is_not_taken(suite_in_five_states, tmp_path):
+    from sb3_icrl.benchmark.status import reported_runs
+
+    suite, _, _ = suite_in_five_states
+    report = _committed_report(tmp_path / "report", suite.name, {4: 300.0}, recipe_version="v1")
+    assert reported_runs(report, suite.name, "v2") == {}
+    assert set(reported_runs(report, suite.name, "v1")) == {("base", "bc2l", "GridWorldWall-v0", 4)}
+    with pytest.raises(ValueError, match="a report of suite 'five', not of 'table3'"):
+        reported_runs(report, "table3", None)
+    with pytest.raises(ValueError, match=r"no summary\.json there"):
+        reported_runs(str(tmp_path), suite.name, None)
+    (tmp_path / "report" / "summary.json").write_text("{cut short")
+    with pytest.raises(ValueError, match="does not read"):
+        reported_runs(report, suite.name, None)
+
+
+def test_cli_leaves_the_reported_runs_untrained(suite_in_five_states, tmp_path, capsys):
+    suite, root, _ = suite_in_five_states
+    report = _committed_report(tmp_path / "report", suite.name, {4: 300.0})
+    assert benchmark_main(["status", suite.path, "-f", root, "--only", "seed=4", "--reported", report]) == 0
+    assert capsys.readouterr().out.strip().splitlines()[-1].startswith("0 finished · 1 reported")
+    assert benchmark_main(["run", suite.path, "-f", root, "--only", "seed=4", "--reported", report, "--no-report"]) == 0
+    assert f"not trained again: 1 run that {report} holds" in capsys.readouterr().out
+    assert not os.path.exists(suite.runs()[4].run_folder(root))  # nothing trained
+    assert benchmark_main(["status", suite.path, "-f", root, "--reported", str(tmp_path)]) == 2
+    assert "no summary.json there" in capsys.readouterr().err

@@ -7,6 +7,7 @@
     sb3-icrl benchmark run table3 -f logs/ --backend ray --address auto
     sb3-icrl benchmark run table3 -f /shared/logs --backend ray --runtime-env runtime_env.yml
     sb3-icrl benchmark status table3 -f logs/
+    sb3-icrl benchmark run table3 -f logs/ --reported benchmarks/results/table3
     sb3-icrl benchmark report table3 -f logs/ -o results/table3
     sb3-icrl benchmark report table3 -f logs/ --only env=BlockedHalfCheetah-v0 -o results/table3 --update
     sb3-icrl benchmark list
@@ -37,7 +38,7 @@ from sb3_icrl.benchmark.report import (
     write_report,
 )
 from sb3_icrl.benchmark.runner import BACKENDS, RunOutcome, load_runtime_env, make_backend, run_all
-from sb3_icrl.benchmark.status import status_lines, suite_status
+from sb3_icrl.benchmark.status import RunStatus, mark_reported, reported_runs, status_lines, suite_status
 from sb3_icrl.benchmark.suite import SUITES_DIR, RunSpec, Suite, SuiteError, load_suite
 from sb3_icrl.common.utils import check_writable_folder, plain_docstring, sigterm_interrupts, write_error_message
 from sb3_icrl.registry import import_gym_packages
@@ -122,7 +123,16 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
         "a run's length)",
     )
     run.add_argument("--no-report", action="store_true", help="do not write the report once the runs are done")
-    status.add_argument("-v", "--verbose", action="store_true", help="list the finished runs too")
+    for sub in (run, status):
+        sub.add_argument(
+            "--reported",
+            default=None,
+            metavar="REPORT",
+            help="a committed report of the suite (the -o of `benchmark report`): the runs it holds at the suite's recipe "
+            "version, with no folder under -f, count as done (trained on another machine, say): `run` does not train "
+            "them again, `status` lists them as reported",
+        )
+    status.add_argument("-v", "--verbose", action="store_true", help="list the finished and reported runs too")
     report.add_argument(
         "-o", "--output", default=None, help="report folder (default: <root>/<suite>/report, report_best with --model best)"
     )
@@ -220,7 +230,13 @@ def run_command(args: argparse.Namespace) -> int:
         else f"{args.backend}, {backend.capacity} at a time"
     )
     print(f"suite {suite.name}: {len(runs)} runs in {os.path.join(args.log_folder, suite.name)} ({where})", flush=True)
-    print(f"before this run: {status_lines(suite_status(runs, args.log_folder))[-1]}", flush=True)
+    statuses = _statuses(args, suite, runs)
+    print(f"before this run: {status_lines(statuses)[-1]}", flush=True)
+    reported = [status.run for status in statuses if status.state == "reported"]
+    if reported:
+        runs = [run for run in runs if run not in set(reported)]
+        many = len(reported) > 1
+        print(f"not trained again: {len(reported)} run{'s' if many else ''} that {args.reported} holds", flush=True)
     start_until = None if args.start_within is None else time.time() + args.start_within
     if start_until is not None:
         print(f"no run starts after {time.strftime('%Y-%m-%d %H:%M:%S', time.localtime(start_until))}", flush=True)
@@ -253,10 +269,18 @@ def status_command(args: argparse.Namespace) -> int:
     runs = suite.select(_only(args.only))
     folder = os.path.join(args.log_folder, suite.name)
     print(f"suite {suite.name}: {len(runs)} runs in {folder}")
-    print("\n".join(status_lines(suite_status(runs, args.log_folder), verbose=args.verbose)))
+    print("\n".join(status_lines(_statuses(args, suite, runs), verbose=args.verbose)))
     if not os.path.isdir(folder):  # last, where it is read: every run above is "not started"
         print(f"note: {_no_suite_folder(args.log_folder, suite.name)}: no run has started there; check -f")
     return 0
+
+
+def _statuses(args: argparse.Namespace, suite: Suite, runs: list[RunSpec]) -> list[RunStatus]:
+    """The runs' statuses, those a report given with ``--reported`` holds marked (:func:`mark_reported`)."""
+    statuses = suite_status(runs, args.log_folder)
+    if getattr(args, "reported", None) is None:
+        return statuses
+    return mark_reported(statuses, reported_runs(args.reported, suite.name, suite.recipe_version))
 
 
 def _no_suite_folder(log_folder: str, name: str) -> str:

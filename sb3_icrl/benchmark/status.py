@@ -4,6 +4,7 @@ which stopped part-way (they resume from their last checkpoint), which failed an
 core-hours spent and an estimate of those left.
 """
 
+import json
 import os
 import warnings
 from dataclasses import dataclass
@@ -18,7 +19,9 @@ from sb3_icrl.registry import REFERENCE_ALGOS, env_name
 from sb3_icrl.run_folder import checkpoints, failure, finished_wall_time, is_finished, read_finished, unreadable_finished
 
 #: The states of a run, in the order the summary line counts them
-STATES = ("finished", "running", "interrupted", "failed", "not started")
+STATES = ("finished", "reported", "running", "interrupted", "failed", "not started")
+#: The states of a run that needs no more training: its folder here finished, or a committed report holds it
+DONE_STATES = ("finished", "reported")
 #: Where Linux lists the file locks held on this machine
 PROC_LOCKS = "/proc/locks"
 
@@ -29,7 +32,8 @@ class RunStatus:
     Where one run stands.
 
     :param run: The run
-    :param state: One of :data:`STATES`: ``"running"`` when a process on this machine holds its lock (a suite trains
+    :param state: One of :data:`STATES`: ``"reported"`` when it has no folder here but a committed report holds it
+        (:func:`mark_reported`), ``"running"`` when a process on this machine holds its lock (a suite trains
         it now; a run training on another machine of a cluster shows as interrupted),
         ``"interrupted"`` when it has a folder but neither finished nor failed (the suite resumes it), ``"failed"``
         when its training stopped on an error (``failed.json``)
@@ -191,6 +195,67 @@ def suite_status(runs: list[RunSpec], root: str) -> list[RunStatus]:
     return [run_status(run, root, locked, recipes) for run in runs]
 
 
+def reported_runs(report_folder: str, suite_name: str, recipe_version: str | None) -> dict[tuple[str, str, str, int], dict]:
+    """
+    The runs a committed report of the suite holds (its ``summary.json``), at the suite's recipe version: on a machine
+    where their folders are gone (trained elsewhere, or on a machine since given back), they need no training again.
+
+    :param report_folder: The report's folder (``-o`` of ``benchmark report``)
+    :param suite_name: The suite's name (the report must be that suite's)
+    :param recipe_version: The suite's recipe version: a run the report holds at another version is not counted
+    :return: ``{(variant, algo, env name, seed): {"wall_time_s": ..., "timesteps": ...}}`` (the env as
+        :func:`~sb3_icrl.registry.env_name` gives it, as reports name it)
+    """
+    path = os.path.join(report_folder, "summary.json")
+    if not os.path.isfile(path):
+        raise ValueError(
+            f"--reported {report_folder}: no summary.json there; give the folder a `benchmark report` wrote (its -o)."
+        )
+    try:
+        with open(path) as file:
+            summary = json.load(file)
+    except (OSError, ValueError) as error:
+        raise ValueError(f"--reported {report_folder}: its summary.json does not read ({error}).") from error
+    if not isinstance(summary, dict) or summary.get("suite") != suite_name:
+        found = summary.get("suite") if isinstance(summary, dict) else None
+        raise ValueError(f"--reported {report_folder}: a report of suite {found!r}, not of {suite_name!r}.")
+    runs: dict[tuple[str, str, str, int], dict] = {}
+    for cell in summary.get("cells", []):
+        for seed in cell.get("per_seed", []):
+            if recipe_version is not None and seed.get("recipe_version", recipe_version) != recipe_version:
+                continue
+            key = (str(cell["variant"]), str(cell["algo"]), str(cell["env"]), int(seed["seed"]))
+            runs[key] = {"wall_time_s": seed.get("wall_time_s"), "timesteps": seed.get("timesteps")}
+    return runs
+
+
+def mark_reported(statuses: list[RunStatus], reported: dict[tuple[str, str, str, int], dict]) -> list[RunStatus]:
+    """
+    A run with no folder here (``"not started"``) that a committed report holds (:func:`reported_runs`) is
+    ``"reported"``, with the report's training time and steps; a run with a folder keeps the state its folder gives.
+
+    :param statuses: The runs' statuses (:func:`suite_status`)
+    :param reported: The report's runs
+    :return: The statuses, those runs marked
+    """
+    marked = []
+    for status in statuses:
+        run = status.run
+        entry = reported.get((run.variant, run.algo, env_name(run.env_id), run.seed))  # a report names envs so
+        if status.state == "not started" and entry is not None:
+            wall_time = entry.get("wall_time_s")
+            steps = entry.get("timesteps")
+            status = RunStatus(
+                run,
+                "reported",
+                steps_done=int(steps) if steps is not None else None,
+                steps_total=status.steps_total,
+                wall_time_s=float(wall_time) if wall_time is not None else None,
+            )
+        marked.append(status)
+    return marked
+
+
 def seconds_left(statuses: list[RunStatus]) -> tuple[float, int]:
     """
     The training time left, at the pace (seconds per step) of the finished runs of the same variant, env and
@@ -202,14 +267,14 @@ def seconds_left(statuses: list[RunStatus]) -> tuple[float, int]:
     """
     pace: dict[Any, list[float]] = {}
     for status in statuses:
-        if status.state == "finished" and status.wall_time_s and status.steps_done:
+        if status.state in DONE_STATES and status.wall_time_s and status.steps_done:
             rate = status.wall_time_s / status.steps_done
             run = status.run
             pace.setdefault((run.variant, run.env_id, run.algo), []).append(rate)
             pace.setdefault((run.variant, run.env_id), []).append(rate)
     seconds, unknown = 0.0, 0
     for status in statuses:
-        if status.state == "finished":
+        if status.state in DONE_STATES:
             continue
         run = status.run
         rates = pace.get((run.variant, run.env_id, run.algo)) or pace.get((run.variant, run.env_id))
@@ -223,11 +288,11 @@ def seconds_left(statuses: list[RunStatus]) -> tuple[float, int]:
 
 def status_lines(statuses: list[RunStatus], verbose: bool = False) -> list[str]:
     """
-    One line per run that is not finished or has a note (every run with ``verbose``), then the counts, the core-hours
-    spent and the estimate of those left.
+    One line per run that is neither finished nor reported or has a note (every run with ``verbose``), then the counts,
+    the core-hours spent and the estimate of those left.
     """
     lines = []
-    shown = [status for status in statuses if verbose or status.state != "finished" or status.note]
+    shown = [status for status in statuses if verbose or status.state not in DONE_STATES or status.note]
     if shown:
         lines.append(f"{'state':12s} {'steps':>21s} {'train time':>10s}  run")
         for status in shown:
@@ -242,12 +307,13 @@ def status_lines(statuses: list[RunStatus], verbose: bool = False) -> list[str]:
             lines.append(line)
         lines.append("")
     counts = {state: sum(status.state == state for status in statuses) for state in STATES}
-    spent = sum(status.wall_time_s or 0.0 for status in statuses if status.state == "finished") / 3600
-    summary = " · ".join(f"{counts[state]} {state}" for state in STATES)
-    summary += f" · {spent:.1f} core-hours in the finished runs"
-    if counts["finished"] < len(statuses):
+    spent = sum(status.wall_time_s or 0.0 for status in statuses if status.state in DONE_STATES) / 3600
+    n_done = counts["finished"] + counts["reported"]
+    summary = " · ".join(f"{counts[state]} {state}" for state in STATES if state != "reported" or counts[state])
+    summary += f" · {spent:.1f} core-hours in the finished{' and reported' if counts['reported'] else ''} runs"
+    if n_done < len(statuses):
         left, unknown = seconds_left(statuses)
-        if unknown == len(statuses) - counts["finished"]:
+        if unknown == len(statuses) - n_done:
             estimate = "time left unknown until a run of an env finishes"
         else:
             estimate = f"about {left / 3600:.1f} core-hours left at the finished runs' pace"
