@@ -260,3 +260,19 @@ def test_cli_leaves_the_reported_runs_untrained(suite_in_five_states, tmp_path, 
     assert not os.path.exists(suite.runs()[4].run_folder(root))  # nothing trained
     assert benchmark_main(["status", suite.path, "-f", root, "--reported", str(tmp_path)]) == 2
     assert "no summary.json there" in capsys.readouterr().err
+
+
+def test_runs_start_seed_by_seed_when_asked(tmp_path, monkeypatch):
+    import sb3_icrl.benchmark.cli as cli
+
+    path = tmp_path / "two.yml"
+    path.write_text("description: two algorithms, two seeds\nenvs: [GridWorldWall-v0]\nalgos: [bc2l, mecl]\nseeds: [0, 1]\n")
+    started: list[list[tuple[str, int]]] = []
+    monkeypatch.setattr(cli, "run_all", lambda runs, *args, **kwargs: started.append([(r.algo, r.seed) for r in runs]) or [])
+    root = str(tmp_path / "logs")
+    assert benchmark_main(["run", str(path), "-f", root, "--no-report", "--jobs", "1"]) == 0
+    assert benchmark_main(["run", str(path), "-f", root, "--no-report", "--jobs", "1", "--order", "seed"]) == 0
+    assert started == [
+        [("bc2l", 0), ("bc2l", 1), ("mecl", 0), ("mecl", 1)],  # the suite's order: algorithm, then seed
+        [("bc2l", 0), ("mecl", 0), ("bc2l", 1), ("mecl", 1)],  # every algorithm's seed 0 first
+    ]

@@ -7,7 +7,7 @@
     sb3-icrl benchmark run table3 -f logs/ --backend ray --address auto
     sb3-icrl benchmark run table3 -f /shared/logs --backend ray --runtime-env runtime_env.yml
     sb3-icrl benchmark status table3 -f logs/
-    sb3-icrl benchmark run table3 -f logs/ --reported benchmarks/results/table3
+    sb3-icrl benchmark run table3 -f logs/ --reported benchmarks/results/table3 --order seed --start-within 2h
     sb3-icrl benchmark report table3 -f logs/ -o results/table3
     sb3-icrl benchmark report table3 -f logs/ --only env=BlockedHalfCheetah-v0 -o results/table3 --update
     sb3-icrl benchmark list
@@ -43,6 +43,9 @@ from sb3_icrl.benchmark.suite import SUITES_DIR, RunSpec, Suite, SuiteError, loa
 from sb3_icrl.common.utils import check_writable_folder, plain_docstring, sigterm_interrupts, write_error_message
 from sb3_icrl.registry import import_gym_packages
 from sb3_icrl.run_evaluation import RunResult
+
+#: The orders ``run`` can start a suite's runs in (``--order``)
+RUN_ORDERS = ("suite", "seed")
 
 
 def _only(values: list[str] | None) -> dict[str, list[str]]:
@@ -121,6 +124,14 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
         help="start no run (nor a failed run's second try) later than this after the command starts, e.g. 2h30m, 90m, "
         "600s: the runs under way go on to their end, the others are left for the next call (a job's time limit less "
         "a run's length)",
+    )
+    run.add_argument(
+        "--order",
+        choices=RUN_ORDERS,
+        default="suite",
+        help="the order runs start in: the suite's (env by env, then variant, algorithm, seed), or seed by seed, the "
+        "lowest first (each seed's runs in the suite's order), so that every selected cell gains its next seed before "
+        "any gains the one after",
     )
     run.add_argument("--no-report", action="store_true", help="do not write the report once the runs are done")
     for sub in (run, status):
@@ -232,6 +243,8 @@ def run_command(args: argparse.Namespace) -> int:
     print(f"suite {suite.name}: {len(runs)} runs in {os.path.join(args.log_folder, suite.name)} ({where})", flush=True)
     statuses = _statuses(args, suite, runs)
     print(f"before this run: {status_lines(statuses)[-1]}", flush=True)
+    if args.order == "seed":  # a stable sort: within a seed, the suite's order
+        runs = sorted(runs, key=lambda run: run.seed)
     reported = [status.run for status in statuses if status.state == "reported"]
     if reported:
         runs = [run for run in runs if run not in set(reported)]
