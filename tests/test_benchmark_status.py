@@ -240,7 +240,7 @@ def test_a_report_at_another_recipe_version_or_of_another_suite_is_not_taken(sui
     suite, _, _ = suite_in_five_states
     report = _committed_report(tmp_path / "report", suite.name, {4: 300.0}, recipe_version="v1")
     assert reported_runs(report, suite.name, "v2") == {}
-    assert set(reported_runs(report, suite.name, "v1")) == {("base", "bc2l", "GridWorldWall-v0", 4)}
+    assert set(reported_runs(report, suite.name, "v1")) == {("GridWorldWall-v0", "base", "bc2l", 4)}
     with pytest.raises(ValueError, match="a report of suite 'five', not of 'table3'"):
         reported_runs(report, "table3", None)
     with pytest.raises(ValueError, match=r"no summary\.json there"):

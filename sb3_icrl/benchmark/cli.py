@@ -245,9 +245,9 @@ def run_command(args: argparse.Namespace) -> int:
     print(f"before this run: {status_lines(statuses)[-1]}", flush=True)
     if args.order == "seed":  # a stable sort: within a seed, the suite's order
         runs = sorted(runs, key=lambda run: run.seed)
-    reported = [status.run for status in statuses if status.state == "reported"]
+    reported = {status.run for status in statuses if status.state == "reported"}
     if reported:
-        runs = [run for run in runs if run not in set(reported)]
+        runs = [run for run in runs if run not in reported]
         many = len(reported) > 1
         print(f"not trained again: {len(reported)} run{'s' if many else ''} that {args.reported} holds", flush=True)
     start_until = None if args.start_within is None else time.time() + args.start_within

@@ -203,8 +203,8 @@ def reported_runs(report_folder: str, suite_name: str, recipe_version: str | Non
     :param report_folder: The report's folder (``-o`` of ``benchmark report``)
     :param suite_name: The suite's name (the report must be that suite's)
     :param recipe_version: The suite's recipe version: a run the report holds at another version is not counted
-    :return: ``{(variant, algo, env name, seed): {"wall_time_s": ..., "timesteps": ...}}`` (the env as
-        :func:`~sb3_icrl.registry.env_name` gives it, as reports name it)
+    :return: ``{(*cell, seed): {"wall_time_s": ..., "timesteps": ...}}``, keyed as a run's
+        :attr:`~sb3_icrl.benchmark.suite.RunSpec.cell` and seed
     """
     path = os.path.join(report_folder, "summary.json")
     if not os.path.isfile(path):
@@ -224,7 +224,7 @@ def reported_runs(report_folder: str, suite_name: str, recipe_version: str | Non
         for seed in cell.get("per_seed", []):
             if recipe_version is not None and seed.get("recipe_version", recipe_version) != recipe_version:
                 continue
-            key = (str(cell["variant"]), str(cell["algo"]), str(cell["env"]), int(seed["seed"]))
+            key = (str(cell["env"]), str(cell["variant"]), str(cell["algo"]), int(seed["seed"]))
             runs[key] = {"wall_time_s": seed.get("wall_time_s"), "timesteps": seed.get("timesteps")}
     return runs
 
@@ -241,7 +241,7 @@ def mark_reported(statuses: list[RunStatus], reported: dict[tuple[str, str, str,
     marked = []
     for status in statuses:
         run = status.run
-        entry = reported.get((run.variant, run.algo, env_name(run.env_id), run.seed))  # a report names envs so
+        entry = reported.get((*run.cell, run.seed))
         if status.state == "not started" and entry is not None:
             wall_time = entry.get("wall_time_s")
             steps = entry.get("timesteps")
