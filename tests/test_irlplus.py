@@ -403,6 +403,19 @@ def test_irlplus_on_ppo_learns_with_costs_floored_at_zero() -> None:
     assert (model.constraint_cost(*pairs) == 0).all()  # ... gives the learner costs of 0
 
 
+def test_irlplus_on_sac_charges_the_cost_as_learned() -> None:
+    """IRLPlus (SAC) charges the net's cost as the reference does, its dip below 0 included; IRLPlusPPO floors it."""
+    model = make_irlplus()
+    with th.no_grad():
+        model.constraint_net.network[-1].bias.fill_(-1.0)  # the output layer alone decides: a cost of -0.01 or so
+        model.constraint_net.network[-1].weight.zero_()
+    pairs = np.zeros((4, 2), dtype=np.float32), np.zeros((4, 1), dtype=np.float32)
+    learned = model.constraint_net.cost(*pairs)
+    assert (learned < 0).all()
+    np.testing.assert_array_equal(model.constraint_cost(*pairs), learned)
+    np.testing.assert_array_equal(model.cost_fn(*pairs), learned)
+
+
 def test_irlplusppo_recipes_learn_on_mecl_s_forward_learner() -> None:
     """Each irlplusppo.yml entry has MECL's PPO settings for its env (equal footing) and the reference's cost side."""
     import yaml

@@ -152,13 +152,18 @@ class _IRLPlusOptions:
 
 class IRLPlus(_IRLPlusOptions, OffPolicyICRL):
     """
-    IRL-Plus on SAC (Hugessen et al., NeurIPS 2024): a cost ``c(s, a) >= 0`` (:class:`~sb3_icrl.constraints.CostNet`)
+    IRL-Plus on SAC (Hugessen et al., NeurIPS 2024): a cost ``c(s, a)`` (:class:`~sb3_icrl.constraints.CostNet`)
     learned single-level by :class:`IRLPlusTrainer`, and SAC maximising ``Q_r - Q_c`` with a cost critic
     ``Q_c`` of its own (:class:`~sb3_icrl.SACLagrangian`, the multiplier held at 1 as in the reference; pass
-    ``lagrange_kwargs`` to let it adapt). Every ``reset_every`` timesteps the actor's output layers and the cost
-    critics' last layers are drawn anew; the reward critics, the targets and the replay buffer are kept, so the
-    policy relearns quickly from the stored experience without the bias of costs that have since changed. No reset
-    falls in the last ``reset_every`` timesteps of a ``learn()`` call, so the final policy has trained since its last.
+    ``lagrange_kwargs`` to let it adapt). The cost is charged as learned, as the reference charges it: where the net's
+    output LeakyReLU dips below 0 (slope 0.01) it is a small bonus, a shaping term SAC on ``r - c`` takes in its
+    stride. :class:`IRLPlusPPO` floors it at 0 instead (:meth:`~sb3_icrl.constraints.CostNet.paid_cost`): its
+    PPO-Lagrangian and the grid's planner take costs that count violations.
+
+    Every ``reset_every`` timesteps the actor's output layers and the cost critics' last layers are drawn anew; the
+    reward critics, the targets and the replay buffer are kept, so the policy relearns quickly from the stored
+    experience without the bias of costs that have since changed. No reset falls in the last ``reset_every``
+    timesteps of a ``learn()`` call, so the final policy has trained since its last.
 
     The three additions of IRL-Plus over plain inverse RL can be switched off, for the paper's ablations:
     ``l2_coef=0.0`` (no L2 penalty), ``separate_critics=False`` (one critic on ``r - c``; the resets then draw the
