@@ -19,7 +19,7 @@ class CostError(ValueError):
     """A per-step cost is missing or malformed."""
 
 
-def as_cost_array(costs: Any, n_envs: int, n_costs: int, source: str) -> np.ndarray:
+def as_cost_array(costs: Any, n_envs: int, n_costs: int, source: str, signed: bool = False) -> np.ndarray:
     """
     Validate and reshape a batch of costs to ``(n_envs, n_costs)`` float32.
 
@@ -27,6 +27,8 @@ def as_cost_array(costs: Any, n_envs: int, n_costs: int, source: str) -> np.ndar
     :param n_envs: Number of environments
     :param n_costs: Number of constraints
     :param source: Where the costs come from, used in the error message
+    :param signed: Accept costs below 0 (a learned cost charged as a penalty on the reward, IRL-Plus's); otherwise a
+        cost counts violations and must be >= 0
     :return: The costs as a float32 array of shape ``(n_envs, n_costs)``
     """
     try:
@@ -47,7 +49,7 @@ def as_cost_array(costs: Any, n_envs: int, n_costs: int, source: str) -> np.ndar
         )
     if not np.all(np.isfinite(array)):
         raise CostError(f"{source} returned non-finite costs: {array.tolist()}.")
-    if np.any(array < 0):
+    if not signed and np.any(array < 0):
         raise CostError(f"{source} returned negative costs: {array.tolist()}. A cost counts violations and must be >= 0.")
     return array
 

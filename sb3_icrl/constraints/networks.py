@@ -710,10 +710,10 @@ class CostNet(_ConstraintNet):
 
     def paid_cost(self, obs: np.ndarray, actions: np.ndarray | None) -> np.ndarray:
         """
-        The cost a constrained forward learner (IRL-Plus on PPO-Lagrangian) or a planner is charged: :meth:`cost`
-        floored at 0. A constrained learner takes costs that count violations (>= 0), and a planner paid a little for
-        every step in a cell below 0 would rather wander there than end its episode at the goal; the cost update itself
-        still sees (and gets gradients from) the dip.
+        The cost the grid's planner is charged: :meth:`cost` floored at 0. A planner paid a little for every step in a
+        cell below 0 would rather wander there than end its episode at the goal; the cost update itself still sees (and
+        gets gradients from) the dip. The learners (IRL-Plus on SAC or PPO) are charged :meth:`cost` itself, as in the
+        reference: floored, every difference the update makes below 0 would be lost to them.
 
         :param obs: Observations as the env returned them, ``(batch, obs_dim)``
         :param actions: Actions as sent to the env, ``(batch, action_dim)``

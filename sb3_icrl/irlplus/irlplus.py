@@ -156,9 +156,9 @@ class IRLPlus(_IRLPlusOptions, OffPolicyICRL):
     learned single-level by :class:`IRLPlusTrainer`, and SAC maximising ``Q_r - Q_c`` with a cost critic
     ``Q_c`` of its own (:class:`~sb3_icrl.SACLagrangian`, the multiplier held at 1 as in the reference; pass
     ``lagrange_kwargs`` to let it adapt). The cost is charged as learned, as the reference charges it: where the net's
-    output LeakyReLU dips below 0 (slope 0.01) it is a small bonus, a shaping term SAC on ``r - c`` takes in its
-    stride. :class:`IRLPlusPPO` floors it at 0 instead (:meth:`~sb3_icrl.constraints.CostNet.paid_cost`): its
-    PPO-Lagrangian and the grid's planner take costs that count violations.
+    output LeakyReLU dips below 0 (slope 0.01) it is a small bonus, and the ranking of pairs the update learnt there
+    still reaches the learner. :class:`IRLPlusPPO` charges it the same way; only the grid's planner floors it at 0
+    (:meth:`~sb3_icrl.constraints.CostNet.paid_cost`).
 
     Every ``reset_every`` timesteps the actor's output layers and the cost critics' last layers are drawn anew; the
     reward critics, the targets and the replay buffer are kept, so the policy relearns quickly from the stored
@@ -245,8 +245,9 @@ class IRLPlusPPO(_IRLPlusOptions, LagrangianICRL):
     """
     IRL-Plus on PPO-Lagrangian: the cost model and update of :class:`IRLPlus`, and :class:`~sb3_icrl.PPOLagrangian`
     (which always has a cost critic of its own) maximising ``A_r - A_c`` (the multiplier held at 1 by default).
-    Every ``reset_every`` timesteps, before a policy update, the actor's output layer and the cost critic's last
-    layer are drawn anew.
+    The cost is charged as learned, as :class:`IRLPlus` charges it, its dip below 0 included (``signed_costs``): it is
+    a penalty on the reward, not a count of violations. Every ``reset_every`` timesteps, before a policy update, the
+    actor's output layer and the cost critic's last layer are drawn anew.
 
     :param policy: The policy model (``"MlpPolicy"`` or a ``CostActorCriticPolicy`` subclass)
     :param env: The environment; flat Box or Discrete spaces
@@ -263,6 +264,9 @@ class IRLPlusPPO(_IRLPlusOptions, LagrangianICRL):
 
     constraint_net_class: ClassVar[type[_ConstraintNet]] = CostNet
     default_trainer_class: ClassVar[type[ICRLTrainer]] = IRLPlusTrainer
+    # A learned cost floored at 0 hides every difference the update makes below 0 (where the LeakyReLU's slope is
+    # 0.01): once the learner's costs sank there, it was charged nothing and the update never brought them back
+    signed_costs: ClassVar[bool] = True
 
     def __init__(
         self,
@@ -293,18 +297,6 @@ class IRLPlusPPO(_IRLPlusOptions, LagrangianICRL):
             constraint_steps=constraint_steps,
             **kwargs,
         )
-
-    def constraint_cost(self, observations: np.ndarray, actions: np.ndarray) -> np.ndarray:
-        """
-        The learned cost floored at 0 (:meth:`~sb3_icrl.constraints.CostNet.paid_cost`): PPO-Lagrangian takes costs
-        that count violations (>= 0), while the cost net's LeakyReLU output dips slightly below 0 (slope 0.01).
-
-        :param observations: ``(batch, obs_dim)``
-        :param actions: ``(batch, action_dim)``
-        :return: Costs, ``(batch,)``
-        """
-        assert isinstance(self.constraint_net, CostNet)
-        return self.constraint_net.paid_cost(observations, actions)
 
     def reset_policy_layers(self) -> None:
         """Draw new weights for the actor's output layer and the cost critic's last layer, as SB3 initialises them."""

@@ -110,6 +110,9 @@ class PPOLagrangian(CheckedLoadMixin, PPO):
     }
     policy: CostActorCriticPolicy  # type: ignore[assignment]
     rollout_buffer: CostRolloutBuffer  # type: ignore[assignment]
+    #: Whether ``cost_fn`` may return costs below 0: a learned cost charged as a penalty on the reward (IRL-Plus's),
+    #: not a count of violations. Env costs are always checked to be >= 0
+    signed_costs: ClassVar[bool] = False
 
     def __init__(
         self,
@@ -345,7 +348,7 @@ class PPOLagrangian(CheckedLoadMixin, PPO):
         if n_steps == 0:
             return
         obs, actions = deferred.pairs(n_steps)
-        costs = _batch_costs(self.cost_fn(obs, actions), n_steps, self.n_envs, self.n_costs)
+        costs = _batch_costs(self.cost_fn(obs, actions), n_steps, self.n_envs, self.n_costs, self.signed_costs)
         rollout_buffer.costs[:n_steps] = costs
         for step in range(n_steps):
             self._update_cost_stats(costs[step], deferred.dones[step])  # type: ignore[index]
@@ -774,10 +777,10 @@ class _DeferredCosts:
         return obs.reshape(-1, *obs.shape[2:]), actions.reshape(-1, *actions.shape[2:])
 
 
-def _batch_costs(costs: Any, n_steps: int, n_envs: int, n_costs: int) -> np.ndarray:
+def _batch_costs(costs: Any, n_steps: int, n_envs: int, n_costs: int, signed: bool = False) -> np.ndarray:
     """A cost function's costs of a rollout's pairs, checked, as ``(n_steps, n_envs, n_costs)`` float32."""
     try:
-        array = as_cost_array(costs, n_steps * n_envs, n_costs, "cost_fn")
+        array = as_cost_array(costs, n_steps * n_envs, n_costs, "cost_fn", signed)
     except CostError as error:
         raise CostError(
             f"{error} (cost_fn judged the {n_steps} steps x {n_envs} env(s) of a rollout in one call: it must return "
