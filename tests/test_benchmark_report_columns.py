@@ -489,6 +489,41 @@ def test_update_lists_a_run_still_to_come_once(finished_suite, tmp_path, monkeyp
     assert all(left <= total for _, _, left, total in updated["runs_missing_by_env"])
 
 
+def test_withdraw_takes_runs_out_of_a_report_to_be_trained_again(finished_suite, tmp_path, monkeypatch, capsys):
+    from sb3_icrl.benchmark import cli
+
+    suite, root, results = finished_suite
+    path = write(tmp_path, SUITE)
+    output = str(tmp_path / "results" / "suite")
+    write_report(summarise_suite(suite, suite.runs(), results, run_facts(results, root)), output)
+    earlier = json.loads(pathlib.Path(output, "summary.json").read_text())
+    monkeypatch.setattr(cli, "evaluate_finished", lambda *args, **kwargs: pytest.fail("--withdraw evaluates nothing"))
+    argv = ["report", path, "-f", root, "-o", output, "--no-figures", "--only", "env=GridWorldWall-v0", "algo=vicrl"]
+
+    # Clear errors: not without --update, not without --only, not while the runs' folders are under -f
+    assert cli.main([*argv, "--withdraw"]) == 2
+    assert "add --update" in capsys.readouterr().err
+    assert cli.main([*argv[:-3], "--update", "--withdraw"]) == 2
+    assert "name the runs to take out of the report with --only" in capsys.readouterr().err
+    assert cli.main([*argv, "--update", "--withdraw"]) == 2
+    assert "have a folder under" in capsys.readouterr().err
+    assert json.loads(pathlib.Path(output, "summary.json").read_text()) == earlier  # nothing written
+
+    withdrawn = sorted(run.name for run, _ in results if run.cell == ("GridWorldWall-v0", "base", "vicrl"))
+    for run, _ in results:
+        if run.name in withdrawn:
+            shutil.rmtree(run.run_folder(root))
+    assert cli.main([*argv, "--update", "--withdraw"]) == 0
+    assert "--withdraw: 2 runs taken out of the report" in capsys.readouterr().out
+    updated = json.loads(pathlib.Path(output, "summary.json").read_text())
+    assert sorted(updated["runs_missing"]) == withdrawn
+    assert [(c["env"], c["algo"]) for c in updated["cells"] if c["per_seed"]] == [
+        (c["env"], c["algo"]) for c in earlier["cells"] if (c["env"], c["algo"]) != ("GridWorldWall-v0", "vicrl")
+    ]
+    for key in [("GridWorldWall-v0", "bc2l"), ("GridWorld-v0", "bc2l"), ("GridWorld-v0", "vicrl")]:
+        assert _cell(updated, *key)["per_seed"] == _cell(earlier, *key)["per_seed"]
+
+
 def test_update_replaces_the_rerun_seeds_and_keeps_every_other_cell(finished_suite, tmp_path, monkeypatch, capsys):
     from sb3_icrl.benchmark import cli
 

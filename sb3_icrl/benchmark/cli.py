@@ -161,6 +161,12 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
         "and so do selected runs with no folder under -f (with no finished run, the report is written again from its "
         "summary, with the current statistics)",
     )
+    report.add_argument(
+        "--withdraw",
+        action="store_true",
+        help="with --update: take the runs --only selects out of the report (trained by code since fixed, say) and list "
+        "them as not finished, so that `run --reported` trains them again; their folders must not be under -f",
+    )
     commands.add_parser("list", help="the shipped suites")
     return parser
 
@@ -326,11 +332,13 @@ def _with_earlier_report(
     output: str,
     root: str,
     model: str,
+    withdraw: bool = False,
 ) -> tuple[list[RunSpec], list[tuple[RunSpec, RunResult]], dict[str, dict[str, Any]]]:
     """
     ``report --update``: the selected ``runs`` (finished or not) replace their seeds in the report in ``output``; its
     other runs are added to the fresh ``results`` and ``metrics``, and the runs it listed as not finished stay listed.
 
+    :param withdraw: ``report --update --withdraw``: the selected runs leave the report and are listed as not finished
     :return: The runs (to list the unfinished ones), the results and the metrics of the whole updated report
     """
     path = _earlier_summary_path(output)
@@ -357,6 +365,13 @@ def _with_earlier_report(
             f"them by {suite.eval_budget} (eval_budget): its cells would mix the two. Pass another -o folder."
         )
     kept, kept_metrics, missing = previous_results(earlier, suite, root)
+    if withdraw:
+        chosen = set(runs)
+        withdrawn = [run for run, _ in kept if run in chosen]
+        print(f"--withdraw: {len(withdrawn)} runs taken out of the report in {output!r}, now listed as not finished")
+        kept = [(run, result) for run, result in kept if run not in chosen]
+        metrics = {result.run: kept_metrics[result.run] for _, result in kept}
+        return [run for run, _ in kept] + missing + withdrawn, kept, metrics
     # A selected run that has not finished (again) loses its old result: its cell must not mix two recipes. One with
     # no folder under the log root is not being trained again here (the report's runs may have trained elsewhere):
     # it keeps its result. With no fresh result at all, nothing is mixed: the report is written again as it was
@@ -376,6 +391,21 @@ def _with_earlier_report(
     return runs + [run for run in missing if run not in chosen], kept + results, metrics
 
 
+def _check_withdrawal(args: argparse.Namespace, runs: list[RunSpec], update: bool) -> None:
+    """``report --withdraw``: only from a report being updated, only of runs named by ``--only``, with no folder here."""
+    if not update:
+        raise SuiteError("--withdraw takes runs out of an existing report: add --update and pass the report's folder with -o.")
+    if not args.only:
+        raise SuiteError("--withdraw: name the runs to take out of the report with --only (env=..., algo=..., seed=...).")
+    here = [run.name for run in runs if os.path.isdir(run.run_folder(args.log_folder))]
+    if here:
+        shown = ", ".join(here[:4]) + (f" and {len(here) - 4} more" if len(here) > 4 else "")
+        raise SuiteError(
+            f"--withdraw: {len(here)} of the selected runs have a folder under {args.log_folder!r} ({shown}): `run` would "
+            "count them as finished. Move those folders out of the log root first."
+        )
+
+
 def report_command(args: argparse.Namespace) -> int:
     suite = _load_suite(args)
     runs = suite.select(_only(args.only))
@@ -384,9 +414,12 @@ def report_command(args: argparse.Namespace) -> int:
     if args.output or os.path.isdir(os.path.join(args.log_folder, suite.name)):
         check_writable_folder(output, "-o/--output")  # before the evaluations, which take minutes
     update = getattr(args, "update", False)  # (``benchmark run`` writes a report of its own runs)
+    withdraw = getattr(args, "withdraw", False)
     if update:
         _earlier_summary_path(output)  # before the evaluations too
-    results = evaluate_finished(runs, args.log_folder, suite, model=model)
+    if withdraw:
+        _check_withdrawal(args, runs, update)
+    results = [] if withdraw else evaluate_finished(runs, args.log_folder, suite, model=model)
     # With --update and no finished run, the earlier report is written again from its summary with today's statistics
     if not results and args.command == "report" and not update:
         raise SuiteError(
@@ -395,7 +428,7 @@ def report_command(args: argparse.Namespace) -> int:
         )
     metrics = constraint_metrics(results, args.log_folder, model=model)
     if update:
-        runs, results, metrics = _with_earlier_report(suite, runs, results, metrics, output, args.log_folder, model)
+        runs, results, metrics = _with_earlier_report(suite, runs, results, metrics, output, args.log_folder, model, withdraw)
     summary = summarise_suite(suite, runs, results, metrics, model=model)
     written = write_report(summary, output)
     if not args.no_figures:
