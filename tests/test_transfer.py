@@ -140,6 +140,18 @@ def grid_run(tmp_path_factory):
     return str(root / "bc2l" / "GridWorldWall-v0_1")
 
 
+def test_the_transfer_learner_keeps_a_signed_learned_cost_floored_at_zero():
+    """IRL-Plus charges its cost signed; the transfer's constrained learner counts violations, so it takes it floored."""
+    from types import SimpleNamespace
+
+    from sb3_icrl.metrics.transfer import transfer_cost_fn
+
+    model = SimpleNamespace(constraint_cost=lambda obs, acts: np.array([-0.25, 0.0, 0.5], dtype=np.float32))
+    costs = transfer_cost_fn(model)(np.zeros((3, 2)), np.zeros((3, 1)))
+    np.testing.assert_array_equal(costs, [0.0, 0.0, 0.5])
+    assert costs.dtype == np.float32
+
+
 def test_transfer_command_end_to_end(grid_run, capsys):
     assert cli(["transfer", grid_run, "--task", "same", "-n", "64", "--eval-episodes", "2", "--seed", "1"]) == 0
     assert "feasible reward / oracle's" in capsys.readouterr().out

@@ -307,6 +307,23 @@ def learned_cost_budget(icrl_model: Any, args: dict[str, Any]) -> tuple[float, s
     return float(np.mean(icrl_model.constraint_cost(*run_demonstration_pairs(args)))), "step"
 
 
+def transfer_cost_fn(icrl_model: Any) -> Any:
+    """
+    The learned cost the transfer's constrained learner keeps within its budget: the run's ``constraint_cost`` floored
+    at 0. A constrained learner counts violations; IRL-Plus's cost, charged as a penalty on the reward, dips below 0,
+    and a cost below 0 would let the learner bank credit to spend past the line (the other methods' costs, ``1 - phi``,
+    are never below 0: for them the floor changes nothing).
+
+    :param icrl_model: The run's model
+    :return: ``cost_fn(observations, actions) -> costs >= 0``
+    """
+
+    def cost_fn(observations: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        return np.maximum(icrl_model.constraint_cost(observations, actions), np.float32(0))
+
+    return cost_fn
+
+
 def run_transfer(
     run_folder: str | os.PathLike,
     task: str,
@@ -416,7 +433,7 @@ def run_transfer(
             params,
             steps,
             seed,
-            cost_fn=icrl_model.constraint_cost if learner == "learned" else None,
+            cost_fn=transfer_cost_fn(icrl_model) if learner == "learned" else None,
             budget=budget,
             budget_statistic=budget_statistic,
             log=log,
