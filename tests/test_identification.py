@@ -302,6 +302,23 @@ def test_methods_figure_marks_the_threshold_and_one_line_per_seed():
         methods_partial_dependence_figure({"MECL": []}, -3.0, "<=")
 
 
+def test_an_untrained_cost_net_is_flat_and_scores_one_half(expert):
+    """A fresh CostNet charges 0 everywhere (its output layer starts at zero): its untrained baseline is 0.5 exactly."""
+    from sb3_icrl.constraints import CostNet
+    from sb3_icrl.metrics.identification import untrained_copy
+
+    net = CostNet(obs_dim=18, action_dim=6, hidden_sizes=[20], normalize_input=False)
+    with th.no_grad():
+        for parameter in net.parameters():
+            parameter.add_(1.0)  # stands for training
+    copy = untrained_copy(net, seed=3)
+    obs, acts = expert
+    np.testing.assert_array_equal(copy.cost(obs[:50], acts[:50]), np.zeros(50, dtype=np.float32))
+    assert not th.equal(copy.network[0].weight, untrained_copy(net, seed=4).network[0].weight)  # the hidden layers drawn
+    scores = identify_model(net, CHEETAH, expert, seed=0, n_untrained=3)
+    assert scores["untrained_draws"] == [0.5, 0.5, 0.5] and scores["untrained_auroc"] == 0.5
+
+
 def test_a_learned_net_is_read_against_an_untrained_one_of_its_shape(expert):
     from sb3_icrl.metrics.identification import untrained_copy
 

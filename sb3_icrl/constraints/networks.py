@@ -342,6 +342,15 @@ class _ConstraintNet(nn.Module):
             parts.append(action_features)
         return th.cat(parts, dim=1)
 
+    def reinitialise(self) -> None:
+        """
+        Draw new initial weights, as a freshly built net of this class starts (from torch's global generator); the
+        input normaliser is kept. Identification's untrained baseline reads a learned net against such copies.
+        """
+        for module in self.modules():
+            if isinstance(module, nn.Linear):
+                module.reset_parameters()
+
     def fit_normalizer(self, expert_obs: ArrayLike, expert_actions: ArrayLike | None) -> None:
         """
         Fit the input normaliser on the expert data (observations as the env returns them).
@@ -671,11 +680,19 @@ class CostNet(_ConstraintNet):
 
     def __init__(self, *args: Any, **kwargs: Any):
         super().__init__(*args, **kwargs)
+        self._zero_output_layer()
+
+    def _zero_output_layer(self) -> None:
         output_layer = self.network[-1]
         assert isinstance(output_layer, nn.Linear)
         with th.no_grad():
             output_layer.weight.zero_()
             output_layer.bias.zero_()
+
+    def reinitialise(self) -> None:
+        """New hidden weights and an output layer at zero, as a fresh :class:`CostNet`: cost 0 everywhere."""
+        super().reinitialise()
+        self._zero_output_layer()
 
     def forward(self, inputs: th.Tensor) -> th.Tensor:
         """

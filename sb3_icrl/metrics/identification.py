@@ -33,6 +33,7 @@ import torch as th
 
 from sb3_icrl.common.utils import atomic_write_json
 from sb3_icrl.common.vec_env import load_vec_normalize
+from sb3_icrl.constraints.networks import _ConstraintNet
 from sb3_icrl.data import load_demonstrations
 from sb3_icrl.envs.wrappers import recorded_transition_noise, transition_noise_wrapper
 from sb3_icrl.icrl.tabular import precision_recall
@@ -66,8 +67,8 @@ def identification_file(model: str) -> str:
 
 
 #: Bumped when the scores change meaning, so that cached results are computed again (2: the untrained baseline is the
-#: median of several initialisations, not one)
-IDENTIFICATION_VERSION = 2
+#: median of several initialisations, not one; 3: an untrained CostNet starts at cost 0, as a fresh one does)
+IDENTIFICATION_VERSION = 3
 #: Initialisations of the untrained baseline: on a probe set whose label is a threshold on one feature, any roughly
 #: monotone random net scores near 0 or near 1, so a single draw says nothing
 UNTRAINED_DRAWS = 10
@@ -668,9 +669,10 @@ def identify_model(
 
 def untrained_copy(net: "th.nn.Module", seed: int = 0) -> "th.nn.Module":
     """
-    A constraint net of the same shape and input normalisation as ``net``, its layers initialised afresh (seeded):
-    the baseline a learned constraint's identification scores are read against (on a HalfCheetah probe set an
-    untrained net can rank the pairs far above 0.5, from the input scaling alone).
+    A constraint net of the same shape and input normalisation as ``net``, initialised afresh (seeded) as a new net of
+    its class starts (``reinitialise``: a :class:`~sb3_icrl.constraints.CostNet` at cost 0 everywhere; other modules:
+    every linear layer drawn again): the baseline a learned constraint's identification scores are read against (on
+    a HalfCheetah probe set an untrained net can rank the pairs far above 0.5, from the input scaling alone).
 
     :param net: The learned constraint net
     :param seed: Seed of the initial weights
@@ -679,9 +681,12 @@ def untrained_copy(net: "th.nn.Module", seed: int = 0) -> "th.nn.Module":
     copy = deepcopy(net)
     with th.random.fork_rng():
         th.manual_seed(seed)
-        for module in copy.modules():
-            if isinstance(module, th.nn.Linear):
-                module.reset_parameters()
+        if isinstance(copy, _ConstraintNet):
+            copy.reinitialise()
+        else:
+            for module in copy.modules():
+                if isinstance(module, th.nn.Linear):
+                    module.reset_parameters()
     return copy
 
 
