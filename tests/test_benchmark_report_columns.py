@@ -515,6 +515,8 @@ def test_withdraw_takes_runs_out_of_a_report_to_be_trained_again(finished_suite,
             shutil.rmtree(run.run_folder(root))
     assert cli.main([*argv, "--update", "--withdraw"]) == 0
     assert "--withdraw: 2 runs taken out of the report" in capsys.readouterr().out
+    assert cli.main([*argv, "--update", "--withdraw"]) == 2  # a second time: the report no longer holds them
+    assert "holds none of the runs --only selects" in capsys.readouterr().err
     updated = json.loads(pathlib.Path(output, "summary.json").read_text())
     assert sorted(updated["runs_missing"]) == withdrawn
     assert [(c["env"], c["algo"]) for c in updated["cells"] if c["per_seed"]] == [

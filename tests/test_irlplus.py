@@ -274,6 +274,17 @@ def test_irlplus_clear_errors() -> None:
         make_irlplus(budget_statistic="episode")
 
 
+def test_only_irlplusppo_is_charged_negative_costs() -> None:
+    """Plain PPOLagrangian still refuses a cost_fn below 0; IRLPlusPPO refuses a budget read from its signed cost."""
+    from sb3_icrl import PPOLagrangian
+
+    model = PPOLagrangian("MlpPolicy", make_env(), cost_fn=lambda obs, acts: -np.ones(len(obs)), n_steps=16, batch_size=16)
+    with pytest.raises(CostError, match="negative costs"):
+        model.learn(16)
+    with pytest.raises(ValueError, match="cost_budget='expert'"):
+        IRLPlusPPO("MlpPolicy", make_env(), line_demonstrations(), cost_budget="expert")
+
+
 def test_irlplus_on_ppo_learns_and_round_trips(tmp_path) -> None:
     kwargs = dict(n_steps=16, batch_size=16, n_epochs=1, seed=0, policy_kwargs={"net_arch": [8]}, reset_every=16)
     model = IRLPlusPPO("MlpPolicy", make_env(), line_demonstrations(), constraint_net_kwargs={"hidden_sizes": [8]}, **kwargs)

@@ -368,6 +368,11 @@ def _with_earlier_report(
     if withdraw:
         chosen = set(runs)
         withdrawn = [run for run, _ in kept if run in chosen]
+        if not withdrawn:
+            raise SuiteError(
+                f"--withdraw: the report in {output!r} holds none of the runs --only selects: nothing to take out "
+                "(check --only against the report's table)."
+            )
         print(f"--withdraw: {len(withdrawn)} runs taken out of the report in {output!r}, now listed as not finished")
         kept = [(run, result) for run, result in kept if run not in chosen]
         metrics = {result.run: kept_metrics[result.run] for _, result in kept}

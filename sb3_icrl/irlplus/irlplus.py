@@ -283,6 +283,12 @@ class IRLPlusPPO(_IRLPlusOptions, LagrangianICRL):
         _init_setup_model: bool = True,
         **kwargs: Any,
     ):
+        if isinstance(kwargs.get("cost_budget"), str):
+            raise ValueError(
+                f"IRLPlusPPO charges its cost as a penalty on the reward, signed (the multiplier held at 1): a budget "
+                f"read from the expert's learned cost (cost_budget={kwargs['cost_budget']!r}) dips below 0 with it and "
+                "means nothing here. Pass a number (default 0), with lagrange_kwargs if the multiplier should adapt."
+            )
         self._init_irlplus(
             policy,
             env,
