@@ -152,6 +152,17 @@ def test_the_transfer_learner_keeps_a_signed_learned_cost_floored_at_zero():
     assert costs.dtype == np.float32
 
 
+def test_an_off_policy_run_s_critic_budget_transfers_per_step():
+    from types import SimpleNamespace
+
+    from sb3_icrl.metrics.transfer import learned_cost_budget
+
+    sac_run = SimpleNamespace(cost_budget=10.0, budget_statistic="critic", cost_gamma=0.99)
+    budget, statistic = learned_cost_budget(sac_run, {})
+    assert budget == pytest.approx(0.1) and statistic == "step"
+    assert learned_cost_budget(SimpleNamespace(cost_budget=[2.0], budget_statistic="episode"), {}) == (2.0, "episode")
+
+
 def test_transfer_command_end_to_end(grid_run, capsys):
     assert cli(["transfer", grid_run, "--task", "same", "-n", "64", "--eval-episodes", "2", "--seed", "1"]) == 0
     assert "feasible reward / oracle's" in capsys.readouterr().out

@@ -298,12 +298,19 @@ def learned_cost_budget(icrl_model: Any, args: dict[str, Any]) -> tuple[float, s
     over the run's demonstrations, what the other methods' ``cost_budget="expert"`` sets: as feasible as the expert
     under the learned constraint, read from the demonstrations only.
 
+    An off-policy run's budget on its cost critic (``"critic"``: a discounted cost-to-go) becomes the per-step budget
+    it amounts to, ``budget * (1 - cost_gamma)``: the transfer's learner is PPO-Lagrangian.
+
     :param icrl_model: The run's model
     :param args: The run's saved arguments (``args.yml``)
     :return: ``(budget, budget statistic)``
     """
     if hasattr(icrl_model, "cost_budget"):
-        return float(np.asarray(icrl_model.cost_budget).reshape(-1)[0]), str(getattr(icrl_model, "budget_statistic", "step"))
+        budget = float(np.asarray(icrl_model.cost_budget).reshape(-1)[0])
+        statistic = str(getattr(icrl_model, "budget_statistic", "step"))
+        if statistic == "critic":
+            return budget * (1.0 - float(icrl_model.cost_gamma)), "step"
+        return budget, statistic
     return float(np.mean(icrl_model.constraint_cost(*run_demonstration_pairs(args)))), "step"
 
 
