@@ -437,14 +437,20 @@ def test_an_earlier_report_reads_back_into_the_same_summary(finished_suite):
         report.previous_results(renamed, suite, root)
 
 
-def test_update_keeps_the_runs_whose_folders_are_elsewhere(finished_suite, tmp_path, monkeypatch, capsys):
-    from sb3_icrl.benchmark import cli
-
+def _report_of_every_run(finished_suite, tmp_path) -> tuple[str, str, dict]:
+    """The suite's file, a report of all its finished runs in ``results/suite``, and that report's summary."""
     suite, root, results = finished_suite
     path = write(tmp_path, SUITE)
     output = str(tmp_path / "results" / "suite")
     write_report(summarise_suite(suite, suite.runs(), results, run_facts(results, root)), output)
-    earlier = json.loads(pathlib.Path(output, "summary.json").read_text())
+    return path, output, json.loads(pathlib.Path(output, "summary.json").read_text())
+
+
+def test_update_keeps_the_runs_whose_folders_are_elsewhere(finished_suite, tmp_path, monkeypatch, capsys):
+    from sb3_icrl.benchmark import cli
+
+    _, root, results = finished_suite
+    path, output, earlier = _report_of_every_run(finished_suite, tmp_path)
     # This log folder holds one run only (the report's other runs trained elsewhere); --update without --only
     here = results[0][0]
     for run, _ in results[1:]:
@@ -492,11 +498,8 @@ def test_update_lists_a_run_still_to_come_once(finished_suite, tmp_path, monkeyp
 def test_withdraw_takes_runs_out_of_a_report_to_be_trained_again(finished_suite, tmp_path, monkeypatch, capsys):
     from sb3_icrl.benchmark import cli
 
-    suite, root, results = finished_suite
-    path = write(tmp_path, SUITE)
-    output = str(tmp_path / "results" / "suite")
-    write_report(summarise_suite(suite, suite.runs(), results, run_facts(results, root)), output)
-    earlier = json.loads(pathlib.Path(output, "summary.json").read_text())
+    _, root, results = finished_suite
+    path, output, earlier = _report_of_every_run(finished_suite, tmp_path)
     monkeypatch.setattr(cli, "evaluate_finished", lambda *args, **kwargs: pytest.fail("--withdraw evaluates nothing"))
     argv = ["report", path, "-f", root, "-o", output, "--no-figures", "--only", "env=GridWorldWall-v0", "algo=vicrl"]
 

@@ -365,8 +365,9 @@ def _with_earlier_report(
             f"them by {suite.eval_budget} (eval_budget): its cells would mix the two. Pass another -o folder."
         )
     kept, kept_metrics, missing = previous_results(earlier, suite, root)
-    if withdraw:
-        chosen = set(runs)
+    chosen = set(runs)
+    withdrawn: list[RunSpec] = []
+    if withdraw:  # (no fresh results: the earlier report less the selected runs, which are listed as not finished)
         withdrawn = [run for run, _ in kept if run in chosen]
         if not withdrawn:
             raise SuiteError(
@@ -375,13 +376,10 @@ def _with_earlier_report(
             )
         print(f"--withdraw: {len(withdrawn)} runs taken out of the report in {output!r}, now listed as not finished")
         kept = [(run, result) for run, result in kept if run not in chosen]
-        metrics = {result.run: kept_metrics[result.run] for _, result in kept}
-        return [run for run, _ in kept] + missing + withdrawn, kept, metrics
     # A selected run that has not finished (again) loses its old result: its cell must not mix two recipes. One with
     # no folder under the log root is not being trained again here (the report's runs may have trained elsewhere):
     # it keeps its result. With no fresh result at all, nothing is mixed: the report is written again as it was
     selected = {run for run in runs if os.path.isdir(run.run_folder(root))} | {run for run, _ in results} if results else set()
-    chosen = set(runs)
     elsewhere = [run for run, _ in kept if run in chosen and run not in selected]
     if results and elsewhere:
         print(
@@ -391,7 +389,7 @@ def _with_earlier_report(
     kept = [(run, result) for run, result in kept if run not in selected]
     metrics = {**metrics, **{result.run: kept_metrics[result.run] for _, result in kept}}
     if not results:  # the earlier report's runs, no more: a report of part of a suite stays one
-        return [run for run, _ in kept] + missing, kept, metrics
+        return [run for run, _ in kept] + missing + withdrawn, kept, metrics
     # (a selected run the earlier report listed as not finished is listed once)
     return runs + [run for run in missing if run not in chosen], kept + results, metrics
 

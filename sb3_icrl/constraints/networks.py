@@ -118,6 +118,17 @@ def _constructor_arguments(net_class: type) -> set[str]:
     return names
 
 
+def reset_linear_layers(module: nn.Module) -> None:
+    """
+    Draw every linear layer of ``module`` afresh, with torch's default initialisation (from its global generator).
+
+    :param module: The module, changed in place
+    """
+    for layer in module.modules():
+        if isinstance(layer, nn.Linear):
+            layer.reset_parameters()
+
+
 class _ConstraintNet(nn.Module):
     """
     Shared input handling, normaliser and saving of the constraint nets. Subclasses set ``n_outputs`` and
@@ -347,9 +358,7 @@ class _ConstraintNet(nn.Module):
         Draw new initial weights, as a freshly built net of this class starts (from torch's global generator); the
         input normaliser is kept. Identification's untrained baseline reads a learned net against such copies.
         """
-        for module in self.modules():
-            if isinstance(module, nn.Linear):
-                module.reset_parameters()
+        reset_linear_layers(self)
 
     def fit_normalizer(self, expert_obs: ArrayLike, expert_actions: ArrayLike | None) -> None:
         """

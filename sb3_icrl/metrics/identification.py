@@ -33,7 +33,7 @@ import torch as th
 
 from sb3_icrl.common.utils import atomic_write_json
 from sb3_icrl.common.vec_env import load_vec_normalize
-from sb3_icrl.constraints.networks import _ConstraintNet
+from sb3_icrl.constraints.networks import _ConstraintNet, reset_linear_layers
 from sb3_icrl.data import load_demonstrations
 from sb3_icrl.envs.wrappers import recorded_transition_noise, transition_noise_wrapper
 from sb3_icrl.icrl.tabular import precision_recall
@@ -684,9 +684,7 @@ def untrained_copy(net: "th.nn.Module", seed: int = 0) -> "th.nn.Module":
         if isinstance(copy, _ConstraintNet):
             copy.reinitialise()
         else:
-            for module in copy.modules():
-                if isinstance(module, th.nn.Linear):
-                    module.reset_parameters()
+            reset_linear_layers(copy)
     return copy
 
 
