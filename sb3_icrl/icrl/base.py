@@ -41,9 +41,10 @@ class ICRLAlgorithmMixin(CheckedLoadMixin):
 
     The env is wrapped at its bottom, below any ``VecNormalize``, as
     ``constraint_wrapper(TrajectoryRecorderVecEnvWrapper(raw_venv))``: the recorder keeps the learner's raw
-    observations and actions by trajectory (nominal data), the constraint wrapper writes the learned cost into
-    ``info["cost"]`` (or GACL's ``r + log D`` into the reward) and moves the env's true cost to
-    ``info["true_cost"]``, which only :class:`TrueConstraintLogger` reads, for logging.
+    observations and actions by trajectory (nominal data), the constraint wrapper moves the env's true cost to
+    ``info["true_cost"]``, which only :class:`TrueConstraintLogger` reads, for logging (GACL's also writes
+    ``r + log D`` into the reward). A Lagrangian learner prices its pairs with the model itself, through its
+    ``cost_fn`` (:meth:`constraint_cost`): once per rollout on PPO, on each sampled batch on SAC.
 
     Saving: the constraint net's ``state_dict`` and its optimizer's go into the SB3 zip beside the policy's, its
     class and constructor arguments into the zip's data; ``load`` rebuilds it. The demonstrations are not saved: a

@@ -8,7 +8,8 @@ Each ``RUN`` is a run folder ``<folder>/<algo>/<EnvName>_<N>`` of ``train.py``, 
 ``<EnvName>`` is the env id with ``/`` turned into ``-``). Its final model (or ``--model best``)
 is run on held-out env seeds, deterministically, as ``enjoy.py`` does (for ``-n`` steps, or on exactly
 ``--n-episodes`` complete episodes as the benchmark's reports do); the table gives per run the training seed, the
-steps trained, the training wall time (the monitor's clock), the true violation rate and the feasible reward (and, for
+steps trained, the training wall time (from the run's ``finished.json``; the monitor's clock for runs without one),
+the true violation rate and the feasible reward (and, for
 the driving envs, a second table of how the held-out episodes ended: collision, off road, time out, goal reached). Per
 algorithm it then gives the mean and std (``ddof=0``) over seeds and, against ``--reference``, the Wilcoxon
 signed-rank test of the per-seed feasible rewards (pairs: runs with the same training seed). The true constraint is
