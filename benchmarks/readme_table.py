@@ -16,17 +16,9 @@ import json
 import pathlib
 import sys
 
-from sb3_icrl.benchmark.report import (
-    aim_text,
-    beats,
-    beats_judgement_text,
-    format_hours,
-    format_mean_std,
-    format_rate,
-    other_sources,
-    published_pairs,
-    reward_digits,
-)
+from sb3_icrl.benchmark.judgements import beats, published_pairs
+from sb3_icrl.benchmark.report_numbers import format_hours, format_mean_std, format_rate, reward_digits
+from sb3_icrl.benchmark.report_text import aim_text, beats_judgement_text, other_sources
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"

@@ -13,9 +13,10 @@ def report_suite(tmp_path, monkeypatch):
     Loads a benchmark suite from its yml text, with its report's bootstrap intervals cut to 20 resamples (fast; tests
     that read the intervals' values draw their own).
     """
-    from sb3_icrl.benchmark import load_suite, report
+    from sb3_icrl.benchmark import judgements, load_suite, report
 
-    monkeypatch.setattr(report, "stratified_bootstrap_ci", functools.partial(report.stratified_bootstrap_ci, reps=20))
+    for module in (report, judgements):  # the report's aggregates; the cells' spreads, scores and aim
+        monkeypatch.setattr(module, "stratified_bootstrap_ci", functools.partial(module.stratified_bootstrap_ci, reps=20))
 
     def load(text: str):
         path = tmp_path / "suite.yml"

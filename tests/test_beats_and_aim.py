@@ -12,7 +12,8 @@ import pytest
 from script_loader import load_script
 
 from sb3_icrl.benchmark import load_suite, summarise_suite
-from sb3_icrl.benchmark.report import finite_or_null, markdown_table
+from sb3_icrl.benchmark.report_numbers import finite_or_null
+from sb3_icrl.benchmark.report_text import markdown_table
 from sb3_icrl.benchmark.suite import BeatsRule, SuiteError
 from sb3_icrl.common.statistics import stratified_bootstrap_ci
 from sb3_icrl.zoo.compare import RunResult

@@ -18,7 +18,7 @@ import scipy.stats
 
 from sb3_icrl.benchmark import iqm, load_suite, report, stratified_bootstrap_ci, summarise_suite
 from sb3_icrl.benchmark.cli import main as benchmark_main
-from sb3_icrl.benchmark.report import csv_rows, markdown_table
+from sb3_icrl.benchmark.report_text import csv_rows, markdown_table
 from sb3_icrl.benchmark.suite import SUITES_DIR, RunSpec, SuiteError
 from sb3_icrl.run_evaluation import UnfinishedEpisodesError
 from sb3_icrl.zoo.compare import RunResult
@@ -274,7 +274,7 @@ def test_summary_cells_hold_hand_computed_statistics(tmp_path):
 
 
 def test_identification_text_names_a_cost_above_the_level_everywhere():
-    from sb3_icrl.benchmark.report import _identification_text
+    from sb3_icrl.benchmark.report_text import _identification_text
 
     assert _identification_text({"identification_auroc": 0.5, "threshold_error": float("inf")}) == "0.50 / everywhere"
     assert _identification_text({"identification_auroc": 0.9, "threshold_error": -4.831}) == "0.90 / -4.83"
@@ -286,7 +286,8 @@ def test_headline_keeps_everywhere_and_nowhere_apart_through_strict_json():
     """Strict JSON writes both non-finite threshold errors as null: the crossing tells a summary read back which."""
     import json
 
-    from sb3_icrl.benchmark.report import _identification_text, finite_or_null
+    from sb3_icrl.benchmark.report_numbers import finite_or_null
+    from sb3_icrl.benchmark.report_text import _identification_text
     from sb3_icrl.metrics.identification import headline
 
     def scores(error: float) -> dict:
@@ -330,8 +331,8 @@ def test_constraint_figures_draw_the_scored_runs_of_each_env(tmp_path, monkeypat
     matplotlib.use("Agg")
     from matplotlib.figure import Figure
 
-    import sb3_icrl.benchmark.report as report
-    from sb3_icrl.benchmark.report import constraint_figures
+    import sb3_icrl.benchmark.report_figures as report_figures
+    from sb3_icrl.benchmark.report_figures import constraint_figures
 
     suite = load_suite(write(tmp_path, TINY_SUITE))
     results = [(run, _result(run.algo, run.seed, 1.0, 0.0)) for run in suite.runs()]
@@ -345,7 +346,7 @@ def test_constraint_figures_draw_the_scored_runs_of_each_env(tmp_path, monkeypat
         drawn.append(([curve["algo"] for curve in curves], title))
         return Figure()
 
-    monkeypatch.setattr(report, "learned_cost_figure", fake_figure)
+    monkeypatch.setattr(report_figures, "learned_cost_figure", fake_figure)
     output = str(tmp_path / "report")
     written = constraint_figures(summary, suite, output, data)
     assert written == [os.path.join(output, "constraint_GridWorldWall-v0_base.png")] and os.path.isfile(written[0])
@@ -359,13 +360,13 @@ def test_constraint_figures_draw_the_scored_runs_of_each_env(tmp_path, monkeypat
     def no_feature(curves, title=None, **kwargs):
         raise ValueError("the env's constraint is not a threshold on a feature")
 
-    monkeypatch.setattr(report, "learned_cost_figure", no_feature)
+    monkeypatch.setattr(report_figures, "learned_cost_figure", no_feature)
     assert constraint_figures(summary, suite, str(tmp_path / "none"), data) == []
 
 
 def test_a_learned_cost_figure_does_not_miss_the_reference_rows(tmp_path):
     """The reference rows learn no cost: a learned-cost figure of every ICRL method says nothing is missing."""
-    from sb3_icrl.benchmark.report import _partial
+    from sb3_icrl.benchmark.report_figures import _partial
     from sb3_icrl.registry import ICRL_ALGOS
 
     suite = load_suite(write(tmp_path, TINY_SUITE.replace("algos: [bc2l, vicrl]", "algos: [bc2l, vicrl, ppolag]")))
@@ -378,7 +379,7 @@ def test_a_learned_cost_figure_does_not_miss_the_reference_rows(tmp_path):
 
 def test_figure_data_from_run_folders_else_from_the_earlier_report(tmp_path):
     """A run's figure data come from its folder; a run whose folder is gone keeps what the earlier report had."""
-    from sb3_icrl.benchmark.report import FIGURE_DATA_FILE, figure_data, run_figure_data
+    from sb3_icrl.benchmark.report_figures import FIGURE_DATA_FILE, figure_data, run_figure_data
     from sb3_icrl.metrics.identification import identification_file
 
     suite = load_suite(write(tmp_path, TINY_SUITE))
@@ -433,8 +434,8 @@ def test_figures_follow_the_cells_the_report_keeps(tmp_path, monkeypatch):
     matplotlib.use("Agg")
     from matplotlib.figure import Figure
 
-    import sb3_icrl.benchmark.report as report
-    from sb3_icrl.benchmark.report import FIGURE_DATA_FILE, write_figures
+    import sb3_icrl.benchmark.report_figures as report_figures
+    from sb3_icrl.benchmark.report_figures import FIGURE_DATA_FILE, write_figures
 
     text = TINY_SUITE.replace("envs: [GridWorldWall-v0]", "envs: [GridWorldWall-v0, GridWorldSquare-v0]")
     suite = load_suite(write(tmp_path, text))
@@ -442,10 +443,12 @@ def test_figures_follow_the_cells_the_report_keeps(tmp_path, monkeypatch):
     summary = summarise_suite(suite, kept, [(run, _result(run.algo, run.seed, 1.0, 0.0)) for run in kept])
     data = {run.name: {"curves": _curves()} for run in suite.runs()}
     data[kept[0].name]["curves"]["results"][0] = float("nan")  # written as null: the file is strict JSON
-    monkeypatch.setattr(report, "figure_data", lambda *args: data)
+    monkeypatch.setattr(report_figures, "figure_data", lambda *args: data)
     drawn = []
-    monkeypatch.setattr(report, "training_curves_figure", lambda runs, title: drawn.append((sorted(runs), title)) or Figure())
-    monkeypatch.setattr(report, "constraint_figures", lambda *args: [])
+    monkeypatch.setattr(
+        report_figures, "training_curves_figure", lambda runs, title: drawn.append((sorted(runs), title)) or Figure()
+    )
+    monkeypatch.setattr(report_figures, "constraint_figures", lambda *args: [])
     output = tmp_path / "report"
     written = write_figures(summary, suite, str(tmp_path / "logs"), str(output))
     assert [os.path.basename(path) for path in written] == [FIGURE_DATA_FILE, "curves_GridWorldWall-v0_base.png"]
@@ -703,7 +706,8 @@ def test_ray_backend_runs_the_smoke_suite(tmp_path):
 
 
 def test_summary_json_is_strict_json(tmp_path):
-    from sb3_icrl.benchmark.report import finite_or_null, write_report
+    from sb3_icrl.benchmark.report import write_report
+    from sb3_icrl.benchmark.report_numbers import finite_or_null
 
     nested = {"cells": [{"threshold_error": float("inf"), "auroc": np.float64(0.9), "ratio": float("nan")}], "n": 3}
     assert finite_or_null(nested) == {"cells": [{"threshold_error": None, "auroc": 0.9, "ratio": None}], "n": 3}

@@ -17,16 +17,10 @@ import pytest
 import yaml
 from script_loader import load_script
 
-from sb3_icrl.benchmark import load_suite, report, summarise_suite
+from sb3_icrl.benchmark import judgements, load_suite, report, report_numbers, report_text, summarise_suite
 from sb3_icrl.benchmark import suite as suite_module
-from sb3_icrl.benchmark.report import (
-    constraint_metrics,
-    csv_rows,
-    latex_table,
-    markdown_table,
-    run_facts,
-    write_report,
-)
+from sb3_icrl.benchmark.report import constraint_metrics, run_facts, write_report
+from sb3_icrl.benchmark.report_text import csv_rows, latex_table, markdown_table
 from sb3_icrl.benchmark.suite import SuiteError
 from sb3_icrl.data import Trajectory, save
 from sb3_icrl.registry import env_name
@@ -136,7 +130,8 @@ FEASIBLE = {
 def finished_suite(tmp_path, monkeypatch):
     """The suite, its log root and the held-out results of its eight fake finished runs."""
     # These columns do not depend on the confidence intervals: a short bootstrap keeps the tests quick
-    monkeypatch.setattr(report, "stratified_bootstrap_ci", functools.partial(report.stratified_bootstrap_ci, reps=20))
+    for module in (report, judgements):  # the report's aggregates; the cells' spreads, scores and aim
+        monkeypatch.setattr(module, "stratified_bootstrap_ci", functools.partial(module.stratified_bootstrap_ci, reps=20))
     # Runs on an env without demonstrations (their dataset gone since, or from a user's own file): the suite check, which
     # refuses such a suite before it runs, is not what these tests are about
     monkeypatch.setattr(suite_module._SuiteReader, "check_demonstrations", lambda *args: None)
@@ -323,8 +318,8 @@ def test_cells_say_which_published_numbers_they_beat(finished_suite):
 )
 def test_beating_needs_more_reward_and_no_more_violations(reward, violation, expected):
     cell = {"feasible_reward_mean": reward, "violation_rate_mean": violation}
-    assert report.beats(cell, (1.0, 0.2)) is expected
-    assert report.beats(cell, None) is None
+    assert judgements.beats(cell, (1.0, 0.2)) is expected
+    assert judgements.beats(cell, None) is None
 
 
 # ---------------------------------------------------------------- best models
@@ -378,8 +373,8 @@ def test_report_of_best_models_evaluates_best_model_zip_with_its_own_cache(finis
     final_summary = summarise_suite(suite, suite.runs(), results, run_facts(results, root))
     best_summary = summarise_suite(suite, suite.runs(), results, run_facts(results, root), model="best")
     assert final_summary["model"] == "final" and best_summary["model"] == "best"
-    assert report.BEST_MODELS_NOTE in markdown_table(best_summary)
-    assert report.BEST_MODELS_NOTE not in markdown_table(final_summary)
+    assert report_text.BEST_MODELS_NOTE in markdown_table(best_summary)
+    assert report_text.BEST_MODELS_NOTE not in markdown_table(final_summary)
     write_report(final_summary, str(tmp_path / "results" / "final"))
     write_report(best_summary, str(tmp_path / "results" / "best"))
     readme = readme_table.table(tmp_path / "results").splitlines()
@@ -397,7 +392,7 @@ def test_report_of_best_models_evaluates_best_model_zip_with_its_own_cache(finis
 
 def _strict(summary: dict) -> dict:
     """A summary as its summary.json reads back."""
-    return json.loads(json.dumps(report.finite_or_null(summary)))
+    return json.loads(json.dumps(report_numbers.finite_or_null(summary)))
 
 
 def test_an_earlier_report_reads_back_into_the_same_summary(finished_suite):
@@ -663,7 +658,7 @@ def test_update_with_no_finished_run_writes_the_report_again_as_it_was(finished_
 
 
 def test_many_unfinished_runs_are_counted_per_env_few_are_named():
-    from sb3_icrl.benchmark.report import MAX_MISSING_NAMED, not_finished_text
+    from sb3_icrl.benchmark.report_text import MAX_MISSING_NAMED, not_finished_text
 
     few = {"runs_missing": ["base/gacl/A-v0/seed 1", "base/gacl/B-v0/seed 1"], "runs_missing_by_env": [["A-v0", "base", 1, 4]]}
     assert not_finished_text(few) == "Not finished yet (2): base/gacl/A-v0/seed 1, base/gacl/B-v0/seed 1"
@@ -675,7 +670,7 @@ def test_many_unfinished_runs_are_counted_per_env_few_are_named():
 
 
 def test_a_study_draws_each_method_against_its_level(tmp_path):
-    from sb3_icrl.benchmark.report import study_axis, study_figure
+    from sb3_icrl.benchmark.report_figures import study_axis, study_figure
 
     text = """\
 envs: [GridWorldWall-v0]
@@ -737,8 +732,8 @@ def test_unfinished_runs_are_counted_per_env_over_the_reports_runs(tmp_path):
 
 
 def test_a_study_report_writes_its_figure(tmp_path, monkeypatch):
-    import sb3_icrl.benchmark.report as report_module
-    from sb3_icrl.benchmark.report import write_figures
+    import sb3_icrl.benchmark.report_figures as report_figures
+    from sb3_icrl.benchmark.report_figures import write_figures
 
     text = """\
 envs: [GridWorldWall-v0]
@@ -753,10 +748,10 @@ variants:
     suite = load_suite(str(path), dry_build=False)
     results = [(run, RunResult(run.name, run.algo, run.env_id, run.seed, 100, 1.0, 0.0, 1.0, 1.0, 20)) for run in suite.runs()]
     summary = summarise_suite(suite, suite.runs(), results)
-    monkeypatch.setattr(report_module, "figure_data", lambda *args: {})  # no run folder: no curves
-    monkeypatch.setattr(report_module, "constraint_figures", lambda *args, **kwargs: [])
+    monkeypatch.setattr(report_figures, "figure_data", lambda *args: {})  # no run folder: no curves
+    monkeypatch.setattr(report_figures, "constraint_figures", lambda *args, **kwargs: [])
     written = write_figures(summary, suite, str(tmp_path / "logs"), str(tmp_path / "report"))
-    assert [os.path.basename(path) for path in written] == [report_module.FIGURE_DATA_FILE, "study.png"]
+    assert [os.path.basename(path) for path in written] == [report_figures.FIGURE_DATA_FILE, "study.png"]
     assert os.path.isfile(written[1])
 
 

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from sb3_icrl.benchmark import report, summarise_suite
-from sb3_icrl.benchmark.report import HELDOUT_FILE, csv_rows, evaluate_finished, markdown_table, previous_results
+from sb3_icrl.benchmark.report import HELDOUT_FILE, evaluate_finished, previous_results
+from sb3_icrl.benchmark.report_text import csv_rows, markdown_table
 from sb3_icrl.common.evaluation import EpisodeAccumulator, evaluate_constraint
 from sb3_icrl.zoo.compare import RunResult
 from sb3_icrl.zoo.runs import FINISHED_FILE

@@ -10,7 +10,8 @@ from dataclasses import asdict
 import pytest
 
 from sb3_icrl.benchmark import report, summarise_suite
-from sb3_icrl.benchmark.report import HELDOUT_FILE, csv_rows, evaluate_finished, markdown_table
+from sb3_icrl.benchmark.report import HELDOUT_FILE, evaluate_finished
+from sb3_icrl.benchmark.report_text import csv_rows, markdown_table
 from sb3_icrl.zoo.compare import RunResult, format_table, summarise
 from sb3_icrl.zoo.runs import FINISHED_FILE
 

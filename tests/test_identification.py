@@ -9,7 +9,8 @@ import pytest
 import torch as th
 
 import sb3_icrl.envs  # noqa: F401  (registers the environments)
-from sb3_icrl.benchmark.report import constraint_metrics, csv_rows, markdown_table, summarise_suite
+from sb3_icrl.benchmark.report import constraint_metrics, summarise_suite
+from sb3_icrl.benchmark.report_text import csv_rows, markdown_table
 from sb3_icrl.benchmark.suite import RunSpec, load_suite
 from sb3_icrl.constraints import FeasibilityNet
 from sb3_icrl.data import load_demonstrations
@@ -344,7 +345,7 @@ def test_a_learned_net_is_read_against_an_untrained_one_of_its_shape(expert):
     assert "untrained_auroc" not in identify_model(step_cost(-3.0), CHEETAH, expert, seed=0)  # a function has no shape
     with pytest.raises(ValueError, match="n_untrained"):
         identify_model(net, CHEETAH, expert, seed=0, n_untrained=0)
-    from sb3_icrl.benchmark.report import _identification_text
+    from sb3_icrl.benchmark.report_text import _identification_text
 
     seed = {"identification_auroc": 0.9, "untrained_auroc": 0.5, "untrained_auroc_low": 0.02, "threshold_error": 0.5}
     assert _identification_text({**seed, "untrained_auroc_high": 0.97}) == "0.90 (untrained 0.50, 0.02-0.97) / 0.50"

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from stable_baselines3.common.monitor import Monitor
 
-from sb3_icrl.benchmark.report import markdown_table
+from sb3_icrl.benchmark.report_text import markdown_table
 from sb3_icrl.envs.wrappers import EPISODE_CONSTRAINT_KEYS, EpisodeConstraintWrapper
 from sb3_icrl.run_env import _monitor_keywords
 from sb3_icrl.zoo.runs import last_training_episodes

@@ -76,7 +76,7 @@ def test_one_seed_cells_show_their_mean_alone():
 
 
 def test_rewards_keep_the_digits_their_size_needs():
-    from sb3_icrl.benchmark.report import format_mean_std
+    from sb3_icrl.benchmark.report_numbers import format_mean_std
 
     assert format_mean_std(3254.3, 576.2) == "3254 ± 576"
     assert format_mean_std(-19.14, 2.26) == "-19.1 ± 2.3"

@@ -8,13 +8,10 @@ import pathlib
 import pytest
 
 from sb3_icrl.benchmark import load_suite, summarise_suite
-from sb3_icrl.benchmark.report import (
-    finite_or_null,
-    markdown_table,
-    normalised_scores_by_algo,
-    performance_profile_figure,
-    previous_results,
-)
+from sb3_icrl.benchmark.report import previous_results
+from sb3_icrl.benchmark.report_figures import normalised_scores_by_algo, performance_profile_figure
+from sb3_icrl.benchmark.report_numbers import finite_or_null
+from sb3_icrl.benchmark.report_text import markdown_table
 from sb3_icrl.benchmark.suite import SuiteError
 from sb3_icrl.common.statistics import wilson_interval
 from sb3_icrl.zoo.compare import RunResult

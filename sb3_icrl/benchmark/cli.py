@@ -31,12 +31,12 @@ from sb3_icrl.benchmark.report import (
     REPORT_MODELS,
     constraint_metrics,
     evaluate_finished,
-    markdown_table,
     previous_results,
     summarise_suite,
-    write_figures,
     write_report,
 )
+from sb3_icrl.benchmark.report_figures import write_figures
+from sb3_icrl.benchmark.report_text import markdown_table
 from sb3_icrl.benchmark.runner import BACKENDS, RunOutcome, load_runtime_env, make_backend, run_all
 from sb3_icrl.benchmark.status import RunStatus, mark_reported, reported_runs, status_lines, suite_status
 from sb3_icrl.benchmark.suite import SUITES_DIR, RunSpec, Suite, SuiteError, load_suite

@@ -1,0 +1,340 @@
+"""
+The figures of a suite's report: per env and variant the training curves and each method's learned cost over the
+constrained feature, ours against the paper, rliable's performance profile of the normalised scores and, for a study
+of a variant setting (:data:`STUDY_AXES`), the paper's study figure (:func:`write_figures`). What they draw of each run
+is kept in the report folder (:data:`FIGURE_DATA_FILE`, :func:`figure_data`), so that a report updated once some runs'
+folders are gone still draws them.
+"""
+
+import json
+import math
+import os
+from collections.abc import Collection
+from typing import Any
+
+import numpy as np
+from matplotlib.lines import Line2D
+
+from sb3_icrl.benchmark.report_numbers import finite_or_null
+from sb3_icrl.benchmark.suite import RunSpec, Suite
+from sb3_icrl.common.statistics import performance_profile, performance_profile_ci
+from sb3_icrl.common.utils import atomic_write_json
+from sb3_icrl.metrics.identification import identification_file, learned_cost_curves, learned_cost_figure
+from sb3_icrl.plots.figures import load_evaluations, new_figure, save_figure, training_curves_figure
+from sb3_icrl.registry import ICRL_ALGOS, env_name
+from sb3_icrl.run_folder import is_finished
+
+#: Per run of a report, what its figures draw (training curves, learned-cost curves): kept in the report folder, so
+#: that a report updated once the earlier runs' folders are gone (another machine) still draws them
+FIGURE_DATA_FILE = "figure_data.json"
+#: The ``evaluations.npz`` arrays a report's training curves read (their mean over each evaluation's episodes)
+_CURVE_KEYS = ("violations", "feasible_rewards", "results")
+
+
+def run_figure_data(run: RunSpec, root: str, model: str = "final") -> dict[str, Any]:
+    """
+    What a report's figures draw of one run, read from its folder: ``curves`` (evaluation timesteps and, per
+    evaluation, the mean over its episodes of each of :data:`_CURVE_KEYS`) and ``learned_cost`` (its cached
+    identification's :func:`~sb3_icrl.metrics.identification.learned_cost_curves`, for the report's model).
+
+    :param run: The run
+    :param root: The log root
+    :param model: ``"final"`` or ``"best"``
+    :return: Those of the two the folder has (an empty dict when it has neither)
+    """
+    folder = run.run_folder(root)
+    data: dict[str, Any] = {}
+    try:
+        arrays = load_evaluations(folder)
+        curves = {"timesteps": np.asarray(arrays["timesteps"], dtype=float).tolist()}
+        for key in _CURVE_KEYS:
+            if key in arrays:
+                values = np.asarray(arrays[key], dtype=float)
+                curves[key] = values.reshape(len(values), -1).mean(axis=1).tolist()
+        if curves["timesteps"]:
+            data["curves"] = curves
+    except (FileNotFoundError, ValueError):  # no folder, not evaluated, or a damaged file: no curve
+        pass
+    cache = os.path.join(folder, identification_file(model))
+    if os.path.isfile(cache):
+        try:
+            with open(cache) as file:
+                data["learned_cost"] = learned_cost_curves(json.load(file))
+        except (OSError, ValueError, KeyError, TypeError):  # a cache cut short or of another layout: no curve
+            pass
+    return data
+
+
+def summary_run(suite: Suite, cell: dict[str, Any], seed: dict[str, Any]) -> RunSpec:
+    """The run of one seed of a summary's cell (its name and folder; steps are not known there: 0)."""
+    return RunSpec(suite.name, cell["variant"], cell["algo"], cell["env"], int(seed["seed"]), 0)
+
+
+def figure_data(summary: dict[str, Any], suite: Suite, root: str, output: str) -> dict[str, dict[str, Any]]:
+    """
+    Per run of the summary (by name), what its figures draw: read from its folder where it has one, else kept from
+    the report already in ``output`` (``report --update`` of runs trained elsewhere).
+
+    :return: ``{run name: run_figure_data(...)}``, runs with nothing to draw left out
+    """
+    model = summary.get("model", "final")
+    earlier: dict[str, Any] = {}
+    path = os.path.join(output, FIGURE_DATA_FILE)
+    if os.path.isfile(path):
+        try:
+            with open(path) as file:
+                content = json.load(file)
+            # (another suite's or model's file in the same folder draws nothing here)
+            if content.get("suite") == suite.name and content.get("model", "final") == model:
+                earlier = dict(content.get("runs", {}))
+        except (OSError, ValueError, AttributeError):  # unreadable: the runs with folders are drawn, the others not
+            earlier = {}
+    data: dict[str, dict[str, Any]] = {}
+    for cell in summary["cells"]:
+        for seed in cell["per_seed"]:
+            run = summary_run(suite, cell, seed)
+            # A folder whose run is not finished (trained again since the summary's result) draws nothing of it
+            fresh = run_figure_data(run, root, model) if is_finished(run.run_folder(root)) else {}
+            entry = {**(earlier.get(run.name) or {}), **fresh}
+            if entry:
+                data[run.name] = entry
+    return data
+
+
+def _partial(
+    summary: dict[str, Any], env: str, variant: str, drawn: Collection[str], candidates: Collection[str] | None = None
+) -> str:
+    """
+    ``", curves of mecl, vicrl only"`` in a figure's title when it draws only some of the env and variant's methods
+    (of ``candidates``, default all: a learned-cost figure has none of the reference rows to draw).
+    """
+    algos = [
+        cell["algo"]
+        for cell in summary["cells"]
+        if (cell["env"], cell["variant"]) == (env_name(env), variant) and (candidates is None or cell["algo"] in candidates)
+    ]
+    shown = [algo for algo in algos if algo in drawn]
+    return "" if len(shown) == len(algos) else f", curves of {', '.join(shown)} only"
+
+
+def constraint_figures(summary: dict[str, Any], suite: Suite, output: str, data: dict[str, dict[str, Any]]) -> list[str]:
+    """
+    Per env and variant: each method's learned cost over the constrained feature, one line per seed, the true threshold
+    marked (:func:`~sb3_icrl.metrics.identification.learned_cost_figure`), for the runs the report scored.
+    Written as ``constraint_<EnvName>_<variant>.png``; none for envs whose constraint is not a threshold on a feature
+    (the grid worlds), and none where no scored run has its curve (the figure already there stays).
+
+    :param data: :func:`figure_data`
+    :return: The paths written
+    """
+    runs: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for cell in summary["cells"]:
+        for seed in cell["per_seed"]:
+            name = summary_run(suite, cell, seed).name
+            if "identification_auroc" in seed and "learned_cost" in data.get(name, {}):
+                runs.setdefault((cell["env"], cell["variant"]), []).append(data[name]["learned_cost"])
+    written = []
+    suffix = " (best models)" if summary.get("model", "final") == "best" else ""
+    for (env_id, variant), curves in runs.items():
+        drawn = {str(curve["algo"]) for curve in curves}
+        title = f"{env_name(env_id)} ({variant}{_partial(summary, env_id, variant, drawn, ICRL_ALGOS)}): learned cost{suffix}"
+        try:
+            figure = learned_cost_figure(curves, title=title)
+        except ValueError:  # no feature threshold to draw against
+            continue
+        written.append(str(save_figure(figure, os.path.join(output, f"constraint_{env_name(env_id)}_{variant}.png"))))
+    return written
+
+
+def write_figures(summary: dict[str, Any], suite: Suite, root: str, output: str) -> list[str]:
+    """
+    Per env and variant: training curves (mean +- std over the seeds of each method, from their ``evaluations.npz``)
+    and each method's learned cost over the constrained feature (:func:`constraint_figures`); per suite: ours against
+    the paper, cell by cell. PNG files in ``output``, with the data they draw in :data:`FIGURE_DATA_FILE`: a report
+    updated where some runs' folders are gone draws them from it.
+
+    :return: The paths written
+    """
+    data = figure_data(summary, suite, root, output)
+    path = os.path.join(output, FIGURE_DATA_FILE)
+    # (strict JSON, as summary.json: a non-finite value is written null and read back as NaN)
+    kept = {"suite": suite.name, "model": summary.get("model", "final"), "runs": data}
+    atomic_write_json(path, finite_or_null(kept), sort_keys=True, allow_nan=False)
+    written = [path]
+    # Per env and variant, each method's seeds with curves
+    by_task: dict[tuple[str, str], dict[str, list[dict[str, np.ndarray]]]] = {}
+    for cell in summary["cells"]:
+        for seed in cell["per_seed"]:
+            curves = data.get(summary_run(suite, cell, seed).name, {}).get("curves")
+            if curves is not None:
+                arrays = {key: np.asarray(values, dtype=float) for key, values in curves.items()}
+                by_task.setdefault((cell["env"], cell["variant"]), {}).setdefault(cell["algo"], []).append(arrays)
+    for env_id in suite.envs:
+        for variant in suite.variants:
+            runs = by_task.get((env_name(env_id), variant))
+            if not runs:  # nothing to draw: the figure already there, if any, stays
+                continue
+            title = f"{env_name(env_id)} ({variant}{_partial(summary, env_id, variant, runs)})"
+            try:
+                figure = training_curves_figure({algo.upper(): seeds for algo, seeds in runs.items()}, title=title)
+            except ValueError:
+                continue
+            written.append(str(save_figure(figure, os.path.join(output, f"curves_{env_name(env_id)}_{variant}.png"))))
+    written += constraint_figures(summary, suite, output, data)
+    compared = [cell for cell in summary["cells"] if cell["paper_feasible_reward"] is not None]
+    if compared:
+        figure = new_figure(width=max(6.4, 0.5 * len(compared)), height=4.8)
+        axes = figure.subplots(1, 2)
+        labels = [f"{cell['env'].split('-')[0]}\n{cell['algo']}" for cell in compared]
+        positions = np.arange(len(compared))
+        for ax, key, title in (
+            (axes[0], "feasible_reward", "feasible reward / paper's"),
+            (axes[1], "violation_rate", "violation rate"),
+        ):
+            if key == "feasible_reward":
+                ours = [
+                    cell["feasible_reward_mean"] / cell["paper_feasible_reward"] if cell["paper_feasible_reward"] else np.nan
+                    for cell in compared
+                ]
+                ax.bar(positions, ours, color="tab:blue", label="ours / paper")
+                ax.axhline(1.0, color="black", linewidth=0.8)
+            else:
+                ax.bar(positions - 0.2, [cell["violation_rate_mean"] for cell in compared], width=0.4, label="ours")
+                ax.bar(positions + 0.2, [cell["paper_violation_rate"] for cell in compared], width=0.4, label="paper")
+            ax.set_xticks(positions, labels, rotation=90, fontsize=7)
+            ax.set_title(title)
+            ax.legend(fontsize=7)
+        figure.tight_layout()
+        written.append(str(save_figure(figure, os.path.join(output, "ours_vs_paper.png"))))
+    profile = performance_profile_figure(summary)
+    if profile is not None:
+        written.append(str(save_figure(profile, os.path.join(output, "performance_profile.png"))))
+    axis = study_axis(suite)
+    if axis is not None:
+        study = study_figure(summary, *axis)
+        if study is not None:
+            written.append(str(save_figure(study, os.path.join(output, "study.png"))))
+    return written
+
+
+#: The variant settings a study varies, with the axis label of its figure (the noise on a log scale)
+STUDY_AXES = {
+    "transition_noise": "transition noise sigma",
+    "violating_fraction": "share of violating demonstrations",
+}
+
+
+def study_axis(suite: Suite) -> tuple[str, dict[str, float]] | None:
+    """
+    The setting a study's variants vary (:data:`STUDY_AXES`) and each variant's level, when every variant of the
+    suite (two at least) sets it to a number; ``None`` for a suite that is not such a study.
+    """
+    if len(suite.variants) < 2:
+        return None
+    for key in STUDY_AXES:
+        levels = {variant: settings.get(key) for variant, settings in suite.variants.items()}
+        if all(isinstance(level, (int, float)) and not isinstance(level, bool) for level in levels.values()):
+            return key, {variant: float(level) for variant, level in levels.items()}  # type: ignore[arg-type]
+    return None
+
+
+def study_figure(summary: dict[str, Any], key: str, levels: dict[str, float]) -> Any:
+    """
+    The paper's study figure from ours: one column per env, the violation rate (top) and the feasible reward (bottom)
+    of each method against the study's level (:func:`study_axis`), its mean over seeds joined by a line and each
+    seed's value a dot; ``None`` when the summary has no cell of those variants.
+
+    :param summary: A summary of :func:`~sb3_icrl.benchmark.report.summarise_suite`
+    :param key: The setting varied (a key of :data:`STUDY_AXES`)
+    :param levels: Each variant's level
+    """
+    cells = [cell for cell in summary["cells"] if cell["variant"] in levels]
+    if not cells:
+        return None
+    envs = list(dict.fromkeys(cell["env"] for cell in cells))
+    algos = list(dict.fromkeys(cell["algo"] for cell in cells))
+    figure = new_figure(width=max(4.8, 3.6 * len(envs)), height=6.4)
+    axes = np.asarray(figure.subplots(2, len(envs), squeeze=False))
+    colours = {algo: f"C{index % 10}" for index, algo in enumerate(algos)}
+    # Noise levels a decade apart: a log axis; a level of 0 (no noise) needs the linear stretch of a symlog one
+    scale: dict[str, Any] = {}
+    if key == "transition_noise":
+        positive = [level for level in levels.values() if level > 0]
+        scale = (
+            {"value": "log"} if len(positive) == len(levels) else {"value": "symlog", "linthresh": min(positive, default=1.0)}
+        )
+    for column, env in enumerate(envs):
+        for row, (metric, title) in enumerate((("violation_rate", "violation rate"), ("feasible_reward", "feasible reward"))):
+            ax = axes[row, column]
+            for algo in algos:
+                mine = sorted(
+                    ((levels[cell["variant"]], cell) for cell in cells if cell["env"] == env and cell["algo"] == algo),
+                    key=lambda pair: pair[0],
+                )
+                if not mine:
+                    continue
+                xs = [level for level, _ in mine]
+                ax.plot(xs, [cell[f"{metric}_mean"] for _, cell in mine], marker="o", color=colours[algo])
+                for level, cell in mine:
+                    values = [seed[metric] for seed in cell["per_seed"] if math.isfinite(seed[metric])]
+                    ax.scatter([level] * len(values), values, s=8, color=colours[algo], alpha=0.35)
+            if scale:
+                ax.set_xscale(**scale)
+            ax.set_xlabel(STUDY_AXES[key])
+            ax.set_ylabel(title)
+            if row == 0:
+                ax.set_title(env)
+    # One legend with every method, whichever env it has cells on
+    handles = [Line2D([], [], marker="o", color=colours[algo], label=algo) for algo in algos]
+    axes[0, 0].legend(handles=handles, fontsize=7)
+    figure.tight_layout()
+    return figure
+
+
+#: Thresholds of the performance profile: normalised scores from PPO's (0) to beyond the oracle's (1)
+PROFILE_TAUS = np.linspace(-0.5, 1.5, 81)
+
+
+def normalised_scores_by_algo(summary: dict[str, Any]) -> dict[str, list[list[float]]]:
+    """
+    Per algorithm, the finite per-seed normalised scores of each of its cells in the envs the aggregates take
+    (:func:`~sb3_icrl.benchmark.judgements.aggregated_envs`; in a summary written before it, the headline envs), one list
+    per env and variant.
+    """
+    scores: dict[str, list[list[float]]] = {}
+    for cell in summary["cells"]:
+        if not cell.get("aggregated", cell.get("headline", True)):  # outside the aggregates
+            continue
+        values = [s["normalised_score"] for s in cell["per_seed"] if math.isfinite(s.get("normalised_score", math.nan))]
+        if values:
+            scores.setdefault(cell["algo"], []).append(values)
+    return scores
+
+
+def performance_profile_figure(summary: dict[str, Any]) -> Any:
+    """
+    rliable's performance profile of the normalised scores: per algorithm, the share of runs scoring above each
+    threshold (each env weighing the same), with its stratified-bootstrap 95% band where some env has several runs;
+    ``None`` without normalised scores.
+    """
+    scores = normalised_scores_by_algo(summary)
+    if not scores:
+        return None
+    figure = new_figure(width=6.4, height=4.4)
+    ax = figure.subplots()
+    for algo, tasks in scores.items():
+        profile = performance_profile(tasks, PROFILE_TAUS)
+        envs = f"{len(tasks)} env" + ("s" if len(tasks) != 1 else "")
+        (line,) = ax.plot(PROFILE_TAUS, profile, label=f"{algo} ({envs}, {sum(map(len, tasks))} runs)")
+        if any(len(values) > 1 for values in tasks):  # with one run per env, no band: every resample is the runs
+            lower, upper = performance_profile_ci(tasks, PROFILE_TAUS, reps=500)
+            ax.fill_between(PROFILE_TAUS, lower, upper, color=line.get_color(), alpha=0.2)
+    for tau, text in ((0.0, "PPO"), (1.0, "oracle")):
+        ax.axvline(tau, color="gray", linewidth=0.8, linestyle="--")
+        ax.text(tau, 1.02, text, ha="center", fontsize=8, color="gray")
+    ax.set_xlabel("normalised score τ (feasible reward: 0 = PPO, 1 = PPO-Lagrangian on the true cost)")
+    ax.set_ylabel("share of runs with score > τ")
+    ax.set_ylim(0, 1.08)
+    ax.legend(fontsize=7)
+    figure.tight_layout()
+    return figure

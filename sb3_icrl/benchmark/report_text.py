@@ -1,0 +1,635 @@
+"""
+The text of a suite's report, from its summary (:func:`~sb3_icrl.benchmark.report.summarise_suite`): the Markdown
+table (:func:`markdown_table`) with its cross-env aggregates, judgements, aim, per-constraint violation rates, driving
+outcomes, the runs not finished yet and the compute line (the ``*_lines`` and ``*_text`` functions), the LaTeX table
+(:func:`latex_table`) and one CSV row per run (:func:`csv_rows`), with the columns they show and the formatting of
+summaries' entries (:func:`format_spread`). It reads the summary only: nothing here evaluates a run or judges a cell
+(:mod:`~sb3_icrl.benchmark.judgements`); numbers are written as :mod:`~sb3_icrl.benchmark.report_numbers` says.
+"""
+
+import csv
+import io
+import math
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from sb3_icrl.benchmark.judgements import LAST_TRAINING_COLUMNS, ORACLE_ROW, spread
+from sb3_icrl.benchmark.report_numbers import format_hours, format_rate, format_reward, format_score
+from sb3_icrl.benchmark.suite import BEATS_COLUMNS
+from sb3_icrl.common.evaluation import CONSTRAINT_VIOLATION_PREFIX, OUTCOME_KEYS, OUTCOME_RATE_KEYS
+from sb3_icrl.common.statistics import MIN_PAIRS_FOR_WILCOXON
+from sb3_icrl.run_evaluation import OUTCOME_TITLES, format_outcome_rate
+from sb3_icrl.run_folder import LAST_TRAINING_EPISODES
+
+#: The per-seed identification columns of ``runs.csv`` (:func:`~sb3_icrl.metrics.identification.headline`)
+IDENTIFICATION_COLUMNS = (
+    "identification_auroc",
+    "threshold_error",
+    "threshold_crossing",
+    "learner_cost",
+    "cost_budget",
+    "untrained_auroc",
+    "untrained_auroc_low",
+    "untrained_auroc_high",
+)
+
+
+#: Transfer columns of the per-seed values, in table order
+TRANSFER_COLUMNS = tuple(
+    f"transfer_{task}_{metric}" for task in ("same", "reward", "dynamics") for metric in ("violation_rate", "feasible_ratio")
+)
+
+
+def _identification_text(seed: dict[str, Any]) -> str:
+    """
+    ``AUROC / threshold error`` of one seed: ``-`` where the learned cost never reaches 0.5 (or there is no
+    threshold), ``everywhere`` where it stays at or above 0.5 up to the safe end of the feature's range. Beside the
+    AUROC, untrained nets' median and range (``one draw`` for a run scored when the baseline was a single net).
+    """
+    if "identification_auroc" not in seed:
+        return "-"
+    error = seed.get("threshold_error")
+    # (a summary read back from JSON has null for both non-finite errors: its crossing tells them apart)
+    everywhere = seed.get("threshold_crossing") == "everywhere" or (error is not None and math.isinf(error))
+    error_text = "everywhere" if everywhere else _fmt(error, 2) if error is not None and math.isfinite(error) else "-"
+    untrained, low, high = (seed.get(key) for key in ("untrained_auroc", "untrained_auroc_low", "untrained_auroc_high"))
+    if untrained is None or (isinstance(untrained, float) and math.isnan(untrained)):
+        baseline = ""
+    elif low is None or high is None or low == high:  # one net (scored before the baseline took several)
+        baseline = f" (untrained {_fmt(untrained, 2)}, one draw)"
+    else:
+        baseline = f" (untrained {_fmt(untrained, 2)}, {_fmt(low, 2)}-{_fmt(high, 2)})"
+    return f"{_fmt(seed['identification_auroc'], 2)}{baseline} / {error_text}"
+
+
+def _transfer_text(seed: dict[str, Any]) -> str:
+    """``task: violation / feasible-reward ratio`` of each transfer of one seed."""
+    parts = []
+    for task in ("same", "reward", "dynamics"):
+        if f"transfer_{task}_violation_rate" in seed:
+            ratio = seed[f"transfer_{task}_feasible_ratio"]
+            parts.append(f"{task} {100 * seed[f'transfer_{task}_violation_rate']:.0f}% / {_fmt(ratio, 2)}")
+    return ", ".join(parts) or "-"
+
+
+def _published(pair: Sequence[float] | None) -> str:
+    """``reward / violation`` of a published pair, ``-`` without one."""
+    return f"{pair[0]:g} / {format_rate(pair[1])}" if pair else "-"
+
+
+def _fraction_text(cell: dict[str, Any]) -> str:
+    fraction = cell.get("feasible_reward_fraction")
+    return f"{fraction:.2f} of expert" if fraction is not None else "-"
+
+
+def _fmt(value: float, digits: int = 1) -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "-"
+    return f"{value:.{digits}f}"
+
+
+def format_spread(entry: dict[str, Any] | None, shown: Callable[[float], str] = format_reward) -> str:
+    """
+    ``IQM c [lo, hi]`` or ``mean c [min, max]`` (:func:`~sb3_icrl.benchmark.judgements.spread`), ``-`` without values.
+
+    :param entry: A :func:`~sb3_icrl.benchmark.judgements.spread`
+    :param shown: How a value is written (default: a reward at the precision its size asks for)
+    """
+    if not entry or not entry["n"]:
+        return "-"
+    low, high = entry["interval"]
+    return f"{'IQM' if entry['kind'] == 'iqm' else 'mean'} {shown(entry['centre'])} [{shown(low)}, {shown(high)}]"
+
+
+def _runs_text(count: int) -> str:
+    """``1 run``, ``2 runs``."""
+    return f"{count} run" + "s" * (count != 1)
+
+
+#: Short names of the evaluation columns in the tables
+COLUMN_LABELS = {"heldout": "held-out", "last_training": "last training"}
+
+
+def _verdict_text(verdict: bool | None) -> str:
+    return "-" if verdict is None else "yes" if verdict else "no"
+
+
+def beats_judgement_text(judgement: dict[str, Any]) -> str:
+    """
+    The judgement "beats the paper" in one plain sentence: the rule, each method's count and the outcome.
+
+    :param judgement: A summary's ``beats_judgement`` (:func:`~sb3_icrl.benchmark.judgements.beats_judgement`)
+    """
+    n_tasks = len(judgement["tasks"])
+    columns = " and ".join(COLUMN_LABELS[column] for column in judgement["columns"])
+    envs = ", ".join(_task_text(env, variant) for env, variant in judgement["tasks"])
+    parts = []
+    for method in judgement["methods"]:
+        named = ", ".join(_task_text(env, variant) for env, variant in method["beaten"])
+        undecided = len(method["undecided"])
+        notes = [named] * bool(named) + [f"{undecided} not decided yet"] * bool(undecided)
+        parts.append(
+            f"{method['algo'].upper()} on {len(method['beaten'])} of {method.get('n_tasks', n_tasks)}"
+            + (f" ({'; '.join(notes)})" if notes else "")
+        )
+    best = " and ".join(algo.upper() for algo in judgement["best"])
+    most = max(len(method["beaten"]) for method in judgement["methods"])
+    leader = f"; the most, {most} of {n_tasks}: {best}" if most else ""
+    pending = judgement.get("pending_runs", 0)
+    # A verdict on seeds still coming is the verdict so far: one more seed can move a mean either way
+    so_far = f" so far, {_runs_text(pending)} of the judged envs not finished" if pending else ""
+    if judgement["outcome"]:
+        outcome = f"{best} on every judged env{so_far}"
+    elif judgement["outcome"] is False:
+        outcome = f"no method on every judged env{leader}{so_far}"
+    else:
+        outcome = f"not decided yet, values missing{leader} so far"
+    return (
+        f"beats the paper's {judgement['against'].upper()} row (a higher mean feasible reward and a mean violation rate no "
+        f"higher, under the {columns} columns alike; the suite's `beats`) on {envs}: "
+        + "; ".join(parts)
+        + f". Outcome: {outcome}."
+    )
+
+
+def beats_judgement_lines(summary: dict[str, Any]) -> list[str]:
+    """The judgement "beats the paper" as a Markdown table and its outcome, after a blank line; none without it."""
+    judgement = summary.get("beats_judgement")
+    if not judgement:
+        return []
+    columns = judgement["columns"]
+    headings = [f"{_task_text(env, variant)} ({_published(judgement['paper'][env])})" for env, variant in judgement["tasks"]]
+    lines = [
+        "",
+        f"Beats the paper, each entry {' / '.join(COLUMN_LABELS[column] for column in columns)} ("
+        + "; ".join(f"{COLUMN_LABELS[column]}: {BEATS_COLUMNS[column]}" for column in columns)
+        + '; "-": no value yet, a run not finished or a seed without its training episodes):',
+        "",
+        "| algo | " + " | ".join(headings) + " | envs beaten |",
+        "|---" * (len(headings) + 2) + "|",
+    ]
+    for method in judgement["methods"]:
+        entries = [
+            " / ".join(_verdict_text(entry[column]) for column in columns) if entry.get("runs", True) else "not run"
+            for entry in method["tasks"]
+        ]
+        judged = method.get("n_tasks", len(judgement["tasks"]))
+        lines.append(f"| {method['algo']} | " + " | ".join(entries) + f" | {len(method['beaten'])} of {judged} |")
+    text = beats_judgement_text(judgement)
+    return [*lines, "", text[0].upper() + text[1:]]
+
+
+def _percent_interval_text(interval: Sequence[float] | None) -> str:
+    """`` [low%, high%]`` of a rate's interval, nothing for one that has none."""
+    return f" [{100 * interval[0]:.0f}%, {100 * interval[1]:.0f}%]" if interval is not None else ""
+
+
+def aim_text(aim: dict[str, Any]) -> str:
+    """
+    The aim and its outcome in one plain sentence.
+
+    :param aim: A summary's ``aim`` (:func:`~sb3_icrl.benchmark.judgements.aim_outcome`)
+    """
+    rule = (
+        f"the suite's aim: the best ICRL method's feasible reward as a fraction of the oracle's (each run's over the "
+        f"{ORACLE_ROW} row's mean on its env), IQM >= {aim['min_oracle_fraction_iqm']:g}, with a violation-rate IQM <= "
+        f"{100 * aim['max_violation_rate_iqm']:g}%"
+    )
+    left_out = "; ".join(f"{_task_text(entry['env'], entry['variant'])} ({entry['reason']})" for entry in aim["left_out"])
+    left = f" Left out: {left_out}." if left_out else ""
+    best = next((entry for entry in aim["aggregates"] if entry["algo"] == aim["best"]), None)
+    if best is None:
+        return f"{rule}: not judged yet, no env to judge it on.{left}"
+    envs = ", ".join(_task_text(env, variant) for env, variant in aim["envs"])
+    failures = []
+    if best["oracle_fraction_iqm"] < aim["min_oracle_fraction_iqm"] - 1e-9:
+        failures.append(f"its fraction's IQM is below {aim['min_oracle_fraction_iqm']:g}")
+    if best["violation_rate_iqm"] > aim["max_violation_rate_iqm"] + 1e-9:
+        failures.append(f"its violation-rate IQM is above {100 * aim['max_violation_rate_iqm']:g}%")
+    fraction = f"{best['oracle_fraction_iqm']:.2f}{_interval_text(best.get('oracle_fraction_iqm_ci95'))}"
+    violation = f"{100 * best['violation_rate_iqm']:.0f}%{_percent_interval_text(best.get('violation_rate_iqm_ci95'))}"
+    verdict = "met" if aim["met"] else f"not met, {' and '.join(failures)}"
+    pending = aim.get("pending_runs", 0)
+    if pending:
+        # The envs and seeds still coming can move either IQM: the verdict is provisional until they are in
+        verdict += f" so far (provisional: {_runs_text(pending)} of the headline envs not finished)"
+    return (
+        f"{rule}; over {envs}: the best, {best['algo'].upper()} (highest IQM of that fraction), has {fraction} and a "
+        f"violation-rate IQM of {violation}: {verdict}.{left}"
+    )
+
+
+def aim_lines(summary: dict[str, Any]) -> list[str]:
+    """The aim: per algorithm its fraction of the oracle's feasible reward and violation rate, then the outcome."""
+    aim = summary.get("aim")
+    if not aim:
+        return []
+    lines = []
+    if aim["aggregates"]:
+        lines += [
+            "",
+            "Feasible reward as a fraction of the oracle's, F / F_oracle per run (stratified bootstrap 95% CIs over the "
+            "seeds of each env):",
+            "",
+            "| algo | envs | runs | F / F_oracle IQM | mean | violation rate IQM |",
+            "|---|---|---|---|---|---|",
+        ]
+        for entry in aim["aggregates"]:
+            lines.append(
+                f"| {entry['algo']} | {entry['n_cells']} | {entry['n_runs']} | {entry['oracle_fraction_iqm']:.2f}"
+                f"{_interval_text(entry.get('oracle_fraction_iqm_ci95'))} | {entry['oracle_fraction_mean']:.2f}"
+                f"{_interval_text(entry.get('oracle_fraction_mean_ci95'))} | {100 * entry['violation_rate_iqm']:.0f}%"
+                f"{_percent_interval_text(entry.get('violation_rate_iqm_ci95'))} |"
+            )
+        if any(entry.get("oracle_fraction_iqm_ci95") is None for entry in aim["aggregates"]):
+            lines += ["", "A value without [95% CI]: no interval: one run per env (the bootstrap would draw the same runs)."]
+    text = aim_text(aim)
+    return [*lines, "", text[0].upper() + text[1:]]
+
+
+def compute_line(summary: dict[str, Any]) -> str | None:
+    """``Compute: N core-hours over M runs`` (runs with a recorded wall time), ``None`` without any."""
+    if summary.get("core_hours") is None:
+        return None
+    return f"Compute: {format_hours(summary['core_hours'])} core-hours over {summary.get('core_hours_runs', 0)} runs"
+
+
+def other_sources(summary: dict[str, Any]) -> list[str]:
+    """The other sources of a summary, in the suite's order (a summary's cells may name them only)."""
+    sources = list(summary.get("others_sources") or [])
+    for cell in summary["cells"]:
+        sources += [source for source in cell.get("others") or {} if source not in sources]
+    return sources
+
+
+#: Under a report of best models: what they are
+BEST_MODELS_NOTE = (
+    "Models: each run's `best_model.zip`, chosen during training by its algorithm's selection score (for the ICRL "
+    "methods learned quantities only, never the true constraint), with the normalisation statistics saved with it; "
+    "not the final model."
+)
+
+
+def markdown_table(summary: dict[str, Any]) -> str:
+    """
+    The cells as a Markdown table: ours (mean ± sample std, and IQM [95% CI] from 5 seeds on or mean [min, max] below,
+    fraction of our expert's return; with the reference rows, the normalised score and the success probability with its
+    Wilson interval) beside the paper's and other sources', per-seed values visible, a Wilcoxon column only where some
+    cell has 6 pairs or more; then the cross-env aggregates and the compute line.
+    """
+    sources = other_sources(summary)
+    cells = summary["cells"]
+    normalised = any("normalised_score_spread" in cell or "normalisation_problem" in cell for cell in cells)
+    success = any("success_probability" in cell for cell in cells)
+    wilcoxon = any((cell.get("wilcoxon_pairs") or 0) >= MIN_PAIRS_FOR_WILCOXON for cell in cells)
+    last_training = any(cell.get("last_training_feasible_reward_mean") is not None for cell in cells)
+    headings = ["env", "variant", "algo", "seeds", "feasible reward (mean ± std)", "IQM [95% CI] or mean [min, max]"]
+    headings += ["normalised score"] * normalised + ["success [Wilson 95%]"] * success
+    headings += ["vs our expert", "violation rate"] + ["Wilcoxon p"] * wilcoxon
+    headings += [f"last {LAST_TRAINING_EPISODES} training episodes (feasible / violation)"] * last_training
+    headings += ["paper", *sources]
+    headings += [
+        "per seed (feasible / violation" + (" / normalised" if normalised else "") + ")",
+        "identification per seed (AUROC / threshold error)",
+        "transfer per seed (violation / feasible reward ÷ oracle's)",
+        "core-hours",
+    ]
+    lines = ["| " + " | ".join(headings) + " |", "|---" * len(headings) + "|"]
+    for cell in cells:
+        paper = (
+            f"{cell['paper_feasible_reward']:g} / {100 * cell['paper_violation_rate']:.0f}%"
+            if cell["paper_feasible_reward"] is not None
+            else "-"
+        )
+        per_seed = ", ".join(
+            f"{s['seed']}: {format_reward(s['feasible_reward'])} / {100 * s['violation_rate']:.0f}%"
+            + (f" / {_fmt(s['normalised_score'], 2)}" if "normalised_score" in s else "")
+            for s in cell["per_seed"]
+        )
+        identification = ", ".join(f"{s['seed']}: {_identification_text(s)}" for s in cell["per_seed"])
+        transfer = ", ".join(f"{s['seed']}: {_transfer_text(s)}" for s in cell["per_seed"] if _transfer_text(s) != "-")
+        hours = cell.get("core_hours")
+        pairs = cell.get("wilcoxon_pairs") or 0
+        p_value = cell.get("wilcoxon_p") if pairs >= MIN_PAIRS_FOR_WILCOXON else None
+        # † marks an env outside the headline aggregates (the suite's headline_envs)
+        row = [cell["env"] + ("" if cell.get("headline", True) else " †"), cell["variant"], cell["algo"], str(cell["n_seeds"])]
+        row += [f"{_fmt(cell['feasible_reward_mean'])} ± {_fmt(cell['feasible_reward_std'])}"]
+        row += [format_spread(cell.get("feasible_reward_spread") or spread([s["feasible_reward"] for s in cell["per_seed"]]))]
+        if normalised:
+            problem = cell.get("normalisation_problem")
+            row.append(f"none: {problem}" if problem else format_spread(cell.get("normalised_score_spread"), format_score))
+        if success:
+            row.append(_success_text(cell))
+        row += [
+            _fraction_text(cell),
+            f"{100 * cell['violation_rate_mean']:.0f}% ± {_fmt(100 * cell['violation_rate_std'], 0)}%",
+        ]
+        if wilcoxon:
+            row.append(_fmt(p_value, 3) if p_value is not None else "-")
+        if last_training:
+            row.append(_last_training_text(cell))
+        row += [paper, *(_published((cell.get("others") or {}).get(source)) for source in sources), per_seed]
+        row += [identification if any("identification_auroc" in s for s in cell["per_seed"]) else "-", transfer or "-"]
+        row.append(format_hours(hours) if hours is not None else "-")
+        lines.append("| " + " | ".join(row) + " |")
+    lines += aggregate_lines(summary)
+    lines += beats_judgement_lines(summary)
+    lines += aim_lines(summary)
+    lines += constraint_lines(summary)
+    lines += outcome_lines(summary)
+    if summary.get("model") == "best":
+        lines += ["", BEST_MODELS_NOTE]
+    if summary["runs_missing"]:
+        lines += ["", not_finished_text(summary)]
+    compute = compute_line(summary)
+    if compute is not None:
+        lines += ["", compute]
+    return "\n".join(lines) + "\n"
+
+
+#: Up to this many unfinished runs are named one by one; more are counted per env
+MAX_MISSING_NAMED = 12
+
+
+def not_finished_text(summary: dict[str, Any]) -> str:
+    """
+    The runs not finished yet: named when there are few (:data:`MAX_MISSING_NAMED`), else counted per env and variant
+    (the summary's ``runs_missing`` still names them all).
+
+    :param summary: A summary of :func:`~sb3_icrl.benchmark.report.summarise_suite`
+    """
+    missing, by_task = summary["runs_missing"], summary.get("runs_missing_by_env")
+    if len(missing) <= MAX_MISSING_NAMED or not by_task:
+        return f"Not finished yet ({len(missing)}): " + ", ".join(missing)
+    counts = "; ".join(f"{_task_text(env, variant)} {left} of {total}" for env, variant, left, total in by_task)
+    return f"Not finished yet ({len(missing)} runs, all named in summary.json's `runs_missing`): {counts}."
+
+
+def _last_training_text(cell: dict[str, Any]) -> str:
+    """The paper's protocol: mean over seeds of the last training episodes' feasible reward and violation rate."""
+    feasible, violation = cell.get("last_training_feasible_reward_mean"), cell.get("last_training_violation_rate_mean")
+    if feasible is None or violation is None:
+        return "-"
+    return f"{format_reward(feasible)} / {100 * violation:.0f}%"
+
+
+def _success_text(cell: dict[str, Any]) -> str:
+    if "success_probability" not in cell:
+        return "-"
+    low, high = cell["success_ci95"]
+    return f"{cell['success_count']}/{cell['n_seeds']} [{low:.2f}, {high:.2f}]"
+
+
+def aggregate_lines(summary: dict[str, Any]) -> list[str]:
+    """
+    The cross-env aggregates of the normalised score (IQM, mean, optimality gap, each with its stratified bootstrap 95%
+    CI) and the probabilities of improvement between methods, as Markdown lines after a blank line; none without
+    reference rows.
+    """
+    aggregates = summary.get("normalised_aggregates") or []
+    if not aggregates:
+        left_out = summary.get("aggregates_left_out") or []
+        reasons = "; ".join(f"{_task_text(entry['env'], entry['variant'])} ({entry['reason']})" for entry in left_out)
+        return ["", f"No cross-env aggregates yet: {reasons}."] if left_out else []
+    rule = summary.get("success_rule")
+    lines = [
+        "",
+        "Normalised score: (F - F_ppo) / (F_oracle - F_ppo) per run, with the mean feasible rewards of unconstrained PPO "
+        "(0) and PPO-Lagrangian on the true cost (1) on the same env and variant."
+        + (
+            f" Success: violation rate <= {100 * rule['max_violation_rate']:g}% and normalised score >= "
+            f"{rule['min_normalised_score']:g}, with the Wilson 95% interval of its probability."
+            if rule
+            else ""
+        ),
+        "",
+        "Across envs (stratified bootstrap 95% CIs over the seeds of each env)" + _aggregated_text(summary),
+        "",
+        "| algo | envs | runs | IQM | mean | optimality gap |",
+        "|---|---|---|---|---|---|",
+    ]
+    for entry in aggregates:
+        cells = [
+            f"{entry[key]:.2f}{_interval_text(entry.get(key + '_ci95'))}"
+            for key in ("normalised_score_iqm", "normalised_score_mean", "optimality_gap")
+        ]
+        lines.append(f"| {entry['algo']} | {entry['n_cells']} | {entry['n_runs']} | " + " | ".join(cells) + " |")
+    improvements = summary.get("improvements") or []
+    if improvements:
+        lines += ["", "Probability of improvement, P(X > Y) on the normalised score:", ""]
+        lines += ["| X | Y | envs | P(X > Y) [95% CI] |", "|---|---|---|---|"]
+        for entry in improvements:
+            lines.append(
+                f"| {entry['x']} | {entry['y']} | {entry['n_cells']} | {entry['probability']:.2f}"
+                f"{_interval_text(entry.get('ci95'))} |"
+            )
+    if any(entry.get("normalised_score_iqm_ci95") is None for entry in aggregates):
+        lines += ["", "A value without [95% CI]: no interval: one run per env (the bootstrap would draw the same runs)."]
+    return lines
+
+
+def _interval_text(interval: Sequence[float] | None) -> str:
+    """`` [low, high]`` of an aggregate's interval, nothing for one that has none (one run per env)."""
+    return f" [{interval[0]:.2f}, {interval[1]:.2f}]" if interval is not None else ""
+
+
+def _aggregated_text(summary: dict[str, Any]) -> str:
+    """What the cross-env aggregates of a summary take (:func:`~sb3_icrl.benchmark.judgements.aggregated_envs`) and
+    leave out, ending the line that introduces them; for a summary written before they were recorded, its headline envs."""
+    headline = summary.get("headline_envs")
+    chosen = (
+        f"the headline envs only ({', '.join(headline)}; the others, marked † in the table, do not bind or cannot be "
+        "identified)"
+        if headline
+        else "the envs"
+    )
+    if "aggregated_envs" not in summary:
+        return f", {chosen}:" if headline else ":"
+    taken = ", ".join(_task_text(env, variant) for env, variant in summary["aggregated_envs"])
+    text = f", over {taken}: {chosen} where every row has normalised scores."
+    left_out = summary.get("aggregates_left_out") or []
+    if left_out:
+        reasons = "; ".join(f"{_task_text(entry['env'], entry['variant'])} ({entry['reason']})" for entry in left_out)
+        text += f" Left out of them: {reasons}."
+    return text
+
+
+def _task_text(env: str, variant: str) -> str:
+    """An env, with its variant when it is not the base one."""
+    return env if variant == "base" else f"{env} ({variant})"
+
+
+#: The per-seed keys of the driving outcome rates, in :data:`OUTCOME_KEYS` order
+OUTCOME_COLUMNS = tuple(OUTCOME_RATE_KEYS[key] for key in OUTCOME_KEYS)
+
+
+def constraint_columns(summary: dict[str, Any]) -> list[str]:
+    """The per-seed keys of each constraint's violation rate in a summary, in the order the cells first give them."""
+    columns: list[str] = []
+    for cell in summary["cells"]:
+        for seed in cell["per_seed"]:
+            columns += [key for key in seed if key.startswith(CONSTRAINT_VIOLATION_PREFIX) and key not in columns]
+    return columns
+
+
+def constraint_lines(summary: dict[str, Any]) -> list[str]:
+    """
+    For the cells of envs with several constraints: each constraint's violation rate beside the overall one (an
+    episode that breaks any) and the feasible reward, mean over seeds and per seed, as Markdown lines after a blank
+    line; no lines for a summary without such cells.
+    """
+    cells = [cell for cell in summary["cells"] if len(cell.get("constraint_violation_rates_mean") or {}) > 1]
+    if not cells:
+        return []
+    columns = [column for column in constraint_columns(summary) if any(column in cell["per_seed"][0] for cell in cells)]
+    names = [column.removeprefix(CONSTRAINT_VIOLATION_PREFIX) for column in columns]
+    heading = (
+        "Each constraint's violation rate (envs with several constraints; mean over seeds, then per seed; an episode "
+        "that breaks two counts in both, and once in the overall rate):"
+    )
+    lines = ["", heading, ""]
+    lines += [
+        f"| env | variant | algo | feasible reward | violation rate (any) | {' | '.join(names)} "
+        f"| per seed (any / {' / '.join(names)}) |",
+        "|---" * (6 + len(names)) + "|",
+    ]
+    for cell in cells:
+        means = cell["constraint_violation_rates_mean"]
+        row = " | ".join(format_outcome_rate(means.get(column)) for column in columns)
+        per_seed = ", ".join(
+            f"{seed['seed']}: " + " / ".join(format_outcome_rate(seed.get(column)) for column in ("violation_rate", *columns))
+            for seed in cell["per_seed"]
+        )
+        lines.append(
+            f"| {cell['env']} | {cell['variant']} | {cell['algo']} | {_fmt(cell['feasible_reward_mean'])} "
+            f"| {format_outcome_rate(cell['violation_rate_mean'])} | {row} | {per_seed} |"
+        )
+    return lines
+
+
+def outcome_lines(summary: dict[str, Any]) -> list[str]:
+    """
+    For the cells of driving envs: how their held-out episodes ended (collision, off road, time out, goal reached),
+    mean over seeds and per seed, as Markdown lines after a blank line; no lines for a summary without such cells.
+    """
+    cells = [cell for cell in summary["cells"] if cell.get("outcome_rates_mean")]
+    if not cells:
+        return []
+    titles = [OUTCOME_TITLES[key] for key in OUTCOME_KEYS]
+    # Not a partition: an episode can end both in a collision and off the road
+    heading = (
+        "How the held-out episodes ended (driving envs; mean over seeds, then per seed; a collision off the road "
+        "counts twice):"
+    )
+    lines = ["", heading, ""]
+    lines += [
+        f"| env | variant | algo | {' | '.join(titles)} | per seed ({' / '.join(titles)}) |",
+        "|---" * (4 + len(titles)) + "|",
+    ]
+    for cell in cells:
+        means = cell["outcome_rates_mean"]
+        per_seed = ", ".join(
+            f"{seed['seed']}: " + " / ".join(format_outcome_rate(seed.get(column)) for column in OUTCOME_COLUMNS)
+            for seed in cell["per_seed"]
+        )
+        row = " | ".join(format_outcome_rate(means.get(column)) for column in OUTCOME_COLUMNS)
+        lines.append(f"| {cell['env']} | {cell['variant']} | {cell['algo']} | {row} | {per_seed} |")
+    return lines
+
+
+def latex_table(summary: dict[str, Any]) -> str:
+    """
+    The cells as a LaTeX ``tabular`` (booktabs): feasible reward (mean ± std, fraction of our expert's return) and
+    violation rate, and the paper's and other sources' numbers.
+    """
+    sources = other_sources(summary)
+    # Source names are free text: escape what LaTeX reads as markup (underscores are escaped below, for all cells)
+    names = [source.replace("&", "\\&").replace("%", "\\%").replace("#", "\\#") for source in sources]
+    rows = [
+        "\\begin{tabular}{lllrrrrr" + "rr" * len(sources) + "}",
+        "\\toprule",
+        "Env & Variant & Method & Feasible reward & Of expert & Violation rate & Paper reward & Paper violation"
+        + "".join(f" & {name} reward & {name} violation" for name in names)
+        + " \\\\",
+        "\\midrule",
+    ]
+    for cell in summary["cells"]:
+        paper_reward = _fmt(cell["paper_feasible_reward"], 2) if cell["paper_feasible_reward"] is not None else "--"
+        paper_violation = f"{100 * cell['paper_violation_rate']:.0f}\\%" if cell["paper_violation_rate"] is not None else "--"
+        others = ""
+        for source in sources:
+            pair = (cell.get("others") or {}).get(source)
+            percent = format_rate(pair[1]).replace("%", "\\%") if pair else ""
+            others += f" & {pair[0]:g} & {percent}" if pair else " & -- & --"
+        fraction = cell.get("feasible_reward_fraction")
+        rows.append(
+            f"{cell['env']} & {cell['variant']} & {cell['algo'].upper()} & "
+            f"${_fmt(cell['feasible_reward_mean'])} \\pm {_fmt(cell['feasible_reward_std'])}$ & "
+            f"{_fmt(fraction, 2) if fraction is not None else '--'} & "
+            f"${100 * cell['violation_rate_mean']:.0f}\\% \\pm {100 * cell['violation_rate_std']:.0f}\\%$ & "
+            f"{paper_reward} & {paper_violation}{others} \\\\"
+        )
+    rows += ["\\bottomrule", "\\end{tabular}"]
+    return "\n".join(rows).replace("_", "\\_") + "\n"
+
+
+def csv_rows(summary: dict[str, Any]) -> str:
+    """
+    One row per run: cell, seed, held-out values, training time; then the cell's expert return and published numbers
+    (paper, other sources), repeated on each of its rows.
+    """
+    sources = other_sources(summary)
+    buffer = io.StringIO()
+    writer = csv.writer(buffer)
+    header = ["env", "variant", "algo", "seed", "feasible_reward", "violation_rate", "reward", "timesteps", "n_episodes"]
+    header.append("episode_length")
+    per_constraint = constraint_columns(summary)  # none for suites without such envs
+    published = ["paper_feasible_reward", "paper_violation_rate"]
+    for source in sources:
+        published += [f"{source}_feasible_reward", f"{source}_violation_rate"]
+    writer.writerow(
+        [
+            *header,
+            *OUTCOME_COLUMNS,
+            *per_constraint,
+            *IDENTIFICATION_COLUMNS,
+            *TRANSFER_COLUMNS,
+            *LAST_TRAINING_COLUMNS,
+            "wall_time_s",
+            "training_starts",
+            "git_revision",
+            "expert_return",
+            *published,
+        ]
+    )
+    for cell in summary["cells"]:
+        numbers = [cell.get("paper_feasible_reward"), cell.get("paper_violation_rate")]
+        for source in sources:
+            numbers += list((cell.get("others") or {}).get(source) or ["", ""])
+        for seed in cell["per_seed"]:
+            writer.writerow(
+                [
+                    cell["env"],
+                    cell["variant"],
+                    cell["algo"],
+                    seed["seed"],
+                    seed["feasible_reward"],
+                    seed["violation_rate"],
+                    seed["reward"],
+                    seed["timesteps"],
+                    seed["n_episodes"],
+                    _csv_number(seed.get("episode_length")),
+                    *(_csv_number(seed.get(column)) for column in (*OUTCOME_COLUMNS, *per_constraint)),
+                    *(seed.get(column, "") for column in (*IDENTIFICATION_COLUMNS, *TRANSFER_COLUMNS, *LAST_TRAINING_COLUMNS)),
+                    seed.get("wall_time_s", ""),
+                    seed.get("training_starts", ""),
+                    seed.get("git_revision", ""),
+                    *("" if value is None else value for value in (cell.get("expert_return"), *numbers)),
+                ]
+            )
+    return buffer.getvalue()
+
+
+def _csv_number(value: float | None) -> Any:
+    """A number for the CSV, empty when it is unknown (``None`` or NaN)."""
+    return "" if value is None or (isinstance(value, float) and math.isnan(value)) else value
