@@ -422,6 +422,8 @@ def test_an_earlier_report_reads_back_into_the_same_summary(finished_suite):
     assert {result.outcome_rates["collision_rate"] for _, result in kept} == {0.25}
     assert _strict(summarise_suite(suite, suite.runs(), kept, metrics)) == summary
     assert markdown_table(summarise_suite(suite, suite.runs(), kept, metrics)) == markdown_table(original)
+    # The CSV too, the infinite threshold error included (empty, its reason in threshold_crossing)
+    assert csv_rows(summarise_suite(suite, suite.runs(), kept, metrics)) == csv_rows(original)
 
     other = {**summary, "suite": "noise"}
     with pytest.raises(ValueError, match="report to update is of suite 'noise', not 'suite'"):

@@ -613,15 +613,18 @@ def csv_rows(summary: dict[str, Any]) -> str:
                     cell["variant"],
                     cell["algo"],
                     seed["seed"],
-                    seed["feasible_reward"],
-                    seed["violation_rate"],
-                    seed["reward"],
+                    _csv_number(seed["feasible_reward"]),
+                    _csv_number(seed["violation_rate"]),
+                    _csv_number(seed["reward"]),
                     seed["timesteps"],
                     seed["n_episodes"],
                     _csv_number(seed.get("episode_length")),
                     *(_csv_number(seed.get(column)) for column in (*OUTCOME_COLUMNS, *per_constraint)),
-                    *(seed.get(column, "") for column in (*IDENTIFICATION_COLUMNS, *TRANSFER_COLUMNS, *LAST_TRAINING_COLUMNS)),
-                    seed.get("wall_time_s", ""),
+                    *(
+                        _csv_number(seed.get(column))
+                        for column in (*IDENTIFICATION_COLUMNS, *TRANSFER_COLUMNS, *LAST_TRAINING_COLUMNS)
+                    ),
+                    _csv_number(seed.get("wall_time_s")),
                     seed.get("training_starts", ""),
                     seed.get("git_revision", ""),
                     *("" if value is None else value for value in (cell.get("expert_return"), *numbers)),
@@ -630,6 +633,11 @@ def csv_rows(summary: dict[str, Any]) -> str:
     return buffer.getvalue()
 
 
-def _csv_number(value: float | None) -> Any:
-    """A number for the CSV, empty when it is unknown (``None`` or NaN)."""
-    return "" if value is None or (isinstance(value, float) and math.isnan(value)) else value
+def _csv_number(value: Any) -> Any:
+    """
+    A value for the CSV: a number as it is, empty when it is unknown (``None`` or NaN) or infinite, as the summary keeps
+    it (strict JSON: :func:`~sb3_icrl.benchmark.report_numbers.finite_or_null`), so that a report written from fresh
+    runs and one updated from its summary give the same file (an infinite threshold error has its reason in
+    ``threshold_crossing``).
+    """
+    return "" if value is None or (isinstance(value, float) and not math.isfinite(value)) else value
