@@ -157,6 +157,17 @@ def test_sac_lagrangian_multiplier_rises_over_budget_and_costs_are_stored() -> N
     assert np.all(model.replay_buffer.costs[:60] > 0)  # |cos| is never 0 here
     assert model.lagrange_multiplier.value[0] > 1.0  # default init 1, each 20-step episode costs far more than 0
     assert len(model.ep_cost_buffer) == 3
+    assert len(model._episode_costs_since_update) <= 1  # the multiplier empties it at each update
+
+
+def test_sac_lagrangian_on_its_critic_keeps_no_episode_costs() -> None:
+    # The multiplier reads the cost critic: a list of the episodes' costs would only grow (into every checkpoint)
+    env = DummyVecEnv([lambda: CostInfoPendulum(gym.make("Pendulum-v1", max_episode_steps=20))])
+    model = SACLagrangian(
+        "MlpPolicy", env, budget_statistic="critic", learning_starts=10, batch_size=8, buffer_size=100, seed=0
+    ).learn(60)
+    assert len(model.ep_cost_buffer) == 3
+    assert model._episode_costs_since_update == []
 
 
 def test_sac_lagrangian_clear_errors() -> None:

@@ -305,6 +305,20 @@ def test_episode_statistic_uses_the_episodes_ended_since_the_last_update():
     assert model.lagrange_multiplier.value[0] == pytest.approx(expected)
 
 
+def test_the_episode_costs_kept_for_the_multiplier_do_not_grow(tmp_path):
+    """Under "step" the multiplier reads the rollout's mean: no episode is kept (nor saved); under "episode" only those
+    that ended since the last update are."""
+    for statistic, most in (("step", 0), ("episode", 1)):
+        model = PPOLagrangian(
+            "MlpPolicy", ConstrainedCorridorEnv(safe_limit=0), budget_statistic=statistic, seed=0, n_steps=30, batch_size=30
+        )
+        model.learn(150)  # 20-step episodes: seven of them ended
+        assert len(model.ep_cost_buffer) == 7
+        assert len(model._episode_costs_since_update) <= most, statistic
+        model.save(tmp_path / statistic)
+        assert len(PPOLagrangian.load(tmp_path / statistic)._episode_costs_since_update) <= most
+
+
 def test_optimizers_fused_by_default_with_sb3_adam_settings():
     """The optimiser takes torch's fused Adam with SB3's eps; a caller's own choice (foreach, other kwargs) is kept."""
     model = PPOLagrangian("MlpPolicy", PendulumWithCost(), n_steps=64, batch_size=16)

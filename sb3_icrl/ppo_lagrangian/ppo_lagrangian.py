@@ -358,10 +358,14 @@ class PPOLagrangian(CheckedLoadMixin, PPO):
         self._current_episode_costs += costs
         if not dones.any():
             return
+        # Kept for the multiplier only where it reads episodes; under "step" it reads the rollout's mean, and a list
+        # that nothing empties would grow with every episode (into every checkpoint)
+        keep = self.budget_statistic != "step"
         for env_idx in np.flatnonzero(dones):
             episode_cost = self._current_episode_costs[env_idx].copy()
             self.ep_cost_buffer.append(episode_cost)
-            self._episode_costs_since_update.append(episode_cost)
+            if keep:
+                self._episode_costs_since_update.append(episode_cost)
             self._current_episode_costs[env_idx] = 0.0
 
     def collect_rollouts(

@@ -225,9 +225,11 @@ class SACLagrangian(CheckedLoadMixin, SAC):
         assert self.ep_cost_buffer is not None
         names = [f"index {env_idx}" for env_idx in range(len(infos))]
         self._current_episode_costs += costs_from_infos(infos, self.cost_info_key, 1, names)[:, 0]
+        keep = self.budget_statistic == "episode"  # what the multiplier reads, and empties; "critic" reads none
         for env_idx in np.flatnonzero(dones):
             self.ep_cost_buffer.append(float(self._current_episode_costs[env_idx]))
-            self._episode_costs_since_update.append(float(self._current_episode_costs[env_idx]))
+            if keep:
+                self._episode_costs_since_update.append(float(self._current_episode_costs[env_idx]))
             self._current_episode_costs[env_idx] = 0.0
 
     def _dump_logs(self) -> None:
