@@ -383,6 +383,15 @@ def test_learned_penalised_reward_prices_only_the_cost_beyond_the_budget(statist
     assert learned_selection_score(gacl, episodes) == 25.0
 
 
+def test_learned_penalised_reward_of_a_signed_cost_is_not_floored() -> None:
+    """IRL-Plus charges its learned cost signed while it trains; selection prices it the same way, below 0 included."""
+    model = _Model(lagrange_multiplier=_Multiplier(), cost_budget=np.array([0.0]), budget_statistic="step", signed_costs=True)
+    episodes = np.array([[100.0, 0.0, 30.0, 200.0], [50.0, 50.0, -5.0, 100.0]])
+    np.testing.assert_allclose(learned_penalised_rewards(model, episodes), [100.0 - 2.0 * 30.0, 50.0 + 2.0 * 5.0])
+    floored = _Model(lagrange_multiplier=_Multiplier(), cost_budget=np.array([0.0]), budget_statistic="step")
+    np.testing.assert_allclose(learned_penalised_rewards(floored, episodes), [100.0 - 2.0 * 30.0, 50.0])
+
+
 def test_learned_episode_stats_price_recorded_episodes() -> None:
     """(reward, reward before the first step whose learned cost exceeds 0.5, summed learned cost, length) per episode."""
     episodes = [

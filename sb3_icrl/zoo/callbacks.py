@@ -55,7 +55,9 @@ def learned_episode_stats(
 def learned_penalised_rewards(model: Any, stats: np.ndarray) -> np.ndarray | None:
     """
     Each episode's reward less ``lambda * max(0, learned cost - budget)``, with the learner's multiplier and budget as
-    they stand (a per-step budget times the episode length); ``None`` for models without a multiplier.
+    they stand (a per-step budget times the episode length); ``None`` for models without a multiplier. A model that
+    charges its cost signed (``signed_costs``, IRL-Plus's penalty on the reward) is priced as it trains, unfloored:
+    ``lambda * (learned cost - budget)``.
 
     :param model: The learner (a Lagrangian one has ``lagrange_multiplier``, ``cost_budget`` and ``budget_statistic``)
     :param stats: Rows ``(reward, learned feasible reward, learned cost, length)`` of :func:`learned_episode_stats`
@@ -67,7 +69,10 @@ def learned_penalised_rewards(model: Any, stats: np.ndarray) -> np.ndarray | Non
     multiplier_value = float(np.asarray(multiplier.value).reshape(-1)[0])
     rewards, costs, lengths = stats[:, 0], stats[:, 2], stats[:, 3]
     allowance = budget * lengths if model.budget_statistic == "step" else np.full_like(costs, budget)
-    return rewards - multiplier_value * np.maximum(costs - allowance, 0.0)
+    excess = costs - allowance
+    if not getattr(model, "signed_costs", False):
+        excess = np.maximum(excess, 0.0)
+    return rewards - multiplier_value * excess
 
 
 def learned_selection_score(model: Any, stats: np.ndarray) -> float:
