@@ -16,14 +16,26 @@ class TrueConstraintLogger(BaseCallback):
 
     :param true_cost_info_key: The info key of the true per-step cost
     :param env_reward_info_key: The info key of the env's own reward, when the learner's reward differs
+    :param max_episodes: Rows kept in :attr:`episodes`: the most recent ones, trimmed at each rollout's start (a
+        3M-step run on a 100-step env ends some 30,000 episodes a million steps; ``None`` keeps every row)
     :param verbose: Verbosity level
     """
 
-    def __init__(self, true_cost_info_key: str = "true_cost", env_reward_info_key: str = "env_reward", verbose: int = 0):
+    def __init__(
+        self,
+        true_cost_info_key: str = "true_cost",
+        env_reward_info_key: str = "env_reward",
+        max_episodes: int | None = 100_000,
+        verbose: int = 0,
+    ):
         super().__init__(verbose)
+        if max_episodes is not None and max_episodes < 1:
+            raise ValueError(f"max_episodes must be at least 1, or None to keep every episode (got {max_episodes})")
         self.true_cost_info_key = true_cost_info_key
         self.env_reward_info_key = env_reward_info_key
-        #: One row per finished episode: ``(timesteps, violated, feasible_reward, episode_cost)``
+        self.max_episodes = max_episodes
+        #: One row per finished episode, the most recent ``max_episodes``: ``(timesteps, violated, feasible_reward,
+        #: episode_cost)``
         self.episodes: list[tuple[int, bool, float, float]] = []
         self._rollout_start = 0
         self._feasible: list[float] = []
@@ -36,6 +48,8 @@ class TrueConstraintLogger(BaseCallback):
         self._violated = [False] * n_envs
 
     def _on_rollout_start(self) -> None:
+        if self.max_episodes is not None and len(self.episodes) > self.max_episodes:
+            del self.episodes[: len(self.episodes) - self.max_episodes]
         self._rollout_start = len(self.episodes)
 
     def _on_step(self) -> bool:
