@@ -1,9 +1,12 @@
 """Transfer of learned constraints: the transfer envs' rewards and constraints, and ``sb3-icrl transfer`` end to end."""
 
+import fcntl
 import json
 import os
 import pathlib
 import shutil
+import threading
+import time
 
 import gymnasium as gym
 import numpy as np
@@ -233,7 +236,7 @@ def test_references_are_trained_once_per_setting_and_shared(grid_run, tmp_path, 
     settings = dict(task="same", n_timesteps=64, eval_episodes=2, seed=1, references_dir=shared, log=lambda line: None)
     first = transfer.run_transfer(grid_run, **settings)
     assert trained == ["learned", "oracle", "ppo"]
-    assert sorted(path.name.split("_")[0] for path in shared.iterdir()) == ["oracle", "ppo"]
+    assert sorted(path.name.split("_")[0] for path in shared.glob("*.json")) == ["oracle", "ppo"]
     # Same settings: nothing trains again, the saved results are read back
     second = transfer.run_transfer(grid_run, **settings)
     assert trained[3:] == []
@@ -246,12 +249,58 @@ def test_references_are_trained_once_per_setting_and_shared(grid_run, tmp_path, 
     transfer.run_transfer(grid_run, **{**settings, "seed": 2}, retrain_references=True)
     assert trained[6:] == ["oracle", "ppo"]
     # A reference file made with other settings is not reused
-    path = next(shared.glob("oracle_*"))
+    path = next(shared.glob("oracle_*.json"))
     saved = json.loads(path.read_text())
     saved["settings"]["n_timesteps"] = 999
     path.write_text(json.dumps(saved))
     transfer.run_transfer(grid_run, **{**settings, "seed": int(saved["settings"]["seed"])})
     assert "oracle" in trained[8:]
+
+
+def test_a_reference_another_run_is_training_is_waited_for_not_trained_twice(grid_run, tmp_path, monkeypatch):
+    """Two runs reaching the same references at once split them: this one trains the free one, then reads the other."""
+    import sb3_icrl.metrics.transfer as transfer
+
+    grid_run = fresh_copy(grid_run, tmp_path)
+    trained, lines = [], []
+    real_train = transfer.train_learner
+
+    def counting_train(learner, *args, **kwargs):
+        trained.append(learner)
+        return real_train(learner, *args, **kwargs)
+
+    monkeypatch.setattr(transfer, "train_learner", counting_train)
+    settings = dict(task="same", n_timesteps=64, eval_episodes=2, seed=4, log=lines.append)
+    first = transfer.run_transfer(grid_run, references_dir=tmp_path / "first", **settings)
+    oracle_name = pathlib.Path(first["settings"]["reference_files"]["oracle"]).name
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    lock_path = (shared / oracle_name).with_suffix(".lock")
+
+    def other_run() -> None:
+        # Holds the oracle's lock until this run waits for it, then saves the oracle it "trained" and lets go
+        with open(lock_path, "a") as handle:
+            fcntl.flock(handle, fcntl.LOCK_EX)
+            held.set()
+            deadline = time.time() + 60
+            while not any(
+                line.startswith(f"transfer (same) on {first['settings']['env']}: waiting for oracle") for line in lines
+            ):
+                assert time.time() < deadline
+                time.sleep(0.01)
+            shutil.copy(tmp_path / "first" / oracle_name, shared / oracle_name)
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+    held = threading.Event()
+    other = threading.Thread(target=other_run)
+    other.start()
+    assert held.wait(10)
+    second = transfer.run_transfer(grid_run, references_dir=shared, **settings)
+    other.join(10)
+    assert trained[3:] == ["ppo"]  # the learned-cost result is reused, the oracle read from the other run's file
+    assert second["results"]["oracle"] == first["results"]["oracle"]
+    assert list(second["results"]) == ["learned", "oracle", "ppo"]
+    assert any(line.endswith(f"oracle reused from {shared / oracle_name}") for line in lines)
 
 
 def test_a_transfer_run_again_keeps_its_learned_result_and_adds_the_references(grid_run, tmp_path, monkeypatch):

@@ -6,7 +6,6 @@ as Ray tasks. A run that finished is skipped; an interrupted one resumes from it
 
 import contextlib
 import ctypes
-import fcntl
 import json
 import os
 import signal
@@ -22,6 +21,7 @@ from typing import Any
 import yaml
 
 from sb3_icrl.benchmark.suite import RunSpec, result_current, run_complete
+from sb3_icrl.common.utils import file_lock
 from sb3_icrl.common.versions import versions
 from sb3_icrl.run_folder import FINISHED_FILE, is_finished
 
@@ -80,16 +80,8 @@ def run_lock(run_folder: str) -> Iterator[bool]:
     :return: Whether the lock was taken (``False``: another process holds it)
     """
     os.makedirs(os.path.dirname(run_folder), exist_ok=True)
-    with open(run_folder + ".lock", "a") as handle:
-        try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            yield False
-            return
-        try:
-            yield True
-        finally:
-            fcntl.flock(handle, fcntl.LOCK_UN)
+    with file_lock(run_folder + ".lock") as taken:
+        yield taken
 
 
 def train_command(argv: Sequence[str]) -> list[str]:

@@ -3,6 +3,7 @@
 import contextlib
 import difflib
 import errno
+import fcntl
 import io
 import json
 import os
@@ -222,6 +223,28 @@ def atomic_save_npz(path: str | pathlib.Path, arrays: Mapping[str, Any], compres
     save = np.savez_compressed if compressed else np.savez
     atomic_write(path, lambda file: save(file, **arrays))
     return path
+
+
+@contextlib.contextmanager
+def file_lock(path: str | pathlib.Path, blocking: bool = False) -> Iterator[bool]:
+    """
+    An exclusive advisory lock on ``path`` (created if missing), held for the ``with`` block; released when the
+    process ends, however it ends.
+
+    :param path: The lock file
+    :param blocking: Wait for another process to release it, instead of giving up at once
+    :return: Whether the lock was taken (``False`` only when not blocking and another process holds it)
+    """
+    with open(path, "a") as handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX if blocking else fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            yield False
+            return
+        try:
+            yield True
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
 
 
 def atomic_write_json(path: str | pathlib.Path, data: Any, **json_kwargs: Any) -> None:

@@ -18,7 +18,8 @@ results go into ``<run>/transfer_<task>.json`` (written atomically).
 
 The two references do not depend on the run (they never read its constraint), so each is trained once per task, seed
 and setting and kept in ``<folder>/transfer_references/`` (``--references-dir``): the transfers of every run under
-one log folder share them.
+one log folder share them. Runs that reach the same references at once (two queues on one seed) split them through a
+lock file beside each: one trains the oracle while the other trains PPO, and each reads the other's when it is saved.
 """
 
 import argparse
@@ -40,7 +41,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_icrl import __version__
 from sb3_icrl.common.evaluation import evaluate_constraint
-from sb3_icrl.common.utils import atomic_write_json, plain_docstring
+from sb3_icrl.common.utils import atomic_write_json, file_lock, plain_docstring
 from sb3_icrl.constraints.wrappers import LearnedCostVecEnvWrapper
 from sb3_icrl.envs import NAMESPACE, REWARD_TRANSFER_TASKS
 from sb3_icrl.envs.wrappers import COMPONENT_NOISE, TransitionNoiseWrapper, recorded_transition_noise
@@ -406,30 +407,7 @@ def run_transfer(
         previous = {}  # the model changed since (a run continued in place): its learned-cost result is stale
     previous_settings = {name: value for name, value in previous.get("settings", {}).items() if name != "reference_files"}
 
-    results: dict[str, dict[str, float]] = {}
-    reference_files: dict[str, str] = {}
-    for learner in LEARNERS if references else ("learned",):
-        cache, reference_settings = None, {}
-        if learner == "learned" and previous_settings == settings and "learned" in previous.get("results", {}):
-            # The same transfer was run before (perhaps without the references): its learned-cost learner is kept
-            log(f"transfer ({task}) on {env_id}: learned reused from {run / transfer_file(task)}")
-            results[learner] = previous["results"]["learned"]
-            continue
-        if learner != "learned":
-            reference_settings = _as_json(
-                {
-                    **{name: settings[name] for name in (*REFERENCE_SETTINGS, "transition_noise_model") if name in settings},
-                    "learner": learner,
-                    "hyperparams": entry,
-                }
-            )
-            cache = reference_file(shared_dir, learner, reference_settings)
-            reference_files[learner] = str(cache)
-            cached = None if retrain_references else _cached_reference(cache, reference_settings, log)
-            if cached is not None:
-                log(f"transfer ({task}) on {env_id}: {learner} reused from {cache}")
-                results[learner] = cached
-                continue
+    def train_and_evaluate(learner: str) -> dict[str, float]:
         start = time.time()
         log(f"transfer ({task}) on {env_id}: training {learner} for {steps} steps")
         trained, train_env = train_learner(
@@ -446,15 +424,61 @@ def run_transfer(
             log=log,
             transition_noise_model=noise_model,
         )
-        results[learner] = evaluate_learner(
+        result = evaluate_learner(
             trained, train_env, env_id, env_kwargs, noise, params, eval_episodes, eval_seed, transition_noise_model=noise_model
         )
-        results[learner]["wall_time_min"] = (time.time() - start) / 60.0
+        result["wall_time_min"] = (time.time() - start) / 60.0
         train_env.close()
-        if cache is not None:
-            cache.parent.mkdir(parents=True, exist_ok=True)
-            saved = {"settings": reference_settings, "result": results[learner], "sb3_icrl_version": __version__}
-            atomic_write_json(cache, saved, indent=2)
+        return result
+
+    learners = LEARNERS if references else ("learned",)
+    results: dict[str, dict[str, float]] = {}
+    if previous_settings == settings and "learned" in previous.get("results", {}):
+        # The same transfer was run before (perhaps without the references): its learned-cost learner is kept
+        log(f"transfer ({task}) on {env_id}: learned reused from {run / transfer_file(task)}")
+        results["learned"] = previous["results"]["learned"]
+    else:
+        results["learned"] = train_and_evaluate("learned")
+
+    # The references are shared by every run of their env, seed and settings. Runs that reach them at once (two queues
+    # on the same seed) split them, each training one that nobody else is training, instead of both training both
+    pending: dict[str, tuple[pathlib.Path, dict[str, Any]]] = {}
+    reference_files: dict[str, str] = {}
+    for learner in learners[1:]:
+        reference_settings = _as_json(
+            {
+                **{name: settings[name] for name in (*REFERENCE_SETTINGS, "transition_noise_model") if name in settings},
+                "learner": learner,
+                "hyperparams": entry,
+            }
+        )
+        pending[learner] = (reference_file(shared_dir, learner, reference_settings), reference_settings)
+        reference_files[learner] = str(pending[learner][0])
+    if pending:
+        shared_dir.mkdir(parents=True, exist_ok=True)
+    while pending:
+        taken_any = False
+        for learner, (cache, reference_settings) in list(pending.items()):
+            with file_lock(cache.with_suffix(".lock")) as taken:
+                if not taken:
+                    continue
+                taken_any = True
+                cached = None if retrain_references else _cached_reference(cache, reference_settings, log)
+                if cached is not None:
+                    log(f"transfer ({task}) on {env_id}: {learner} reused from {cache}")
+                    results[learner] = cached
+                else:
+                    results[learner] = train_and_evaluate(learner)
+                    saved = {"settings": reference_settings, "result": results[learner], "sb3_icrl_version": __version__}
+                    atomic_write_json(cache, saved, indent=2)
+                del pending[learner]
+        if pending and not taken_any:
+            # Another run is training every reference still missing: wait for the first, then read what it saved
+            learner, (cache, _) = next(iter(pending.items()))
+            log(f"transfer ({task}) on {env_id}: waiting for {learner}, which another run is training ({cache})")
+            with file_lock(cache.with_suffix(".lock"), blocking=True):
+                pass
+    results = {learner: results[learner] for learner in learners}
     summary: dict[str, Any] = {
         "settings": {**settings, "reference_files": reference_files},
         "results": results,
