@@ -220,11 +220,11 @@ def fresh_copy(run: str, tmp_path) -> str:
     return str(copy)
 
 
-def test_references_are_trained_once_per_setting_and_shared(grid_run, tmp_path, monkeypatch):
+def count_training(monkeypatch) -> list[str]:
+    """The learners the transfer trains, in order, as a list that grows while it runs."""
     import sb3_icrl.metrics.transfer as transfer
 
-    grid_run = fresh_copy(grid_run, tmp_path)
-    trained = []
+    trained: list[str] = []
     real_train = transfer.train_learner
 
     def counting_train(learner, *args, **kwargs):
@@ -232,6 +232,14 @@ def test_references_are_trained_once_per_setting_and_shared(grid_run, tmp_path, 
         return real_train(learner, *args, **kwargs)
 
     monkeypatch.setattr(transfer, "train_learner", counting_train)
+    return trained
+
+
+def test_references_are_trained_once_per_setting_and_shared(grid_run, tmp_path, monkeypatch):
+    import sb3_icrl.metrics.transfer as transfer
+
+    grid_run = fresh_copy(grid_run, tmp_path)
+    trained = count_training(monkeypatch)
     shared = tmp_path / "references"
     settings = dict(task="same", n_timesteps=64, eval_episodes=2, seed=1, references_dir=shared, log=lambda line: None)
     first = transfer.run_transfer(grid_run, **settings)
@@ -262,14 +270,7 @@ def test_a_reference_another_run_is_training_is_waited_for_not_trained_twice(gri
     import sb3_icrl.metrics.transfer as transfer
 
     grid_run = fresh_copy(grid_run, tmp_path)
-    trained, lines = [], []
-    real_train = transfer.train_learner
-
-    def counting_train(learner, *args, **kwargs):
-        trained.append(learner)
-        return real_train(learner, *args, **kwargs)
-
-    monkeypatch.setattr(transfer, "train_learner", counting_train)
+    trained, lines = count_training(monkeypatch), []
     settings = dict(task="same", n_timesteps=64, eval_episodes=2, seed=4, log=lines.append)
     first = transfer.run_transfer(grid_run, references_dir=tmp_path / "first", **settings)
     oracle_name = pathlib.Path(first["settings"]["reference_files"]["oracle"]).name
@@ -307,14 +308,7 @@ def test_a_transfer_run_again_keeps_its_learned_result_and_adds_the_references(g
     import sb3_icrl.metrics.transfer as transfer
 
     grid_run = fresh_copy(grid_run, tmp_path)
-    trained, lines = [], []
-    real_train = transfer.train_learner
-
-    def counting_train(learner, *args, **kwargs):
-        trained.append(learner)
-        return real_train(learner, *args, **kwargs)
-
-    monkeypatch.setattr(transfer, "train_learner", counting_train)
+    trained, lines = count_training(monkeypatch), []
     settings = dict(task="same", n_timesteps=64, eval_episodes=2, seed=3, references_dir=tmp_path / "references")
     alone = transfer.run_transfer(grid_run, references=False, log=lines.append, **settings)
     assert trained == ["learned"] and set(alone["results"]) == {"learned"} and np.isnan(alone["feasible_reward_ratio"])
