@@ -133,7 +133,8 @@ def table(results: pathlib.Path = RESULTS) -> str:
             f"{summary.get('core_hours_runs', 0)}"
             for summary in timed
         )
-        lines += f"\nCompute: {format_hours(total)} core-hours over {runs} runs ({parts}).\n"
+        hours = f"{format_hours(total)} core-hours of training over {runs} runs"
+        lines += f"\nCompute: {hours} ({parts}); transfer tests not counted.\n"
     return lines
 
 

@@ -252,7 +252,7 @@ def test_tables_and_readme_show_the_columns(finished_suite, tmp_path):
     row = "| suite | GridWorldWall-v0 | base | BC2L | 0, 1 | 25% ± 35% | 0.60 ± 0.14 | 0.60 of expert | - | 0.9 / 0.4% | - |"
     assert row in readme
     assert "| suite | GridWorld-v0 | base | BC2L | 0, 1 | 0% ± 0% | 2.50 ± 0.71 | - | - | - | - |" in readme
-    assert readme[-1] == "Compute: 2.1 core-hours over 7 runs (suite 2.1 over 7)."
+    assert readme[-1] == "Compute: 2.1 core-hours of training over 7 runs (suite 2.1 over 7); transfer tests not counted."
 
 
 def test_readme_table_keeps_older_summaries_readable(finished_suite, tmp_path):
@@ -380,11 +380,13 @@ def test_report_of_best_models_evaluates_best_model_zip_with_its_own_cache(finis
     readme = readme_table.table(tmp_path / "results").splitlines()
     assert sum(line.startswith("| suite (best models) | ") for line in readme) == 4
     assert sum(line.startswith("| suite | GridWorld") for line in readme) == 4
-    assert readme[-1] == "Compute: 2.1 core-hours over 7 runs (suite 2.1 over 7)."  # counted once
+    assert (
+        readme[-1] == "Compute: 2.1 core-hours of training over 7 runs (suite 2.1 over 7); transfer tests not counted."
+    )  # counted once
     # A suite committed only as a report of best models still counts
     (tmp_path / "results" / "final" / "summary.json").unlink()
     only_best = readme_table.table(tmp_path / "results").splitlines()
-    assert only_best[-1] == "Compute: 2.1 core-hours over 7 runs (suite 2.1 over 7)."
+    assert only_best[-1] == "Compute: 2.1 core-hours of training over 7 runs (suite 2.1 over 7); transfer tests not counted."
 
 
 # ---------------------------------------------------------------- report --update: re-runs of some cells
@@ -629,11 +631,14 @@ def test_compute_line_names_the_variants_of_a_suite_reported_in_parts(finished_s
             cell["variant"] = variant
         write_report(summary, str(tmp_path / "results" / f"suite_{variant}"))
     line = readme_table.table(tmp_path / "results").splitlines()[-1]
-    assert line == "Compute: 4.2 core-hours over 14 runs (suite (n4) 2.1 over 7, suite (n4-match) 2.1 over 7)."
+    assert line == (
+        "Compute: 4.2 core-hours of training over 14 runs (suite (n4) 2.1 over 7, suite (n4-match) 2.1 over 7); "
+        "transfer tests not counted."
+    )
     # A suite reported once keeps its plain name
     (tmp_path / "results" / "suite_n4" / "summary.json").unlink()
     line = readme_table.table(tmp_path / "results").splitlines()[-1]
-    assert line == "Compute: 2.1 core-hours over 7 runs (suite 2.1 over 7)."
+    assert line == "Compute: 2.1 core-hours of training over 7 runs (suite 2.1 over 7); transfer tests not counted."
 
 
 def test_update_with_no_finished_run_writes_the_report_again_as_it_was(finished_suite, tmp_path, monkeypatch):
