@@ -18,7 +18,7 @@ import sys
 
 from sb3_icrl.benchmark.judgements import beats, published_pairs
 from sb3_icrl.benchmark.report_numbers import format_hours, format_mean_std, format_rate, reward_digits
-from sb3_icrl.benchmark.report_text import aim_text, beats_judgement_text, other_sources
+from sb3_icrl.benchmark.report_text import aim_text, beats_judgement_text, other_sources, transfer_compute_text
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -134,7 +134,13 @@ def table(results: pathlib.Path = RESULTS) -> str:
             for summary in timed
         )
         hours = f"{format_hours(total)} core-hours of training over {runs} runs"
-        lines += f"\nCompute: {hours} ({parts}); transfer tests not counted.\n"
+        transfers = [
+            f"{compute_label(summary, reports_per_suite[summary['suite']] > 1)} {text}"
+            for summary in timed
+            if (text := transfer_compute_text(summary))
+        ]
+        transfer_text = "; ".join(transfers) if transfers else "no transfer tests"
+        lines += f"\nCompute: {hours} ({parts}); {transfer_text}.\n"
     return lines
 
 

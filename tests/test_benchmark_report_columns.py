@@ -197,6 +197,63 @@ def test_summary_carries_others_expert_fraction_and_core_hours(finished_suite):
     assert summary["core_hours_runs"] == 7
 
 
+def _transfer(folder: str, task: str, learned_min: float, references: dict[str, tuple[str, float]]) -> None:
+    """A ``transfer_<task>.json`` as ``sb3-icrl transfer`` writes it: per learner its wall time, the reference files."""
+    results = {"learned": {"wall_time_min": learned_min}}
+    results.update({learner: {"wall_time_min": minutes} for learner, (_, minutes) in references.items()})
+    files = {learner: f"/elsewhere/transfer_references/{name}" for learner, (name, _) in references.items()}
+    transfer = {
+        "settings": {"task": task, "reference_files": files},
+        "results": results,
+        "violation_rate": 0.0,
+        "feasible_reward_ratio": 1.0,
+    }
+    with open(os.path.join(folder, f"transfer_{task}.json"), "w") as file:
+        json.dump(transfer, file)
+
+
+def test_transfer_tests_count_each_reference_learner_once(finished_suite, tmp_path):
+    """Runs of one env and seed share their reference learners: the compute counts them once, the learned ones per run."""
+    suite, root, results = finished_suite
+    folders = {(run.env_id.split("/")[-1], run.algo, run.seed): run.run_folder(root) for run, _ in results}
+    shared = {"oracle": ("oracle_GridWorldWall-v0_a.json", 30.0), "ppo": ("ppo_GridWorldWall-v0_b.json", 15.0)}
+    _transfer(folders[("GridWorldWall-v0", "bc2l", 0)], "reward", 20.0, shared)
+    _transfer(folders[("GridWorldWall-v0", "vicrl", 0)], "reward", 10.0, shared)
+    # A second task of the same run: its time adds to the run's, its references are others
+    _transfer(folders[("GridWorldWall-v0", "bc2l", 0)], "same", 6.0, {"oracle": ("oracle_GridWorldWall-v0_c.json", 12.0)})
+    metrics = constraint_metrics(results, root, log=lambda line: None)
+    bc2l = metrics[os.path.relpath(folders[("GridWorldWall-v0", "bc2l", 0)], root)]
+    assert bc2l["transfer_wall_time_s"] == pytest.approx(60 * (20.0 + 6.0))
+    assert bc2l["transfer_reference_wall_time_s"] == {
+        "oracle_GridWorldWall-v0_a.json": 1800.0,
+        "ppo_GridWorldWall-v0_b.json": 900.0,
+        "oracle_GridWorldWall-v0_c.json": 720.0,
+    }
+    summary = summarise_suite(suite, suite.runs(), results, metrics)
+    # Learned: 26 + 10 minutes; references: 30 + 15 + 12 minutes, once each
+    assert summary["transfer_core_hours"] == pytest.approx((26 + 10 + 30 + 15 + 12) / 60)
+    assert summary["transfer_core_hours_runs"] == summary["transfer_runs"] == 2
+    line = "Compute: 2.1 core-hours of training over 7 runs; transfer tests 1.6 core-hours over 2 runs (references once)"
+    assert markdown_table(summary).splitlines()[-1] == line
+    assert csv_rows(summary).splitlines()[0].split(",").index("transfer_wall_time_s") > 0
+    # Read back from summary.json (the run folders gone): the same compute; a run whose time was never recorded is named
+    strict = _strict(summary)
+    kept, kept_metrics, _ = report.previous_results(strict, suite, root)
+    assert _strict(summarise_suite(suite, suite.runs(), kept, kept_metrics)) == strict
+    untimed = json.loads(json.dumps(strict))
+    seed = _cell(untimed, "GridWorldWall-v0", "vicrl")["per_seed"][0]
+    del seed["transfer_wall_time_s"], seed["transfer_reference_wall_time_s"]
+    assert report_text.transfer_compute_text(untimed) == (
+        "transfer tests 1.4 core-hours over 1 run (references once), 1 more not timed"
+    )
+    write_report(summary, str(tmp_path / "results" / "suite"))
+    readme = readme_table.table(tmp_path / "results").splitlines()
+    assert readme[-1] == (
+        "Compute: 2.1 core-hours of training over 7 runs (suite 2.1 over 7); "
+        "suite transfer tests 1.6 core-hours over 2 runs (references once)."
+    )
+
+
 def test_without_run_folders_the_variant_settings_name_the_demonstrations(finished_suite):
     suite, _, results = finished_suite
     summary = summarise_suite(suite, suite.runs(), results)
@@ -218,7 +275,7 @@ def test_tables_and_readme_show_the_columns(finished_suite, tmp_path):
     assert "| 0.60 of expert |" in row and "| - | 0.9 / 0.4% | - |" in row and row.endswith("| 1.5 |")
     row = next(line for line in table if line.startswith("| GridWorld-v0 | base | bc2l |"))
     assert "| mean 2.50 [2.00, 3.00] |" in row and "| - | - | - |" in row  # two seeds: mean and [min, max], no IQM
-    assert table[-1] == "Compute: 2.1 core-hours over 7 runs"  # 7560 s, one run without a time
+    assert table[-1] == "Compute: 2.1 core-hours of training over 7 runs"  # 7560 s, one run without a time
 
     rows = list(csv.DictReader(io.StringIO(csv_rows(summary))))
     first = rows[0]
@@ -252,7 +309,7 @@ def test_tables_and_readme_show_the_columns(finished_suite, tmp_path):
     row = "| suite | GridWorldWall-v0 | base | BC2L | 0, 1 | 25% ± 35% | 0.60 ± 0.14 | 0.60 of expert | - | 0.9 / 0.4% | - |"
     assert row in readme
     assert "| suite | GridWorld-v0 | base | BC2L | 0, 1 | 0% ± 0% | 2.50 ± 0.71 | - | - | - | - |" in readme
-    assert readme[-1] == "Compute: 2.1 core-hours of training over 7 runs (suite 2.1 over 7); transfer tests not counted."
+    assert readme[-1] == "Compute: 2.1 core-hours of training over 7 runs (suite 2.1 over 7); no transfer tests."
 
 
 def test_readme_table_keeps_older_summaries_readable(finished_suite, tmp_path):
@@ -381,12 +438,12 @@ def test_report_of_best_models_evaluates_best_model_zip_with_its_own_cache(finis
     assert sum(line.startswith("| suite (best models) | ") for line in readme) == 4
     assert sum(line.startswith("| suite | GridWorld") for line in readme) == 4
     assert (
-        readme[-1] == "Compute: 2.1 core-hours of training over 7 runs (suite 2.1 over 7); transfer tests not counted."
+        readme[-1] == "Compute: 2.1 core-hours of training over 7 runs (suite 2.1 over 7); no transfer tests."
     )  # counted once
     # A suite committed only as a report of best models still counts
     (tmp_path / "results" / "final" / "summary.json").unlink()
     only_best = readme_table.table(tmp_path / "results").splitlines()
-    assert only_best[-1] == "Compute: 2.1 core-hours of training over 7 runs (suite 2.1 over 7); transfer tests not counted."
+    assert only_best[-1] == "Compute: 2.1 core-hours of training over 7 runs (suite 2.1 over 7); no transfer tests."
 
 
 # ---------------------------------------------------------------- report --update: re-runs of some cells
@@ -633,12 +690,12 @@ def test_compute_line_names_the_variants_of_a_suite_reported_in_parts(finished_s
     line = readme_table.table(tmp_path / "results").splitlines()[-1]
     assert line == (
         "Compute: 4.2 core-hours of training over 14 runs (suite (n4) 2.1 over 7, suite (n4-match) 2.1 over 7); "
-        "transfer tests not counted."
+        "no transfer tests."
     )
     # A suite reported once keeps its plain name
     (tmp_path / "results" / "suite_n4" / "summary.json").unlink()
     line = readme_table.table(tmp_path / "results").splitlines()[-1]
-    assert line == "Compute: 2.1 core-hours of training over 7 runs (suite 2.1 over 7); transfer tests not counted."
+    assert line == "Compute: 2.1 core-hours of training over 7 runs (suite 2.1 over 7); no transfer tests."
 
 
 def test_update_with_no_finished_run_writes_the_report_again_as_it_was(finished_suite, tmp_path, monkeypatch):

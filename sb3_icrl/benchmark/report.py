@@ -47,7 +47,7 @@ from sb3_icrl.benchmark.judgements import (
 )
 from sb3_icrl.benchmark.report_figures import summary_run
 from sb3_icrl.benchmark.report_numbers import finite_or_null
-from sb3_icrl.benchmark.report_text import csv_rows, latex_table, markdown_table
+from sb3_icrl.benchmark.report_text import csv_rows, latex_table, markdown_table, transfer_compute
 from sb3_icrl.benchmark.suite import RunSpec, Suite, result_current
 from sb3_icrl.common.evaluation import CONSTRAINT_VIOLATION_PREFIX, OUTCOME_RATE_KEYS
 from sb3_icrl.common.statistics import MIN_SEEDS_FOR_INTERVAL, iqm, stratified_bootstrap_ci
@@ -265,7 +265,30 @@ def constraint_metrics(
                 continue
             entry[f"transfer_{task}_violation_rate"] = float(transfer["violation_rate"])
             entry[f"transfer_{task}_feasible_ratio"] = float(transfer["feasible_reward_ratio"])
+            entry.update(_add_transfer_times(entry, transfer))
     return metrics
+
+
+def _add_transfer_times(entry: dict[str, Any], transfer: dict[str, Any]) -> dict[str, Any]:
+    """
+    A run's transfer-test compute, added to what ``entry`` holds from its other tasks: the seconds its learned-cost
+    learners trained (``transfer_wall_time_s``) and, per reference file the transfer read, the seconds its learner
+    trained (``transfer_reference_wall_time_s``, keyed by the file's name: runs of one env and seed share their
+    references, and the suite's compute counts each once). Transfers saved without times add nothing.
+    """
+    results = transfer.get("results", {})
+    update: dict[str, Any] = {}
+    learned = results.get("learned", {}).get("wall_time_min")
+    if learned is not None:
+        update["transfer_wall_time_s"] = entry.get("transfer_wall_time_s", 0.0) + 60 * float(learned)
+    references = dict(entry.get("transfer_reference_wall_time_s", {}))
+    for learner, path in transfer.get("settings", {}).get("reference_files", {}).items():
+        minutes = results.get(learner, {}).get("wall_time_min")
+        if minutes is not None:
+            references[os.path.basename(path)] = 60 * float(minutes)
+    if references:
+        update["transfer_reference_wall_time_s"] = references
+    return update
 
 
 def run_facts(results: Sequence[tuple[RunSpec, RunResult]], root: str) -> dict[str, dict[str, Any]]:
@@ -626,6 +649,7 @@ def summarise_suite(
                     "violation_rate_iqm_ci95": [lower, upper],
                 }
             )
+    all_seeds = [seed for cell in cells for seed in cell["per_seed"]]
     finished = {run for run, _ in results}
     unfinished = [run for run in runs if run not in finished]
     missing = [run.name for run in unfinished]
@@ -666,6 +690,7 @@ def summarise_suite(
         "others_sources": list(suite.others),
         "core_hours": _core_hours(list(wall_time.values())),
         "core_hours_runs": sum(value is not None for value in wall_time.values()),
+        **transfer_compute(all_seeds),
         **judgements,
     }
 

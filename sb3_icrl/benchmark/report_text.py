@@ -248,10 +248,55 @@ def aim_lines(summary: dict[str, Any]) -> list[str]:
 
 
 def compute_line(summary: dict[str, Any]) -> str | None:
-    """``Compute: N core-hours over M runs`` (runs with a recorded wall time), ``None`` without any."""
+    """
+    ``Compute: N core-hours of training over M runs`` (runs with a recorded wall time) and, where runs have transfer
+    tests, their core-hours (:func:`transfer_compute_text`); ``None`` without any training time.
+    """
     if summary.get("core_hours") is None:
         return None
-    return f"Compute: {format_hours(summary['core_hours'])} core-hours over {summary.get('core_hours_runs', 0)} runs"
+    runs = summary.get("core_hours_runs", 0)
+    line = f"Compute: {format_hours(summary['core_hours'])} core-hours of training over {runs} runs"
+    transfer = transfer_compute_text(summary)
+    return line if transfer is None else f"{line}; {transfer}"
+
+
+def transfer_compute(per_seed: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """
+    The transfer tests' compute over runs' per-seed entries: ``transfer_runs``, how many runs have a transfer result;
+    ``transfer_core_hours_runs``, how many of them a recorded transfer time; ``transfer_core_hours``, their learned-cost
+    learners' core-hours plus each reference learner's once, however many runs read it (``None`` when none is timed).
+    """
+    timed = [seed for seed in per_seed if seed.get("transfer_wall_time_s") is not None]
+    references: dict[str, float] = {}
+    for seed in timed:
+        references.update(seed.get("transfer_reference_wall_time_s") or {})
+    seconds = sum(float(seed["transfer_wall_time_s"]) for seed in timed) + sum(references.values())
+    return {
+        "transfer_runs": sum(any(column in seed for column in TRANSFER_COLUMNS) for seed in per_seed),
+        "transfer_core_hours_runs": len(timed),
+        "transfer_core_hours": seconds / 3600 if timed else None,
+    }
+
+
+def transfer_compute_text(summary: dict[str, Any]) -> str | None:
+    """
+    ``transfer tests X core-hours over K runs (...)`` (:func:`transfer_compute` over the summary's runs): says how many
+    runs' transfer tests have no recorded time (reported before times were). ``None`` where no run has a transfer test.
+    """
+    compute = transfer_compute([seed for cell in summary["cells"] for seed in cell["per_seed"]])
+    tested, timed = compute["transfer_runs"], compute["transfer_core_hours_runs"]
+    if not tested:
+        return None
+    if not timed:
+        return f"transfer tests of {_runs(tested)} not timed"
+    text = f"transfer tests {format_hours(compute['transfer_core_hours'])} core-hours over {_runs(timed)} (references once)"
+    untimed = tested - timed
+    return text if not untimed else f"{text}, {untimed} more not timed"
+
+
+def _runs(count: int) -> str:
+    """``1 run``, ``2 runs``."""
+    return f"{count} run" if count == 1 else f"{count} runs"
 
 
 def other_sources(summary: dict[str, Any]) -> list[str]:
@@ -596,6 +641,7 @@ def csv_rows(summary: dict[str, Any]) -> str:
             *TRANSFER_COLUMNS,
             *LAST_TRAINING_COLUMNS,
             "wall_time_s",
+            "transfer_wall_time_s",
             "training_starts",
             "git_revision",
             "expert_return",
@@ -625,6 +671,7 @@ def csv_rows(summary: dict[str, Any]) -> str:
                         for column in (*IDENTIFICATION_COLUMNS, *TRANSFER_COLUMNS, *LAST_TRAINING_COLUMNS)
                     ),
                     _csv_number(seed.get("wall_time_s")),
+                    _csv_number(seed.get("transfer_wall_time_s")),
                     seed.get("training_starts", ""),
                     seed.get("git_revision", ""),
                     *("" if value is None else value for value in (cell.get("expert_return"), *numbers)),
