@@ -327,6 +327,35 @@ def test_a_transfer_run_again_keeps_its_learned_result_and_adds_the_references(g
     assert trained[6:] == ["learned"]
 
 
+def test_a_transfer_cut_before_its_references_keeps_its_learned_result(grid_run, tmp_path, monkeypatch):
+    import sb3_icrl.metrics.transfer as transfer
+
+    grid_run = fresh_copy(grid_run, tmp_path)
+    trained, lines = count_training(monkeypatch), []
+    real_train = transfer.train_learner
+
+    def cut_at_the_oracle(learner, *args, **kwargs):
+        if learner == "oracle":
+            raise KeyboardInterrupt  # the suite's deadline, or the machine going away
+        return real_train(learner, *args, **kwargs)
+
+    monkeypatch.setattr(transfer, "train_learner", cut_at_the_oracle)
+    settings = dict(task="same", n_timesteps=64, eval_episodes=2, seed=5, references_dir=tmp_path / "references")
+    with pytest.raises(KeyboardInterrupt):
+        transfer.run_transfer(grid_run, log=lines.append, **settings)
+    partial = pathlib.Path(grid_run, "transfer_same.partial.json")
+    assert trained == ["learned"] and partial.is_file()
+    assert not pathlib.Path(grid_run, "transfer_same.json").exists()  # the suite still sees the test as not done
+    kept = json.loads(partial.read_text())["results"]["learned"]
+    # Run again: the learned-cost learner is not trained again, the references are; the partial file goes
+    monkeypatch.setattr(transfer, "train_learner", real_train)  # still counting
+    full = transfer.run_transfer(grid_run, log=lines.append, **settings)
+    assert trained == ["learned", "oracle", "ppo"]
+    assert full["results"]["learned"] == kept
+    assert any(line.endswith(f"learned reused from {partial}") for line in lines)
+    assert not partial.exists() and pathlib.Path(grid_run, "transfer_same.json").is_file()
+
+
 def test_the_references_go_beside_the_algorithm_folders_however_the_run_is_named(grid_run, tmp_path, monkeypatch):
     import sb3_icrl.metrics.transfer as transfer
 

@@ -70,6 +70,15 @@ def transfer_file(task: str) -> str:
     return f"transfer_{task}.json"
 
 
+def partial_transfer_file(task: str) -> str:
+    """
+    :param task: One of :data:`TASKS`
+    :return: The name of the file that keeps a task's learned-cost result while its references are still to come (a
+        transfer cut then, at a suite's deadline, keeps its longest learner); gone once the result file is written
+    """
+    return f"transfer_{task}.partial.json"
+
+
 def transfer_env(env_id: str, task: str, transition_noise: float = 0.0) -> tuple[str, float]:
     """
     The env and transition noise of a transfer task.
@@ -402,10 +411,7 @@ def run_transfer(
             **({"transition_noise_model": noise_model} if noise_model != COMPONENT_NOISE else {}),
         }
     )
-    previous = read_transfers(run).get(task, {})
-    if previous and os.path.getmtime(run / transfer_file(task)) < os.path.getmtime(model_file):
-        previous = {}  # the model changed since (a run continued in place): its learned-cost result is stale
-    previous_settings = {name: value for name, value in previous.get("settings", {}).items() if name != "reference_files"}
+    reusable = _reusable_learned(run, task, model_file, settings)
 
     def train_and_evaluate(learner: str) -> dict[str, float]:
         start = time.time()
@@ -433,12 +439,15 @@ def run_transfer(
 
     learners = LEARNERS if references else ("learned",)
     results: dict[str, dict[str, float]] = {}
-    if previous_settings == settings and "learned" in previous.get("results", {}):
-        # The same transfer was run before (perhaps without the references): its learned-cost learner is kept
-        log(f"transfer ({task}) on {env_id}: learned reused from {run / transfer_file(task)}")
-        results["learned"] = previous["results"]["learned"]
+    if reusable is not None:
+        # The same transfer was run before (perhaps without the references, or cut before them): its learned-cost
+        # learner is kept
+        log(f"transfer ({task}) on {env_id}: learned reused from {reusable[0]}")
+        results["learned"] = reusable[1]
     else:
         results["learned"] = train_and_evaluate("learned")
+        if len(learners) > 1:
+            atomic_write_json(run / partial_transfer_file(task), {"settings": settings, "results": results}, indent=2)
 
     # The references are shared by every run of their env, seed and settings. Runs that reach them at once (two queues
     # on the same seed) split them, each training one that nobody else is training, instead of both training both
@@ -490,7 +499,30 @@ def run_transfer(
         ),
     }
     atomic_write_json(run / transfer_file(task), summary, indent=2)
+    (run / partial_transfer_file(task)).unlink(missing_ok=True)
     return summary
+
+
+def _reusable_learned(
+    run: pathlib.Path, task: str, model_file: str | os.PathLike, settings: dict[str, Any]
+) -> tuple[pathlib.Path, dict[str, float]] | None:
+    """
+    The learned-cost result an earlier transfer of the run saved with the same ``settings``: in its result file, else
+    in the partial file of one cut before its references were done. Neither counts when older than the run's model (a
+    run continued in place since has another learned cost).
+
+    :return: ``(file, result)``, or ``None`` when there is none to reuse
+    """
+    for name in (transfer_file(task), partial_transfer_file(task)):
+        path = run / name
+        if not path.is_file() or os.path.getmtime(path) < os.path.getmtime(model_file):
+            continue
+        with open(path) as file:
+            saved = json.load(file)
+        saved_settings = {key: value for key, value in saved.get("settings", {}).items() if key != "reference_files"}
+        if saved_settings == settings and "learned" in saved.get("results", {}):
+            return path, saved["results"]["learned"]
+    return None
 
 
 def read_transfers(run_folder: str | os.PathLike) -> dict[str, dict[str, Any]]:
