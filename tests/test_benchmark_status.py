@@ -14,7 +14,15 @@ import torch as th
 from sb3_icrl.benchmark import load_suite
 from sb3_icrl.benchmark.cli import main as benchmark_main
 from sb3_icrl.benchmark.runner import run_lock
-from sb3_icrl.benchmark.status import RunStatus, held_lock_inodes, seconds_left, status_lines, suite_status
+from sb3_icrl.benchmark.status import (
+    RunStatus,
+    held_lock_inodes,
+    mark_reported,
+    seconds_left,
+    status_lines,
+    suite_status,
+    transfer_seconds,
+)
 from sb3_icrl.zoo.hyperparams import load_hyperparams
 from sb3_icrl.zoo.runs import FAILED_FILE, FINISHED_FILE
 
@@ -276,3 +284,55 @@ def test_runs_start_seed_by_seed_when_asked(tmp_path, monkeypatch):
         [("bc2l", 0), ("bc2l", 1), ("mecl", 0), ("mecl", 1)],  # the suite's order: algorithm, then seed
         [("bc2l", 0), ("mecl", 0), ("bc2l", 1), ("mecl", 1)],  # every algorithm's seed 0 first
     ]
+
+
+def test_transfer_tests_to_come_and_their_time(tmp_path):
+    """A suite with transfer tests: those done are timed (each reference learner once), those to come estimated."""
+    path = tmp_path / "transfer.yml"
+    path.write_text(
+        textwrap.dedent(SUITE).replace("seeds: [0, 1, 2, 3, 4]\n", "seeds: [0, 1, 2]\ntransfer: {tasks: [same]}\n")
+    )
+    suite = load_suite(str(path))
+    root = str(tmp_path / "logs")
+    runs = suite.runs()
+    for run in runs[:2]:  # seeds 0 and 1 trained, 1000 steps in 500 s; seed 2 not started
+        folder = run.run_folder(root)
+        os.makedirs(folder)
+        with open(os.path.join(folder, FINISHED_FILE), "w") as file:
+            json.dump({"num_timesteps": 1000, "wall_time_total_s": 500.0}, file)
+        _whole_zip(os.path.join(folder, "GridWorldWall-v0.zip"))
+    # Seed 0's transfer test done: its learned-cost learner 10 minutes, the oracle 20 and PPO 30
+    transfer = {
+        "settings": {"reference_files": {"oracle": "/refs/oracle_0.json", "ppo": "/refs/ppo_0.json"}},
+        "results": {"learned": {"wall_time_min": 10.0}, "oracle": {"wall_time_min": 20.0}, "ppo": {"wall_time_min": 30.0}},
+    }
+    with open(os.path.join(runs[0].run_folder(root), "transfer_same.json"), "w") as file:
+        json.dump(transfer, file)
+    statuses = suite_status(runs, root)
+    assert [(status.transfers_due, status.transfers_left) for status in statuses] == [(1, 0), (1, 1), (1, 1)]
+    assert statuses[0].transfer_wall_time_s == 600.0
+    assert statuses[0].transfer_references_s == {"oracle_0.json": 1200.0, "ppo_0.json": 1800.0}
+    assert statuses[1].note == "1 transfer test to come"
+    # Spent: 600 + 1200 + 1800 s. Left: two tests of 600 s, and seeds 1 and 2 train their references (3000 s each)
+    assert transfer_seconds(statuses) == (3600.0, pytest.approx(2 * 600 + 2 * 3000), 0)
+    assert status_lines(statuses)[-1] == (
+        "2 finished · 0 running · 0 interrupted · 0 failed · 1 not started · 2 transfer tests to come · 0.3 core-hours in "
+        "the finished runs and 1.0 in their transfer tests · about 2.1 core-hours left at the finished runs' pace "
+        "(0.1 training, 2.0 transfer tests)"
+    )
+    # Seed 2 reported with its transfer test (its own references): nothing of it is left to come
+    reported = {
+        (*runs[2].cell, 2): {
+            "wall_time_s": 500.0,
+            "timesteps": 1000,
+            "transfer_wall_time_s": 600.0,
+            "transfer_reference_wall_time_s": {"oracle_2.json": 1200.0, "ppo_2.json": 1800.0},
+        }
+    }
+    marked = mark_reported(statuses, reported)
+    assert (marked[2].state, marked[2].transfers_left) == ("reported", 0)
+    assert transfer_seconds(marked) == (7200.0, pytest.approx(600 + 3000), 0)
+    assert status_lines(marked)[-1].endswith(
+        "1 transfer test to come · 0.4 core-hours in the finished and reported runs and 2.0 in their transfer tests · "
+        "about 1.0 core-hours left at the finished runs' pace (0.0 training, 1.0 transfer tests)"
+    )

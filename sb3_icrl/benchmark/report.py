@@ -56,7 +56,7 @@ from sb3_icrl.data import load_demonstrations
 from sb3_icrl.envs import heldout_env_kwargs
 from sb3_icrl.envs.constraint_spec import get_constraint_spec
 from sb3_icrl.metrics.identification import headline, identification_cached, identify_run
-from sb3_icrl.metrics.transfer import read_transfers, transfer_file
+from sb3_icrl.metrics.transfer import read_transfers, transfer_file, transfer_times
 from sb3_icrl.registry import ICRL_ALGOS, env_name
 from sb3_icrl.run_evaluation import (
     RunResult,
@@ -271,23 +271,17 @@ def constraint_metrics(
 
 def _add_transfer_times(entry: dict[str, Any], transfer: dict[str, Any]) -> dict[str, Any]:
     """
-    A run's transfer-test compute, added to what ``entry`` holds from its other tasks: the seconds its learned-cost
-    learners trained (``transfer_wall_time_s``) and, per reference file the transfer read, the seconds its learner
-    trained (``transfer_reference_wall_time_s``, keyed by the file's name: runs of one env and seed share their
-    references, and the suite's compute counts each once). Transfers saved without times add nothing.
+    A run's transfer-test compute (:func:`~sb3_icrl.metrics.transfer.transfer_times`), added to what ``entry`` holds
+    from its other tasks: the seconds its learned-cost learners trained (``transfer_wall_time_s``) and, per reference
+    file the transfer read, the seconds its learner trained (``transfer_reference_wall_time_s``: runs of one env and
+    seed share their references, and the suite's compute counts each once). Transfers saved without times add nothing.
     """
-    results = transfer.get("results", {})
+    learned, references = transfer_times(transfer)
     update: dict[str, Any] = {}
-    learned = results.get("learned", {}).get("wall_time_min")
     if learned is not None:
-        update["transfer_wall_time_s"] = entry.get("transfer_wall_time_s", 0.0) + 60 * float(learned)
-    references = dict(entry.get("transfer_reference_wall_time_s", {}))
-    for learner, path in transfer.get("settings", {}).get("reference_files", {}).items():
-        minutes = results.get(learner, {}).get("wall_time_min")
-        if minutes is not None:
-            references[os.path.basename(path)] = 60 * float(minutes)
+        update["transfer_wall_time_s"] = entry.get("transfer_wall_time_s", 0.0) + learned
     if references:
-        update["transfer_reference_wall_time_s"] = references
+        update["transfer_reference_wall_time_s"] = {**entry.get("transfer_reference_wall_time_s", {}), **references}
     return update
 
 

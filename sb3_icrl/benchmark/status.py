@@ -7,14 +7,15 @@ core-hours spent and an estimate of those left.
 import json
 import os
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import yaml
 
-from sb3_icrl.benchmark.suite import RunSpec
+from sb3_icrl.benchmark.suite import RunSpec, result_current
 from sb3_icrl.common.saved import model_damage
 from sb3_icrl.hyperparams import load_hyperparams
+from sb3_icrl.metrics.transfer import transfer_times
 from sb3_icrl.registry import REFERENCE_ALGOS, env_name
 from sb3_icrl.run_folder import checkpoints, failure, finished_wall_time, is_finished, read_finished, unreadable_finished
 
@@ -42,7 +43,12 @@ class RunStatus:
     :param wall_time_s: Training time of a finished run
     :param error: The error of a failed run
     :param note: What is wrong with a run's files that its state does not tell: a finished run whose final model is
-        missing or damaged (the report leaves it out), a ``finished.json`` that does not read
+        missing or damaged (the report leaves it out), a ``finished.json`` that does not read; a finished run's transfer
+        tests still to come or running
+    :param transfers_due: How many transfer tests the suite asks of the run (its ICRL runs on its transfer envs)
+    :param transfers_left: How many of them are still to come (a run the suite skips, being reported, has none left)
+    :param transfer_wall_time_s: Seconds the learned-cost learners of its transfer tests done so far trained
+    :param transfer_references_s: Per reference file those tests read (by name), the seconds its learner trained
     """
 
     run: RunSpec
@@ -52,6 +58,10 @@ class RunStatus:
     wall_time_s: float | None = None
     error: str | None = None
     note: str | None = None
+    transfers_due: int = 0
+    transfers_left: int = 0
+    transfer_wall_time_s: float | None = None
+    transfer_references_s: dict[str, float] = field(default_factory=dict)
 
 
 def held_lock_inodes(proc_locks: str = PROC_LOCKS) -> set[int] | None:
@@ -123,6 +133,39 @@ def run_status(
         interrupted)
     :param recipes: See :func:`planned_steps`
     """
+    status = _training_status(run, root, locked_inodes, recipes)
+    jobs = run.transfer_jobs(root)
+    if not jobs:
+        return status
+    status.transfers_due = status.transfers_left = len(jobs)
+    if status.state != "finished":
+        return status
+    folder = run.run_folder(root)
+    for result_file, _ in jobs:
+        if not result_current(folder, result_file):
+            continue
+        status.transfers_left -= 1
+        try:
+            with open(os.path.join(folder, result_file)) as file:
+                learned, references = transfer_times(json.load(file))
+        except (OSError, ValueError, AttributeError):  # a result that does not read is timed as unknown
+            continue
+        if learned is not None:
+            status.transfer_wall_time_s = (status.transfer_wall_time_s or 0.0) + learned
+        status.transfer_references_s.update(references)
+    if status.transfers_left:
+        lock = folder + ".lock"
+        running = locked_inodes is not None and os.path.exists(lock) and os.stat(lock).st_ino in locked_inodes
+        tests = f"{status.transfers_left} transfer test{'s' if status.transfers_left > 1 else ''}"
+        notes = [status.note, f"{tests} {'running' if running else 'to come'}"]
+        status.note = "; ".join(note for note in notes if note)
+    return status
+
+
+def _training_status(
+    run: RunSpec, root: str, locked_inodes: set[int] | None, recipes: dict[tuple[str, ...], int | None] | None
+) -> RunStatus:
+    """Where the run's training stands (:func:`run_status` without its transfer tests)."""
     folder = run.run_folder(root)
     total = planned_steps(run, root, recipes)
     if is_finished(folder):
@@ -203,8 +246,9 @@ def reported_runs(report_folder: str, suite_name: str, recipe_version: str | Non
     :param report_folder: The report's folder (``-o`` of ``benchmark report``)
     :param suite_name: The suite's name (the report must be that suite's)
     :param recipe_version: The suite's recipe version: a run the report holds at another version is not counted
-    :return: ``{(*cell, seed): {"wall_time_s": ..., "timesteps": ...}}``, keyed as a run's
-        :attr:`~sb3_icrl.benchmark.suite.RunSpec.cell` and seed
+    :return: ``{(*cell, seed): {"wall_time_s": ..., "timesteps": ..., "transfer_wall_time_s": ...,
+        "transfer_reference_wall_time_s": {...}}}``, keyed as a run's :attr:`~sb3_icrl.benchmark.suite.RunSpec.cell`
+        and seed
     """
     path = os.path.join(report_folder, "summary.json")
     if not os.path.isfile(path):
@@ -225,7 +269,12 @@ def reported_runs(report_folder: str, suite_name: str, recipe_version: str | Non
             if recipe_version is not None and seed.get("recipe_version", recipe_version) != recipe_version:
                 continue
             key = (str(cell["env"]), str(cell["variant"]), str(cell["algo"]), int(seed["seed"]))
-            runs[key] = {"wall_time_s": seed.get("wall_time_s"), "timesteps": seed.get("timesteps")}
+            runs[key] = {
+                "wall_time_s": seed.get("wall_time_s"),
+                "timesteps": seed.get("timesteps"),
+                "transfer_wall_time_s": seed.get("transfer_wall_time_s"),
+                "transfer_reference_wall_time_s": seed.get("transfer_reference_wall_time_s") or {},
+            }
     return runs
 
 
@@ -251,6 +300,10 @@ def mark_reported(statuses: list[RunStatus], reported: dict[tuple[str, str, str,
                 steps_done=int(steps) if steps is not None else None,
                 steps_total=status.steps_total,
                 wall_time_s=float(wall_time) if wall_time is not None else None,
+                # The suite does not take a reported run up again: none of its transfer tests is left to come
+                transfers_due=status.transfers_due,
+                transfer_wall_time_s=entry.get("transfer_wall_time_s"),
+                transfer_references_s=dict(entry.get("transfer_reference_wall_time_s") or {}),
             )
         marked.append(status)
     return marked
@@ -286,6 +339,55 @@ def seconds_left(statuses: list[RunStatus]) -> tuple[float, int]:
     return seconds, unknown
 
 
+def transfer_seconds(statuses: list[RunStatus]) -> tuple[float, float, int]:
+    """
+    The transfer tests' compute: spent (the learned-cost learners of the tests done, each reference learner once) and
+    left, at the pace of the tests done on the same variant and env: each test to come takes their learned-cost
+    learners' mean time, and an env and seed none of whose runs has a test done yet also their references' mean time
+    per env and seed (one task's worth).
+
+    :return: ``(seconds spent, seconds left, tests to come not estimated)``: tests whose variant and env have no timed
+        test done
+    """
+    learned_pace: dict[tuple[str, str], list[float]] = {}
+    references_by_seed: dict[tuple[str, str, int], dict[str, float]] = {}
+    tested_seeds: set[tuple[str, str, int]] = set()
+    spent = 0.0
+    for status in statuses:
+        run = status.run
+        done = status.transfers_due - status.transfers_left
+        if done > 0:
+            tested_seeds.add((run.variant, run.env_id, run.seed))
+        if done > 0 and status.transfer_wall_time_s is not None:
+            spent += status.transfer_wall_time_s
+            learned_pace.setdefault((run.variant, run.env_id), []).append(status.transfer_wall_time_s / done)
+        if status.transfer_references_s:
+            references_by_seed.setdefault((run.variant, run.env_id, run.seed), {}).update(status.transfer_references_s)
+    # A file once: variants on the same env and seed (another dataset, say) share their references
+    every_file = {name: seconds for references in references_by_seed.values() for name, seconds in references.items()}
+    spent += sum(every_file.values())
+    reference_pace: dict[tuple[str, str], list[float]] = {}
+    for (variant, env_id, _), references in references_by_seed.items():
+        reference_pace.setdefault((variant, env_id), []).append(sum(references.values()))
+    left, unknown = 0.0, 0
+    untested: set[tuple[str, str, int]] = set()
+    for status in statuses:
+        run = status.run
+        if not status.transfers_left:
+            continue
+        pace = learned_pace.get((run.variant, run.env_id))
+        if not pace:
+            unknown += status.transfers_left
+            continue
+        left += status.transfers_left * sum(pace) / len(pace)
+        if (run.variant, run.env_id, run.seed) not in tested_seeds:
+            untested.add((run.variant, run.env_id, run.seed))
+    for variant, env_id, _ in untested:
+        paces = reference_pace.get((variant, env_id))
+        left += sum(paces) / len(paces) if paces else 0.0
+    return spent, left, unknown
+
+
 def status_lines(statuses: list[RunStatus], verbose: bool = False) -> list[str]:
     """
     One line per run that is neither finished nor reported or has a note (every run with ``verbose``), then the counts,
@@ -309,16 +411,29 @@ def status_lines(statuses: list[RunStatus], verbose: bool = False) -> list[str]:
     counts = {state: sum(status.state == state for status in statuses) for state in STATES}
     spent = sum(status.wall_time_s or 0.0 for status in statuses if status.state in DONE_STATES) / 3600
     n_done = counts["finished"] + counts["reported"]
+    transfers = any(status.transfers_due for status in statuses)  # the suite asks for transfer tests
+    tests_left = sum(status.transfers_left for status in statuses)
     summary = " · ".join(f"{counts[state]} {state}" for state in STATES if state != "reported" or counts[state])
+    if transfers:
+        summary += f" · {tests_left} transfer test{'s' if tests_left != 1 else ''} to come"
     summary += f" · {spent:.1f} core-hours in the finished{' and reported' if counts['reported'] else ''} runs"
-    if n_done < len(statuses):
+    transfer_spent, transfer_left, transfer_unknown = transfer_seconds(statuses)
+    if transfers:
+        summary += f" and {transfer_spent / 3600:.1f} in their transfer tests"
+    if n_done < len(statuses) or tests_left:
         left, unknown = seconds_left(statuses)
-        if unknown == len(statuses) - n_done:
+        if n_done < len(statuses) and unknown == len(statuses) - n_done:
             estimate = "time left unknown until a run of an env finishes"
         else:
-            estimate = f"about {left / 3600:.1f} core-hours left at the finished runs' pace"
-            if unknown:
-                estimate += f" (not counting {unknown} run{'s' if unknown > 1 else ''} of unknown pace or steps)"
+            estimate = f"about {(left + transfer_left) / 3600:.1f} core-hours left at the finished runs' pace"
+            parts = [f"{left / 3600:.1f} training, {transfer_left / 3600:.1f} transfer tests"] if transfers else []
+            skipped = [f"{unknown} run{'s' if unknown > 1 else ''} of unknown pace or steps"] if unknown else []
+            if transfer_unknown:
+                skipped.append(f"{transfer_unknown} transfer test{'s' if transfer_unknown > 1 else ''} of unknown pace")
+            if skipped:
+                parts.append(f"not counting {' or '.join(skipped)}")
+            if parts:
+                estimate += f" ({'; '.join(parts)})"
         summary += f" · {estimate}"
     lines.append(summary)
     return lines

@@ -541,6 +541,24 @@ def read_transfers(run_folder: str | os.PathLike) -> dict[str, dict[str, Any]]:
     return found
 
 
+def transfer_times(transfer: dict[str, Any]) -> tuple[float | None, dict[str, float]]:
+    """
+    The compute of one saved transfer (a ``transfer_<task>.json``).
+
+    :param transfer: The saved JSON
+    :return: The seconds its learned-cost learner trained (``None`` when it was saved without), and per reference file
+        it read (by file name: runs of one env and seed share them), the seconds that reference's learner trained
+    """
+    results = transfer.get("results", {})
+    learned = results.get("learned", {}).get("wall_time_min")
+    references = {
+        os.path.basename(path): 60 * float(results[learner]["wall_time_min"])
+        for learner, path in transfer.get("settings", {}).get("reference_files", {}).items()
+        if results.get(learner, {}).get("wall_time_min") is not None
+    }
+    return (None if learned is None else 60 * float(learned)), references
+
+
 def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
     """The parser of ``sb3-icrl transfer``."""
     parser = argparse.ArgumentParser(
