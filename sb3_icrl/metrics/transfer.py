@@ -54,8 +54,10 @@ from sb3_icrl.registry import import_gym_packages, resolve_env_id
 TASKS = ("same", "reward", "dynamics")
 #: Transition noise of the ``dynamics`` task
 DYNAMICS_NOISE = 1e-2
-#: The learners of a transfer: the frozen learned cost, and the two references
-LEARNERS = ("learned", "oracle", "ppo")
+#: The two references of a transfer: PPO-Lagrangian on the true cost and unconstrained PPO
+REFERENCE_LEARNERS = ("oracle", "ppo")
+#: The learners of a transfer: the frozen learned cost first, then the references
+LEARNERS = ("learned", *REFERENCE_LEARNERS)
 #: Bumped when the results change meaning
 TRANSFER_VERSION = 1
 #: What a reference learner depends on, of a transfer's settings (never the run's constraint, model or budget)
@@ -438,6 +440,7 @@ def run_transfer(
         return result
 
     learners = LEARNERS if references else ("learned",)
+    reference_learners = [learner for learner in learners if learner in REFERENCE_LEARNERS]
     results: dict[str, dict[str, float]] = {}
     if reusable is not None:
         # The same transfer was run before (perhaps without the references, or cut before them): its learned-cost
@@ -446,14 +449,14 @@ def run_transfer(
         results["learned"] = reusable[1]
     else:
         results["learned"] = train_and_evaluate("learned")
-        if len(learners) > 1:
+        if reference_learners:
             atomic_write_json(run / partial_transfer_file(task), {"settings": settings, "results": results}, indent=2)
 
     # The references are shared by every run of their env, seed and settings. Runs that reach them at once (two queues
     # on the same seed) split them, each training one that nobody else is training, instead of both training both
     pending: dict[str, tuple[pathlib.Path, dict[str, Any]]] = {}
     reference_files: dict[str, str] = {}
-    for learner in learners[1:]:
+    for learner in reference_learners:
         reference_settings = _as_json(
             {
                 **{name: settings[name] for name in (*REFERENCE_SETTINGS, "transition_noise_model") if name in settings},
