@@ -268,6 +268,11 @@ def test_unconstrained_run_is_found_beside_the_run_or_in_the_experts_suite(tmp_p
     beside.mkdir(parents=True)
     (beside / "finished.json").write_text("{}")
     assert find_unconstrained_run(run) == beside.resolve()  # the same folder first
+    same_seed = tmp_path / "table3" / "base" / "ppo" / "BlockedHalfCheetah-v0_123"
+    same_seed.mkdir()
+    assert find_unconstrained_run(run) == beside.resolve()  # not finished yet
+    (same_seed / "finished.json").write_text("{}")
+    assert find_unconstrained_run(run) == same_seed.resolve()  # the run's own seed before a seed sorted earlier
     (tmp_path / "experts" / "base" / "ppo" / "BlockedAnt-v0_0").mkdir()
     assert find_unconstrained_run(tmp_path / "table3" / "base" / "mecl" / "BlockedAnt-v0_1") is None  # not finished
 

@@ -253,7 +253,10 @@ def constraint_metrics(
             if not identification_cached(folder, model):
                 log(f"scoring the learned constraint of {run.name} against the true one")
             try:
-                entry.update(headline(identify_run(folder, model=model)["scores"]))
+                identified = identify_run(folder, model=model)
+                entry.update(headline(identified["scores"]))
+                # Whose unconstrained episodes were among the probes (none until a PPO run of the env has finished)
+                entry["identification_unconstrained_run"] = identified["settings"].get("unconstrained_run")
             except Exception as error:  # a run that cannot be scored leaves its columns empty, not the report unwritten
                 log(f"no identification scores for {run.name}: {type(error).__name__}: {error}")
         for task, transfer in (read_transfers(folder) if model == "final" else {}).items():

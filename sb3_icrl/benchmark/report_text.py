@@ -31,6 +31,7 @@ IDENTIFICATION_COLUMNS = (
     "untrained_auroc",
     "untrained_auroc_low",
     "untrained_auroc_high",
+    "identification_unconstrained_run",
 )
 
 

@@ -690,8 +690,10 @@ def untrained_copy(net: "th.nn.Module", seed: int = 0) -> "th.nn.Module":
 
 def find_unconstrained_run(run_folder: str | os.PathLike) -> pathlib.Path | None:
     """
-    A finished unconstrained PPO run on the same env, near an ICRL run: ``<folder>/ppo/<EnvName>_*`` beside it, or
-    an ``experts`` suite run (``<root>/experts/<variant>/ppo/<EnvName>_*``) when the run belongs to a suite.
+    A finished unconstrained PPO run on the same env, near an ICRL run: ``<folder>/ppo/<EnvName>_*`` beside it (the
+    run's own seed first: a suite's ``ppo`` row of that seed, so that a run's probes do not depend on which other seeds
+    have finished), or an ``experts`` suite run (``<root>/experts/<variant>/ppo/<EnvName>_*``) when the run belongs to
+    a suite.
 
     :param run_folder: The ICRL run folder ``<folder>/<algo>/<EnvName>_<N>``
     :return: The run folder, or ``None`` when there is none
@@ -702,7 +704,8 @@ def find_unconstrained_run(run_folder: str | os.PathLike) -> pathlib.Path | None
     if len(run.parents) > 4:
         patterns += sorted((run.parents[3] / "experts").glob("*/ppo"))
     for folder in patterns:
-        for candidate in sorted(folder.glob(f"{name}_*")):
+        same_seed = folder / run.name
+        for candidate in [same_seed, *(path for path in sorted(folder.glob(f"{name}_*")) if path != same_seed)]:
             if candidate.is_dir() and is_finished(str(candidate)):
                 return candidate
     return None
