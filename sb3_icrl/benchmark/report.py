@@ -259,6 +259,7 @@ def constraint_metrics(
                 entry["identification_unconstrained_run"] = identified["settings"].get("unconstrained_run")
             except Exception as error:  # a run that cannot be scored leaves its columns empty, not the report unwritten
                 log(f"no identification scores for {run.name}: {type(error).__name__}: {error}")
+        current = []
         for task, transfer in (read_transfers(folder) if model == "final" else {}).items():
             if not result_current(folder, transfer_file(task)):
                 log(
@@ -268,24 +269,14 @@ def constraint_metrics(
                 continue
             entry[f"transfer_{task}_violation_rate"] = float(transfer["violation_rate"])
             entry[f"transfer_{task}_feasible_ratio"] = float(transfer["feasible_reward_ratio"])
-            entry.update(_add_transfer_times(entry, transfer))
+            current.append(transfer)
+        # The transfer tests' compute: the suite's counts each reference file once, however many runs read it
+        learned, references = transfer_times(current)
+        if learned is not None:
+            entry["transfer_wall_time_s"] = learned
+        if references:
+            entry["transfer_reference_wall_time_s"] = references
     return metrics
-
-
-def _add_transfer_times(entry: dict[str, Any], transfer: dict[str, Any]) -> dict[str, Any]:
-    """
-    A run's transfer-test compute (:func:`~sb3_icrl.metrics.transfer.transfer_times`), added to what ``entry`` holds
-    from its other tasks: the seconds its learned-cost learners trained (``transfer_wall_time_s``) and, per reference
-    file the transfer read, the seconds its learner trained (``transfer_reference_wall_time_s``: runs of one env and
-    seed share their references, and the suite's compute counts each once). Transfers saved without times add nothing.
-    """
-    learned, references = transfer_times(transfer)
-    update: dict[str, Any] = {}
-    if learned is not None:
-        update["transfer_wall_time_s"] = entry.get("transfer_wall_time_s", 0.0) + learned
-    if references:
-        update["transfer_reference_wall_time_s"] = {**entry.get("transfer_reference_wall_time_s", {}), **references}
-    return update
 
 
 def run_facts(results: Sequence[tuple[RunSpec, RunResult]], root: str) -> dict[str, dict[str, Any]]:

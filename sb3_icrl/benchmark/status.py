@@ -141,18 +141,19 @@ def run_status(
     if status.state != "finished":
         return status
     folder = run.run_folder(root)
+    done = []
     for result_file, _ in jobs:
         if not result_current(folder, result_file):
             continue
         status.transfers_left -= 1
         try:
             with open(os.path.join(folder, result_file)) as file:
-                learned, references = transfer_times(json.load(file))
-        except (OSError, ValueError, AttributeError):  # a result that does not read is timed as unknown
+                saved = json.load(file)
+        except (OSError, ValueError):  # a result that does not read is timed as unknown
             continue
-        if learned is not None:
-            status.transfer_wall_time_s = (status.transfer_wall_time_s or 0.0) + learned
-        status.transfer_references_s.update(references)
+        if isinstance(saved, dict):
+            done.append(saved)
+    status.transfer_wall_time_s, status.transfer_references_s = transfer_times(done)
     if status.transfers_left:
         lock = folder + ".lock"
         running = locked_inodes is not None and os.path.exists(lock) and os.stat(lock).st_ino in locked_inodes

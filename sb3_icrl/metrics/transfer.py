@@ -31,7 +31,7 @@ import os
 import pathlib
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from functools import partial
 from typing import Any
 
@@ -544,22 +544,26 @@ def read_transfers(run_folder: str | os.PathLike) -> dict[str, dict[str, Any]]:
     return found
 
 
-def transfer_times(transfer: dict[str, Any]) -> tuple[float | None, dict[str, float]]:
+def transfer_times(transfers: Iterable[dict[str, Any]]) -> tuple[float | None, dict[str, float]]:
     """
-    The compute of one saved transfer (a ``transfer_<task>.json``).
+    The compute of a run's saved transfers (its ``transfer_<task>.json`` files, one per task).
 
-    :param transfer: The saved JSON
-    :return: The seconds its learned-cost learner trained (``None`` when it was saved without), and per reference file
-        it read (by file name: runs of one env and seed share them), the seconds that reference's learner trained
+    :param transfers: The saved JSONs
+    :return: The seconds their learned-cost learners trained (``None`` when none was saved with its time), and per
+        reference file they read (by file name: runs of one env and seed share them), the seconds that reference's
+        learner trained
     """
-    results = transfer.get("results", {})
-    learned = results.get("learned", {}).get("wall_time_min")
-    references = {
-        os.path.basename(path): 60 * float(results[learner]["wall_time_min"])
-        for learner, path in transfer.get("settings", {}).get("reference_files", {}).items()
-        if results.get(learner, {}).get("wall_time_min") is not None
-    }
-    return (None if learned is None else 60 * float(learned)), references
+    learned: float | None = None
+    references: dict[str, float] = {}
+    for transfer in transfers:
+        results = transfer.get("results", {})
+        minutes = results.get("learned", {}).get("wall_time_min")
+        if minutes is not None:
+            learned = (learned or 0.0) + 60 * float(minutes)
+        for learner, path in transfer.get("settings", {}).get("reference_files", {}).items():
+            if results.get(learner, {}).get("wall_time_min") is not None:
+                references[os.path.basename(path)] = 60 * float(results[learner]["wall_time_min"])
+    return learned, references
 
 
 def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
