@@ -5,8 +5,8 @@ import os
 import sb3_icrl.common.envs  # (registers the tiny test env with gymnasium)
 import sb3_icrl.envs  # noqa: F401  (registers the benchmark envs with gymnasium)
 from sb3_icrl.bc2l import BC2L
+from sb3_icrl.common.constraint_spec import ConstraintSpec, FeatureConstraint, declare_constraint, get_constraint_spec
 from sb3_icrl.common.evaluation import ConstraintEvaluation, evaluate_constraint
-from sb3_icrl.envs.constraint_spec import ConstraintSpec, FeatureConstraint, declare_constraint, get_constraint_spec
 from sb3_icrl.gacl import GACL
 from sb3_icrl.irlplus import IRLPlus, IRLPlusPPO
 from sb3_icrl.mecl import MECL

@@ -1,4 +1,4 @@
-"""An env declares its true constraint (sb3_icrl.envs.constraint_spec); plots and evaluation read the declaration."""
+"""An env declares its true constraint (sb3_icrl.common.constraint_spec); plots and evaluation read the declaration."""
 
 import gymnasium as gym
 import numpy as np

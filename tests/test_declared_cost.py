@@ -10,11 +10,11 @@ from gymnasium import spaces
 from stable_baselines3.common.vec_env import DummyVecEnv
 from test_user_envs import FAST
 
+from sb3_icrl.common.constraint_spec import ConstraintSpec, FeatureConstraint, declare_constraint
 from sb3_icrl.constraints.wrappers import LearnedCostVecEnvWrapper
 from sb3_icrl.data import load_demonstrations
 from sb3_icrl.data.__main__ import main as data_main
 from sb3_icrl.data.generate import generate_demonstrations
-from sb3_icrl.envs.constraint_spec import ConstraintSpec, FeatureConstraint, declare_constraint
 from sb3_icrl.envs.wrappers import DeclaredCostWrapper, MissingCostError
 from sb3_icrl.zoo import main
 from sb3_icrl.zoo.compare import main as compare_main

@@ -86,6 +86,16 @@ def test_nothing_below_the_command_line_imports_it():
     assert upward == []
 
 
+def test_the_common_layer_imports_nothing_above_it():
+    upward = [
+        f"{_module_name(path)}:{line} imports {target}"
+        for path in sorted((PACKAGE / "common").rglob("*.py"))
+        for target, line in _imports(path)
+        if not (target == "sb3_icrl.common" or target.startswith("sb3_icrl.common."))
+    ]
+    assert upward == []
+
+
 def test_the_library_imports_its_modules_at_module_top():
     inside_functions = [
         f"{_module_name(path)}:{line} imports {target}"

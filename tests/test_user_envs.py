@@ -71,7 +71,7 @@ DECLARED_MODULE = """\
 import gymnasium
 
 from sb3_icrl.common.envs import ConstrainedCorridorEnv
-from sb3_icrl.envs.constraint_spec import ConstraintSpec, FeatureConstraint
+from sb3_icrl.common.constraint_spec import ConstraintSpec, FeatureConstraint
 
 
 class ShortCorridorEnv(ConstrainedCorridorEnv):

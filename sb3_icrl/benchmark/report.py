@@ -49,12 +49,12 @@ from sb3_icrl.benchmark.report_figures import summary_run
 from sb3_icrl.benchmark.report_numbers import finite_or_null
 from sb3_icrl.benchmark.report_text import csv_rows, latex_table, markdown_table, transfer_compute
 from sb3_icrl.benchmark.suite import RunSpec, Suite, result_current
+from sb3_icrl.common.constraint_spec import get_constraint_spec
 from sb3_icrl.common.evaluation import CONSTRAINT_VIOLATION_PREFIX, OUTCOME_RATE_KEYS
 from sb3_icrl.common.statistics import MIN_SEEDS_FOR_INTERVAL, iqm, stratified_bootstrap_ci
 from sb3_icrl.common.utils import atomic_write_bytes, atomic_write_json
 from sb3_icrl.data import load_demonstrations
 from sb3_icrl.envs import heldout_env_kwargs
-from sb3_icrl.envs.constraint_spec import get_constraint_spec
 from sb3_icrl.metrics.identification import headline, identification_cached, identify_run
 from sb3_icrl.metrics.transfer import read_transfers, transfer_file, transfer_times
 from sb3_icrl.registry import ICRL_ALGOS, env_name

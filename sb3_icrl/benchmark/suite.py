@@ -20,9 +20,9 @@ import gymnasium as gym
 import torch as th
 import yaml
 
+from sb3_icrl.common.constraint_spec import get_constraint_spec
 from sb3_icrl.data.registry import DEMONSTRATIONS_DIR, available_demonstrations, dataset_file_name
 from sb3_icrl.envs import NAMESPACE, REWARD_TRANSFER_TASKS
-from sb3_icrl.envs.constraint_spec import get_constraint_spec
 from sb3_icrl.envs.wrappers import COMPONENT_NOISE, TRANSITION_NOISE_MODELS, TransitionNoiseWrapper
 from sb3_icrl.hyperparams import (
     ZOO_KEYS,
@@ -664,7 +664,7 @@ class _SuiteReader:
                     f"{env_id} reports no true cost (its step's info has no 'cost', only {sorted(info)}) and declares no "
                     "constraint: ppolag trains on that cost and the report counts every cell's violations with it. Put "
                     "the per-step cost in info['cost'], or declare the constraint (a `constraint_spec` attribute on the "
-                    "env, or sb3_icrl.envs.constraint_spec.declare_constraint in a module of `gym_packages`).",
+                    "env, or sb3_icrl.common.constraint_spec.declare_constraint in a module of `gym_packages`).",
                 )
 
     def check_envs(self, envs: list[str], variants: dict[str, dict[str, Any]]) -> None:

@@ -7,7 +7,7 @@ Environments of the ICRL benchmark, registered with gymnasium in the ``sb3_icrl`
     env = gymnasium.make("sb3_icrl/BlockedHalfCheetah-v0")
 
 Every step's ``info["cost"]`` is the true cost (1.0 when the constraint is broken, else 0.0). Each env declares its
-constraint as ``constraint_spec`` (:mod:`sb3_icrl.envs.constraint_spec`), read by :func:`get_constraint_spec`.
+constraint as ``constraint_spec`` (:mod:`sb3_icrl.common.constraint_spec`), read by :func:`get_constraint_spec`.
 """
 
 from typing import Any
@@ -15,6 +15,7 @@ from typing import Any
 import gymnasium
 from gymnasium.envs.registration import load_env_creator
 
+from sb3_icrl.common.constraint_spec import ConstraintSpec, FeatureConstraint, declare_constraint, get_constraint_spec
 from sb3_icrl.common.env_ids import NAMESPACE
 from sb3_icrl.envs.binding_envs import BINDING_ENV_SPECS, BINDING_VARIANTS
 from sb3_icrl.envs.blocked_mujoco import (
@@ -26,7 +27,6 @@ from sb3_icrl.envs.blocked_mujoco import (
     BlockedWalkerEnv,
     ConstrainedFeature,
 )
-from sb3_icrl.envs.constraint_spec import ConstraintSpec, FeatureConstraint, declare_constraint, get_constraint_spec
 from sb3_icrl.envs.grid_world import MAPS, GridWorldEnv
 from sb3_icrl.envs.transfer_envs import REWARD_TRANSFER_TASKS, TRANSFER_ENV_SPECS
 from sb3_icrl.envs.wrappers import TransitionNoiseWrapper

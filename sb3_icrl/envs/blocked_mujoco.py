@@ -10,9 +10,9 @@ constraint in every step's ``info``:
 
 The learner must not read ``info["cost"]``; it is there for experts (PPO-Lagrangian) and for evaluation.
 
-Each environment declares its true constraint (:mod:`sb3_icrl.envs.constraint_spec`): the class attribute
+Each environment declares its true constraint (:mod:`sb3_icrl.common.constraint_spec`): the class attribute
 ``default_constraint`` (default threshold) and the property ``constraint_spec`` (this env's threshold), read by
-:func:`~sb3_icrl.envs.constraint_spec.get_constraint_spec`. :data:`CONSTRAINED_FEATURE` is a view of these
+:func:`~sb3_icrl.common.constraint_spec.get_constraint_spec`. :data:`CONSTRAINED_FEATURE` is a view of these
 declarations by environment id. Thresholds and reward weights are constructor arguments
 (``gymnasium.make("sb3_icrl/BlockedHalfCheetah-v0", cost_threshold=-2.0)``).
 
@@ -39,7 +39,7 @@ from gymnasium.envs.mujoco.swimmer_v5 import SwimmerEnv
 from gymnasium.envs.mujoco.walker2d_v5 import Walker2dEnv
 from numpy.typing import NDArray
 
-from sb3_icrl.envs.constraint_spec import ConstraintSpec, FeatureConstraint
+from sb3_icrl.common.constraint_spec import ConstraintSpec, FeatureConstraint
 from sb3_icrl.envs.mujoco_compat import compile_model
 
 # Same as gymnasium's MujocoEnv.step
@@ -77,7 +77,7 @@ class _PositionConstraintMixin:
 
     @property
     def constraint_spec(self) -> ConstraintSpec:
-        """The true constraint, with this env's ``cost_threshold`` (see :mod:`sb3_icrl.envs.constraint_spec`)."""
+        """The true constraint, with this env's ``cost_threshold`` (see :mod:`sb3_icrl.common.constraint_spec`)."""
         return ConstraintSpec(features=(dataclasses.replace(self.default_constraint, threshold=self.cost_threshold),))
 
     def _setup_constraint(self, cost_threshold: float, cost_op: str, kwargs: dict[str, Any]) -> None:

@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 from gymnasium import Env, spaces
 
-from sb3_icrl.envs.constraint_spec import ConstraintSpec
+from sb3_icrl.common.constraint_spec import ConstraintSpec
 
 #: King moves as ``(d_row, d_col)``: right, left, down, up, down-right, up-right, down-left, up-left
 ACTIONS = np.array([(0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (-1, 1), (1, -1), (-1, -1)], dtype=np.int64)
@@ -123,7 +123,7 @@ class GridWorldEnv(Env):
 
     @property
     def constraint_spec(self) -> ConstraintSpec:
-        """The true constraint: the unsafe cells as states ``row * n_cols + col`` (:mod:`sb3_icrl.envs.constraint_spec`)."""
+        """The true constraint: the unsafe cells as states ``row * n_cols + col`` (:mod:`sb3_icrl.common.constraint_spec`)."""
         return ConstraintSpec(unsafe_states=frozenset(np.flatnonzero(self.unsafe_states).tolist()))
 
     #: Pixels per cell side and the colours of the ``rgb_array`` image

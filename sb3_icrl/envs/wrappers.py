@@ -9,7 +9,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.envs.mujoco.mujoco_env import MujocoEnv
 
-from sb3_icrl.envs.constraint_spec import ConstraintSpec, FeatureConstraint, as_constraint_spec, get_constraint_spec
+from sb3_icrl.common.constraint_spec import ConstraintSpec, FeatureConstraint, as_constraint_spec, get_constraint_spec
 
 #: Noise model of :class:`TransitionNoiseWrapper`: an independent draw for each component of the state
 COMPONENT_NOISE = "component"
@@ -180,7 +180,7 @@ class MissingCostError(ValueError):
 
 class DeclaredCostWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """
-    Puts the true cost of an env's declared constraint (see :mod:`sb3_icrl.envs.constraint_spec`) into
+    Puts the true cost of an env's declared constraint (see :mod:`sb3_icrl.common.constraint_spec`) into
     ``info[cost_info_key]`` when the env's own ``step`` does not, so that evaluation, experts and demonstrations read it
     from one place for the benchmark envs and for yours alike.
 
@@ -193,7 +193,7 @@ class DeclaredCostWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     :param env: The env, e.g. ``gymnasium.make("myns/MyEnv-v0")``
     :param spec: The declaration to use; ``None``: the env's own (its ``constraint_spec`` attribute, or
-        :func:`~sb3_icrl.envs.constraint_spec.declare_constraint` for its registered id)
+        :func:`~sb3_icrl.common.constraint_spec.declare_constraint` for its registered id)
     :param cost_info_key: The info key of the true per-step cost
     :param required: Raise :class:`MissingCostError` at a step whose info has no cost when there is no declaration
         either; ``False``: pass such steps on unchanged (for learners that do not read the true cost)
@@ -225,7 +225,7 @@ class DeclaredCostWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 raise MissingCostError(
                     f"{env_id} reports no true cost (its info has no key {self.cost_info_key!r}, only {sorted(info)}) "
                     "and declares no constraint to compute it from. Declare the constraint: a `constraint_spec` "
-                    "attribute on the env (a ConstraintSpec or FeatureConstraint from sb3_icrl.envs.constraint_spec), or "
+                    "attribute on the env (a ConstraintSpec or FeatureConstraint from sb3_icrl.common.constraint_spec), or "
                     f"declare_constraint({env_id!r}, ...) where you register it; or put the per-step cost in "
                     f"info[{self.cost_info_key!r}]."
                 )

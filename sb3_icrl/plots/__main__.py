@@ -155,7 +155,7 @@ def _pick_constraint(
         if feature is None or not feature.lstrip("-").isdigit():
             raise ValueError(
                 "This env declares no feature constraint: name the observation feature to plot with --feature INDEX "
-                "[--threshold X] [--op '<=' or '>='], or give the env a `constraint_spec` (sb3_icrl.envs.constraint_spec)."
+                "[--threshold X] [--op '<=' or '>='], or give the env a `constraint_spec` (sb3_icrl.common.constraint_spec)."
             )
         if int(feature) < 0:
             raise ValueError(f"--feature must be an observation index >= 0, got {feature}.")

@@ -23,10 +23,10 @@ from matplotlib.colors import ListedColormap
 from matplotlib.figure import Figure
 from matplotlib.ticker import EngFormatter, MaxNLocator
 
+from sb3_icrl.common.constraint_spec import get_constraint_spec
 from sb3_icrl.common.env_ids import env_name
 from sb3_icrl.common.utils import atomic_write_bytes, check_evaluation_rows, read_npz
 from sb3_icrl.constraints.networks import BetaFeasibilityNet, _ConstraintNet
-from sb3_icrl.envs.constraint_spec import get_constraint_spec
 from sb3_icrl.envs.grid_world import GridWorldEnv
 from sb3_icrl.icrl.tabular import cost_table
 
@@ -80,7 +80,7 @@ def _short_env_name(env_id: str) -> str:
 def constraint_features(env_id: str, env_kwargs: Mapping[str, Any] | None = None) -> tuple[TrueConstraint, ...]:
     """
     The true constraints of an env that are thresholds on one observation feature, as the env declares them
-    (:func:`~sb3_icrl.envs.constraint_spec.get_constraint_spec`), with the thresholds its keyword arguments set
+    (:func:`~sb3_icrl.common.constraint_spec.get_constraint_spec`), with the thresholds its keyword arguments set
     (``cost_threshold``, ``speed_limit``, ``min_gap``...).
 
     :param env_id: Env id, with or without the ``sb3_icrl/`` prefix (or ``MODULE:EnvId``)
@@ -96,7 +96,7 @@ def constraint_features(env_id: str, env_kwargs: Mapping[str, Any] | None = None
     if spec is not None and spec.unsafe_states is not None:
         raise ValueError(f"{name}'s constraint is a set of unsafe cells, not a feature threshold: plot it with grid_cost_map.")
     raise ValueError(
-        f"No known feature constraint for env {env_id!r}: give it a `constraint_spec` (sb3_icrl.envs.constraint_spec), or "
+        f"No known feature constraint for env {env_id!r}: give it a `constraint_spec` (sb3_icrl.common.constraint_spec), or "
         "for a plot name the feature with --feature INDEX [--threshold X] [--op '<=' or '>=']."
     )
 

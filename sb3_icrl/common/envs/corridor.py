@@ -6,7 +6,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from sb3_icrl.envs.constraint_spec import ConstraintSpec, FeatureConstraint
+from sb3_icrl.common.constraint_spec import ConstraintSpec, FeatureConstraint
 
 
 class ConstrainedCorridorEnv(gym.Env):
@@ -31,7 +31,7 @@ class ConstrainedCorridorEnv(gym.Env):
     @property
     def constraint_spec(self) -> ConstraintSpec:
         """
-        The true constraint (see :mod:`sb3_icrl.envs.constraint_spec`): ``x / (length - 1) > safe_limit / (length - 1)``;
+        The true constraint (see :mod:`sb3_icrl.common.constraint_spec`): ``x / (length - 1) > safe_limit / (length - 1)``;
         the true cost rounds the observed ``x`` back to its cell, so float32 observations of the last safe cell are safe.
         """
         length, safe_limit = self.length, self.safe_limit

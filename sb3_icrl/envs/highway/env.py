@@ -77,7 +77,7 @@ agent has acted. Recorded cars never exceed 40 m/s.
 
 :data:`HIGHWAY_CONSTRAINTS` gives, per environment id, the observation index and threshold of each
 true constraint (default thresholds); each env declares its own, with its thresholds, as the property
-``constraint_spec`` (:mod:`sb3_icrl.envs.constraint_spec`). Thresholds are constructor arguments
+``constraint_spec`` (:mod:`sb3_icrl.common.constraint_spec`). Thresholds are constructor arguments
 (``gymnasium.make("sb3_icrl/HighwayDistance-v0", min_gap=25.0)``).
 """
 
@@ -93,7 +93,7 @@ from highway_env.road.road import Road, RoadNetwork
 from highway_env.vehicle.kinematics import Vehicle
 from numpy.typing import NDArray
 
-from sb3_icrl.envs.constraint_spec import ConstraintSpec, FeatureConstraint
+from sb3_icrl.common.constraint_spec import ConstraintSpec, FeatureConstraint
 from sb3_icrl.envs.highway.scenarios import STORE_MARGIN, Scenario, scenario_files
 
 #: Names of the observation features, in order (see the module docstring)
@@ -202,7 +202,7 @@ class HighwayConstraintEnv(gymnasium.Env):
 
     @property
     def constraint_spec(self) -> ConstraintSpec:
-        """This env's true constraints with its thresholds (see :mod:`sb3_icrl.envs.constraint_spec`)."""
+        """This env's true constraints with its thresholds (see :mod:`sb3_icrl.common.constraint_spec`)."""
         thresholds = {"velocity": self.speed_limit, "distance": self.min_gap}
         return ConstraintSpec(
             features=tuple(
