@@ -178,6 +178,8 @@ def _start_training_suite(tmp_path: pathlib.Path, in_background: bool = False) -
         text=True,
         start_new_session=True,
         preexec_fn=_ignore_sigint if in_background else None,
+        # A SIGABRT then prints where every thread of the engine and its run stands (see _end_of)
+        env={**os.environ, "PYTHONFAULTHANDLER": "1"},
     )
     log = load_suite(path).runs()[0].log_file(root)
     deadline = time.time() + 60
@@ -186,11 +188,24 @@ def _start_training_suite(tmp_path: pathlib.Path, in_background: bool = False) -
     return process, log
 
 
+def _end_of(process: subprocess.Popen, log: str, timeout: float = 60.0) -> str:
+    """The engine's stderr once it has ended; one still running after ``timeout`` seconds fails the test with where
+    its threads and its run's stood, and the end of the run's log."""
+    try:
+        return process.communicate(timeout=timeout)[1]
+    except subprocess.TimeoutExpired:
+        pass
+    os.killpg(process.pid, signal.SIGABRT)
+    errors = process.communicate(timeout=30)[1]
+    log_end = pathlib.Path(log).read_text()[-3000:] if os.path.isfile(log) else "(no log)"
+    pytest.fail(f"the engine still ran {timeout:.0f} s after the signal.\nIts stderr:\n{errors}\nIts run's log:\n{log_end}")
+
+
 def test_ctrl_c_ends_a_suite_with_one_line(tmp_path):
-    process, _ = _start_training_suite(tmp_path)
+    process, log = _start_training_suite(tmp_path)
     # As a terminal's Ctrl-C does: SIGINT to the whole process group, the engine and its run
     os.killpg(process.pid, signal.SIGINT)
-    _, errors = process.communicate(timeout=60)
+    errors = _end_of(process, log)
     assert process.returncode == 130
     assert "Traceback" not in errors and errors.strip().splitlines()[-1].startswith("interrupted: the runs resume")
 
@@ -209,7 +224,7 @@ def test_ctrl_c_ends_a_suite_with_one_line(tmp_path):
 def test_a_signal_to_the_engine_alone_stops_its_runs_which_save_and_ends_with_one_line(tmp_path, stop, in_background):
     process, log = _start_training_suite(tmp_path, in_background=in_background)
     os.kill(process.pid, stop)
-    _, errors = process.communicate(timeout=60)
+    errors = _end_of(process, log)
     assert process.returncode == 130
     assert "Traceback" not in errors and errors.strip().splitlines()[-1].startswith("interrupted: the runs resume")
     assert "Interrupted: saving the model" in pathlib.Path(log).read_text()
