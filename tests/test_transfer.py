@@ -19,7 +19,14 @@ from sb3_icrl.benchmark.report import constraint_metrics
 from sb3_icrl.benchmark.suite import RunSpec
 from sb3_icrl.envs import BINDING_ENV_SPECS, ENV_SPECS, REWARD_TRANSFER_TASKS, TRANSFER_ENV_SPECS
 from sb3_icrl.metrics.identification import _load_run_policy, run_demonstration_pairs
-from sb3_icrl.metrics.transfer import DYNAMICS_NOISE, feasible_reward_ratio, read_transfers, train_learner, transfer_env
+from sb3_icrl.metrics.transfer import (
+    DYNAMICS_NOISE,
+    feasible_reward_ratio,
+    read_transfers,
+    train_learner,
+    transfer_env,
+    transfer_spent_seconds,
+)
 from sb3_icrl.zoo.compare import RunResult
 from sb3_icrl.zoo.hyperparams import load_hyperparams, preprocess_hyperparams
 from sb3_icrl.zoo.train import cli
@@ -365,3 +372,13 @@ def test_the_references_go_beside_the_algorithm_folders_however_the_run_is_named
     shared = tmp_path / "logs" / "transfer_references"
     assert sorted(os.path.dirname(path) for path in saved["settings"]["reference_files"].values()) == [str(shared)] * 2
     assert len(list(shared.glob("*.json"))) == 2
+
+
+def test_transfer_spent_counts_each_reference_file_once_and_untimed_learners_as_nothing():
+    times = [
+        (600.0, {"oracle_a.json": 900.0, "ppo_a.json": 300.0}),
+        (60.0, {"oracle_a.json": 900.0, "ppo_a.json": 300.0}),  # the same env and seed: the same references
+        (None, {"oracle_b.json": 120.0}),  # a run reported before its learners were timed
+    ]
+    assert transfer_spent_seconds(times) == 600 + 60 + 900 + 300 + 120
+    assert transfer_spent_seconds([]) == 0.0

@@ -18,6 +18,7 @@ from sb3_icrl.benchmark.report_numbers import format_hours, format_rate, format_
 from sb3_icrl.benchmark.suite import BEATS_COLUMNS
 from sb3_icrl.common.evaluation import CONSTRAINT_VIOLATION_PREFIX, OUTCOME_KEYS, OUTCOME_RATE_KEYS
 from sb3_icrl.common.statistics import MIN_PAIRS_FOR_WILCOXON
+from sb3_icrl.metrics.transfer import transfer_spent_seconds
 from sb3_icrl.run_evaluation import OUTCOME_TITLES, format_outcome_rate
 from sb3_icrl.run_folder import LAST_TRAINING_EPISODES
 
@@ -268,10 +269,9 @@ def transfer_compute(per_seed: Sequence[dict[str, Any]]) -> dict[str, Any]:
     learners' core-hours plus each reference learner's once, however many runs read it (``None`` when none is timed).
     """
     timed = [seed for seed in per_seed if seed.get("transfer_wall_time_s") is not None]
-    references: dict[str, float] = {}
-    for seed in timed:
-        references.update(seed.get("transfer_reference_wall_time_s") or {})
-    seconds = sum(float(seed["transfer_wall_time_s"]) for seed in timed) + sum(references.values())
+    seconds = transfer_spent_seconds(
+        (float(seed["transfer_wall_time_s"]), seed.get("transfer_reference_wall_time_s") or {}) for seed in timed
+    )
     return {
         "transfer_runs": sum(any(column in seed for column in TRANSFER_COLUMNS) for seed in per_seed),
         "transfer_core_hours_runs": len(timed),

@@ -15,7 +15,7 @@ import yaml
 from sb3_icrl.benchmark.suite import RunSpec, result_current
 from sb3_icrl.common.saved import model_damage
 from sb3_icrl.hyperparams import load_hyperparams
-from sb3_icrl.metrics.transfer import transfer_times
+from sb3_icrl.metrics.transfer import transfer_spent_seconds, transfer_times
 from sb3_icrl.registry import REFERENCE_ALGOS, env_name
 from sb3_icrl.run_folder import checkpoints, failure, finished_wall_time, is_finished, read_finished, unreadable_finished
 
@@ -353,20 +353,22 @@ def transfer_seconds(statuses: list[RunStatus]) -> tuple[float, float, int]:
     learned_pace: dict[tuple[str, str], list[float]] = {}
     references_by_seed: dict[tuple[str, str, int], dict[str, float]] = {}
     tested_seeds: set[tuple[str, str, int]] = set()
-    spent = 0.0
     for status in statuses:
         run = status.run
         done = status.transfers_due - status.transfers_left
         if done > 0:
             tested_seeds.add((run.variant, run.env_id, run.seed))
         if done > 0 and status.transfer_wall_time_s is not None:
-            spent += status.transfer_wall_time_s
             learned_pace.setdefault((run.variant, run.env_id), []).append(status.transfer_wall_time_s / done)
         if status.transfer_references_s:
             references_by_seed.setdefault((run.variant, run.env_id, run.seed), {}).update(status.transfer_references_s)
-    # A file once: variants on the same env and seed (another dataset, say) share their references
-    every_file = {name: seconds for references in references_by_seed.values() for name, seconds in references.items()}
-    spent += sum(every_file.values())
+    spent = transfer_spent_seconds(
+        (
+            status.transfer_wall_time_s if status.transfers_due > status.transfers_left else None,
+            status.transfer_references_s or {},
+        )
+        for status in statuses
+    )
     reference_pace: dict[tuple[str, str], list[float]] = {}
     for (variant, env_id, _), references in references_by_seed.items():
         reference_pace.setdefault((variant, env_id), []).append(sum(references.values()))

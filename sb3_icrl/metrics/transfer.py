@@ -31,7 +31,7 @@ import os
 import pathlib
 import sys
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from functools import partial
 from typing import Any
 
@@ -564,6 +564,23 @@ def transfer_times(transfers: Iterable[dict[str, Any]]) -> tuple[float | None, d
             if results.get(learner, {}).get("wall_time_min") is not None:
                 references[os.path.basename(path)] = 60 * float(results[learner]["wall_time_min"])
     return learned, references
+
+
+def transfer_spent_seconds(times: Iterable[tuple[float | None, Mapping[str, float]]]) -> float:
+    """
+    What transfer tests cost together: every run's learned-cost learners, and each reference learner once, however
+    many runs read its file (runs of one env and seed share them).
+
+    :param times: Per run, what :func:`transfer_times` returns: its learned-cost learners' seconds (``None``: not
+        timed) and its reference files' seconds by file name
+    :return: The seconds
+    """
+    learned = 0.0
+    references: dict[str, float] = {}
+    for run_learned, run_references in times:
+        learned += run_learned or 0.0
+        references.update(run_references)
+    return learned + sum(references.values())
 
 
 def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
