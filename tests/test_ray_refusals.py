@@ -53,7 +53,7 @@ class _InvisibleBackend(Backend):
     def __init__(self) -> None:
         self.submitted = 0
 
-    def submit(self, run: RunSpec, root: str) -> RunSpec:
+    def submit(self, run: RunSpec, root: str, defer: bool = False) -> RunSpec:
         self.submitted += 1
         return run
 

@@ -1,12 +1,16 @@
-"""``benchmark run --start-within``: no run starts after the time, the runs under way end, the others are left."""
+"""``benchmark run --start-within``: no run starts after the time, the runs under way end, the others are left; a run whose
+transfer test waits for references other runs train gives its turn to the next run."""
 
 import os
+import sys
 
 import pytest
 
 from sb3_icrl.benchmark import cli, runner
 from sb3_icrl.benchmark.runner import Backend, run_all
 from sb3_icrl.benchmark.suite import RunSpec
+from sb3_icrl.metrics.transfer import DEFERRED_EXIT
+from sb3_icrl.run_folder import FINISHED_FILE
 
 RUNS = [RunSpec("smoke", "base", "bc2l", "sb3_icrl/GridWorldWall-v0", seed, 2048) for seed in range(4)]
 
@@ -26,7 +30,7 @@ class _TenSecondRuns(Backend):
         self.clock, self.finished, self.failing = clock, finished, failing
         self.submitted: list[RunSpec] = []
 
-    def submit(self, run: RunSpec, root: str) -> RunSpec:
+    def submit(self, run: RunSpec, root: str, defer: bool = False) -> RunSpec:
         self.submitted.append(run)
         return run
 
@@ -81,6 +85,53 @@ def test_without_a_time_every_run_starts(clock, finished):
     assert [outcome.status for outcome in run_all(RUNS, "logs", backend)] == ["done"] * 4
 
 
+class _BusyReferences(_TenSecondRuns):
+    """Runs in ``waiting`` find their transfer's references all taken by other runs until ``saved_at`` (fake clock),
+    and step aside while they may defer."""
+
+    def __init__(self, clock: _Clock, finished: set[RunSpec], waiting: set[RunSpec], saved_at: float) -> None:
+        super().__init__(clock, finished)
+        self.waiting, self.saved_at = waiting, saved_at
+        self.deferrable: list[tuple[RunSpec, bool]] = []
+
+    def submit(self, run: RunSpec, root: str, defer: bool = False) -> RunSpec:
+        self.deferrable.append((run, defer))
+        return super().submit(run, root, defer)
+
+    def result(self, handle: RunSpec) -> tuple[str, float]:
+        _, defer = [entry for entry in self.deferrable if entry[0] == handle][-1]
+        if handle in self.waiting and defer and self.clock.now <= self.saved_at:
+            return "deferred", 10.0
+        return super().result(handle)
+
+
+def test_a_deferred_transfer_gives_its_turn_to_the_next_run_and_comes_back_after_it(clock, finished):
+    backend = _BusyReferences(clock, finished, waiting={RUNS[0]}, saved_at=15)
+    events = []
+    outcomes = run_all(RUNS[:3], "logs", backend, on_event=lambda event, outcome, _: events.append((event, outcome.status)))
+    # Deferred at 10, the first run is back once the next has ended (at 20), before the third starts
+    assert backend.deferrable == [(RUNS[0], True), (RUNS[1], True), (RUNS[0], True), (RUNS[2], False)]
+    assert [(outcome.status, outcome.attempts) for outcome in outcomes] == [("done", 1), ("done", 1), ("done", 1)]
+    assert ("end", "deferred") in events
+
+
+def test_with_nothing_else_to_start_a_deferred_transfer_waits_for_its_references(clock, finished):
+    backend = _BusyReferences(clock, finished, waiting={RUNS[0]}, saved_at=1000)
+    outcomes = run_all(RUNS[:1], "logs", backend)
+    assert backend.deferrable == [(RUNS[0], False)]
+    backend = _BusyReferences(clock, finished, waiting={RUNS[1]}, saved_at=1000)
+    outcomes = run_all(RUNS[1:3], "logs", backend)
+    assert backend.deferrable == [(RUNS[1], True), (RUNS[2], False), (RUNS[1], False)]
+    assert [outcome.status for outcome in outcomes] == ["done", "done"]
+
+
+def test_a_deferred_transfer_left_by_the_start_time_says_so(clock, finished):
+    backend = _BusyReferences(clock, finished, waiting={RUNS[0]}, saved_at=1000)
+    outcomes = run_all(RUNS[:2], "logs", backend, start_until=15)
+    assert backend.deferrable == [(RUNS[0], True), (RUNS[1], False)]
+    assert [(outcome.status, outcome.attempts) for outcome in outcomes] == [("deferred", 0), ("done", 1)]
+
+
 @pytest.mark.parametrize("text, seconds", [("2h30m", 9000), ("90m", 5400), ("1.5h", 5400), ("600s", 600), ("45", 45)])
 def test_durations(text, seconds):
     assert cli.duration_seconds(text) == seconds
@@ -92,3 +143,21 @@ def test_a_bad_duration_is_refused_with_the_forms_it_takes(text, capsys, tmp_pat
         cli.main(["run", "smoke", "-f", str(tmp_path), f"--start-within={text}"])
     error = capsys.readouterr().err
     assert "--start-within" in error and ("2h30m, 90m" in error or "more than zero" in error)
+
+
+@pytest.mark.parametrize("defer, status", [(True, "deferred"), (False, "failed")])
+def test_a_transfer_test_ending_with_the_deferred_status_defers_its_run_only_when_asked(tmp_path, monkeypatch, defer, status):
+    run_folder = tmp_path / "bc2l" / "GridWorldWall-v0_1"
+    run_folder.mkdir(parents=True)
+    (run_folder / FINISHED_FILE).write_text('{"num_timesteps": 2048}')  # trained: only its transfer test is left
+    commands = []
+
+    def transfer_command(argv):
+        commands.append(list(argv))
+        return [sys.executable, "-c", f"raise SystemExit({DEFERRED_EXIT})"]
+
+    monkeypatch.setattr(runner, "transfer_command", transfer_command)
+    log = str(tmp_path / "run.log")
+    transfers = [("transfer_reward.json", [str(run_folder), "--task", "reward"])]
+    assert runner.execute_run(["--algo", "bc2l"], log, str(run_folder), transfers, defer=defer)[0] == status
+    assert commands == [[str(run_folder), "--task", "reward", *(["--no-wait"] if defer else [])]]

@@ -311,6 +311,37 @@ def test_a_reference_another_run_is_training_is_waited_for_not_trained_twice(gri
     assert any(line.endswith(f"oracle reused from {shared / oracle_name}") for line in lines)
 
 
+def test_told_not_to_wait_a_transfer_defers_and_keeps_what_it_trained(grid_run, tmp_path, monkeypatch, capsys):
+    """--no-wait: with every missing reference in another run's hands it ends with DEFERRED_EXIT; run again once they
+    are saved, it trains nothing more."""
+    import sb3_icrl.metrics.transfer as transfer
+
+    # The oracle another run trains, from a copy of the run
+    other_copy = fresh_copy(grid_run, tmp_path / "other")
+    first = transfer.run_transfer(
+        other_copy, "same", n_timesteps=64, eval_episodes=2, seed=4, references_dir=tmp_path / "first"
+    )
+    grid_run = fresh_copy(grid_run, tmp_path)
+    trained = count_training(monkeypatch)
+    oracle_name = pathlib.Path(first["settings"]["reference_files"]["oracle"]).name
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    argv = [grid_run, "--task", "same", "-n", "64", "--eval-episodes", "2", "--seed", "4", "--references-dir", str(shared)]
+    with open((shared / oracle_name).with_suffix(".lock"), "a") as other_run:  # another run trains the oracle
+        fcntl.flock(other_run, fcntl.LOCK_EX)
+        assert transfer.main([*argv, "--no-wait"]) == transfer.DEFERRED_EXIT
+    assert trained == ["learned", "ppo"]  # what nobody else was training
+    assert "oracle being trained by another run" in capsys.readouterr().out
+    assert pathlib.Path(grid_run, "transfer_same.partial.json").is_file()
+    assert not pathlib.Path(grid_run, "transfer_same.json").exists()
+    shutil.copy(tmp_path / "first" / oracle_name, shared / oracle_name)  # the other run saved it
+    assert transfer.main([*argv, "--no-wait"]) == 0
+    assert trained[5:] == []
+    assert (
+        json.loads(pathlib.Path(grid_run, "transfer_same.json").read_text())["results"]["oracle"] == first["results"]["oracle"]
+    )
+
+
 def test_a_transfer_run_again_keeps_its_learned_result_and_adds_the_references(grid_run, tmp_path, monkeypatch):
     import sb3_icrl.metrics.transfer as transfer
 

@@ -191,7 +191,7 @@ class Display:
 
     def line(self, counts: dict[str, int]) -> str:
         finished = counts["done"] + counts["skipped"]
-        left = counts["left"] + counts["running"]
+        left = counts["left"] + counts["running"] + counts.get("deferred", 0)
         eta = ""
         if self.trained_seconds and left:
             per_run = sum(self.trained_seconds) / len(self.trained_seconds)
@@ -199,7 +199,9 @@ class Display:
             eta = f" · ETA {time.strftime('%H:%M', time.localtime(time.time() + per_run * left / parallel))}"
         return (
             f"{finished}/{self.total} done ({counts['skipped']} from before) · {counts['running']} running · "
-            f"{counts['failed']} failed · {counts['busy']} busy elsewhere · {counts['left']} left{eta}"
+            f"{counts['failed']} failed · {counts['busy']} busy elsewhere · {counts['left']} left"
+            + (f" · {counts['deferred']} deferred" if counts.get("deferred") else "")
+            + eta
         )
 
     def __call__(self, event: str, outcome: RunOutcome | None, counts: dict[str, int]) -> None:
@@ -207,7 +209,7 @@ class Display:
             self.trained_seconds.append(outcome.seconds)
         if self.live is not None:
             self.live.update(self.line(counts))
-            if outcome is not None and event == "end" and outcome.status in ("done", "failed"):
+            if outcome is not None and event == "end" and outcome.status in ("done", "failed", "deferred"):
                 self.live.console.print(f"{outcome.status}: {outcome.run.name} ({outcome.seconds / 60:.1f} min)")
             return
         if outcome is not None:
@@ -269,6 +271,13 @@ def run_command(args: argparse.Namespace) -> int:
         print(f"\n{outcome.status.upper()}: {outcome.run.name} ({outcome.run.log_file(args.log_folder)})")
         for line in outcome.log_tail:
             print(f"    {line}")
+    deferred = [outcome for outcome in outcomes if outcome.status == "deferred"]
+    if deferred:
+        print(
+            f"\nTRANSFER TESTS DEFERRED: {len(deferred)} run{'s' if len(deferred) > 1 else ''} trained, whose transfer "
+            "tests wait for references other runs are training (the same command finishes them, reading those "
+            "references): " + ", ".join(outcome.run.name for outcome in deferred)
+        )
     left = [outcome for outcome in outcomes if outcome.status == "left"]
     if left:
         print(

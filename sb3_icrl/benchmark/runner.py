@@ -23,6 +23,7 @@ import yaml
 from sb3_icrl.benchmark.suite import RunSpec, result_current, run_complete
 from sb3_icrl.common.utils import file_lock
 from sb3_icrl.common.versions import versions
+from sb3_icrl.metrics.transfer import DEFERRED_EXIT
 from sb3_icrl.run_folder import FINISHED_FILE, is_finished
 
 #: Attempts per run before it is listed as failed
@@ -52,7 +53,8 @@ class RunOutcome:
 
     :param run: The run
     :param status: ``"done"`` (trained now), ``"skipped"`` (had finished before), ``"busy"`` (another process holds
-        it), ``"failed"``, or ``"left"`` (not started: the time to start runs had passed)
+        it), ``"failed"``, or ``"left"`` (not started: the time to start runs had passed; or trained, its transfer
+        test deferred, see :func:`run_all`)
     :param attempts: How many times it was started
     :param seconds: Wall time of its last attempt
     :param log_tail: The end of its log, when it failed
@@ -95,7 +97,11 @@ def transfer_command(argv: Sequence[str]) -> list[str]:
 
 
 def execute_run(
-    argv: Sequence[str], log_file: str, run_folder: str, transfers: Sequence[tuple[str, Sequence[str]]] = ()
+    argv: Sequence[str],
+    log_file: str,
+    run_folder: str,
+    transfers: Sequence[tuple[str, Sequence[str]]] = (),
+    defer: bool = False,
 ) -> tuple[str, float]:
     """
     Train one run to its end (or find it finished), then run the transfer tests it lacks, the output of each appended
@@ -105,7 +111,10 @@ def execute_run(
     :param log_file: The run's log
     :param run_folder: The run folder (for the lock and the finished check)
     :param transfers: ``(result file in the run folder, sb3-icrl transfer arguments)`` per transfer test
-    :return: ``(status, seconds)``: status ``"done"``, ``"skipped"`` (nothing left to do), ``"busy"`` or ``"failed"``
+    :param defer: A transfer test whose missing references other runs are all training ends at once (``--no-wait``)
+        rather than waiting for them: the run is then ``"deferred"``
+    :return: ``(status, seconds)``: status ``"done"``, ``"skipped"`` (nothing left to do), ``"busy"``, ``"deferred"``
+        or ``"failed"``
     """
 
     def complete() -> bool:
@@ -122,7 +131,7 @@ def execute_run(
         start = time.time()
         commands = [] if is_finished(run_folder) else [train_command(argv)]
         missing = [targv for file, targv in transfers if not result_current(run_folder, file)]
-        commands += [transfer_command(targv) for targv in missing]
+        commands += [transfer_command([*targv, "--no-wait"] if defer else targv) for targv in missing]
         for command in commands:
             # Unbuffered: nothing is left to flush at close, where a full disk would fail again without the file's name
             with open(log_file, "ab", buffering=0) as log:
@@ -139,6 +148,8 @@ def execute_run(
                 finally:
                     with _RUNNING_LOCK:
                         _RUNNING.discard(process)
+            if defer and process.returncode == DEFERRED_EXIT and is_finished(run_folder):  # (a transfer test's status)
+                return "deferred", time.time() - start
             if process.returncode != 0 or not is_finished(run_folder):
                 return "failed", time.time() - start
         return ("done" if complete() else "failed"), time.time() - start
@@ -218,6 +229,7 @@ def execute_run_checked(
     log_file: str,
     run_folder: str,
     transfers: Sequence[tuple[str, Sequence[str]]] = (),
+    defer: bool = False,
 ) -> tuple[str, float]:
     """
     :func:`execute_run` on a Ray worker, once it has checked that it runs the driver's sb3-icrl.
@@ -228,7 +240,7 @@ def execute_run_checked(
     mismatch = code_mismatch(driver, code_identity())
     if mismatch is not None:
         raise CodeMismatchError(mismatch)
-    return execute_run(argv, log_file, run_folder, transfers)
+    return execute_run(argv, log_file, run_folder, transfers, defer)
 
 
 class Backend:
@@ -238,7 +250,8 @@ class Backend:
     #: The cluster the runs go to (``None``: this machine)
     address: str | None = None
 
-    def submit(self, run: RunSpec, root: str) -> Any:
+    def submit(self, run: RunSpec, root: str, defer: bool = False) -> Any:
+        """Start ``run`` (``defer``: see :func:`execute_run`); return a handle for ``wait_any`` and ``result``."""
         raise NotImplementedError
 
     def wait_any(self, pending: set[Any]) -> tuple[set[Any], set[Any]]:
@@ -261,9 +274,9 @@ class LocalBackend(Backend):
         self.capacity = jobs
         self.executor = ThreadPoolExecutor(max_workers=jobs)
 
-    def submit(self, run: RunSpec, root: str) -> Future:
+    def submit(self, run: RunSpec, root: str, defer: bool = False) -> Future:
         return self.executor.submit(
-            execute_run, run.train_argv(root), run.log_file(root), run.run_folder(root), run.transfer_jobs(root)
+            execute_run, run.train_argv(root), run.log_file(root), run.run_folder(root), run.transfer_jobs(root), defer
         )
 
     def wait_any(self, pending: set[Any]) -> tuple[set[Any], set[Any]]:
@@ -311,10 +324,15 @@ class RayBackend(Backend):
         # Ray queues tasks until a CPU is free: submit as many as the cluster has CPUs
         self.capacity = max(int(ray.cluster_resources().get("CPU", jobs)), 1)
 
-    def submit(self, run: RunSpec, root: str) -> Any:
+    def submit(self, run: RunSpec, root: str, defer: bool = False) -> Any:
         root = os.path.abspath(root)
         return self.task.remote(  # type: ignore[call-arg]
-            self.driver_code, run.train_argv(root), run.log_file(root), run.run_folder(root), run.transfer_jobs(root)
+            self.driver_code,
+            run.train_argv(root),
+            run.log_file(root),
+            run.run_folder(root),
+            run.transfer_jobs(root),
+            defer,
         )
 
     def wait_any(self, pending: set[Any]) -> tuple[set[Any], set[Any]]:
@@ -396,6 +414,27 @@ def unseen_run_message(run_folder: str) -> str:
     )
 
 
+def _ended_run(backend: Backend, handle: Any, outcome: RunOutcome, root: str) -> tuple[str, bool]:
+    """
+    What became of a run the backend reports ended (its outcome's ``seconds`` and ``log_tail`` set here).
+
+    :return: ``(status, whether a failure may be tried again)``
+    """
+    try_again = outcome.attempts < MAX_ATTEMPTS
+    try:
+        status, outcome.seconds = backend.result(handle)
+    except Exception as error:  # a backend failure (a lost Ray worker): the run failed this time
+        status, outcome.seconds = "failed", 0.0
+        outcome.log_tail = [f"{type(error).__name__}: {error}"]
+        # (a second try would meet the same code)
+        try_again = try_again and not isinstance(error, CodeMismatchError)
+    if status in ("done", "skipped") and not outcome.run.complete(root):
+        # (and would find the run finished out of sight again)
+        status, try_again = "failed", False
+        outcome.log_tail = [unseen_run_message(outcome.run.run_folder(root))]
+    return status, try_again
+
+
 def run_all(
     runs: Sequence[RunSpec],
     root: str,
@@ -404,63 +443,74 @@ def run_all(
     start_until: float | None = None,
 ) -> list[RunOutcome]:
     """
-    Run every run to its end; finished runs are skipped, failed ones retried once.
+    Run every run to its end; finished runs are skipped, failed ones retried once. A run whose transfer test finds
+    the references it lacks all being trained by other runs (two queues on one seed) steps aside, its learned-cost
+    result kept, and gives its core to the next run; it comes back first once another run has ended (by then the
+    references are most likely saved), or when nothing else is left to start (then it waits for them). Stepping aside
+    does not count as an attempt.
 
     :param runs: The runs
     :param root: The log root (``-f``)
     :param backend: Where the runs go
     :param on_event: Called with ``("start" | "end", outcome, counts)`` as runs start and end (for the display)
     :param start_until: A time (``time.time()``) after which no run starts, nor starts again after a failure: the runs
-        under way go on to their end, the others stay ``"left"``, a run that failed once is ``"failed"`` (``None``: no
-        such time)
+        under way go on to their end, the others stay ``"left"``, a run that failed once is ``"failed"``, one whose
+        transfer test was deferred ``"deferred"`` (``None``: no such time)
     :return: One outcome per run, in the order of ``runs``
     """
     outcomes = {run: RunOutcome(run, "left") for run in runs}
     queue = list(runs)
     pending: dict[Any, RunSpec] = {}
+    deferred: set[RunSpec] = set()
+    #: Deferred runs not back in the queue yet
+    stepped_aside: list[RunSpec] = []
+
+    def notify(event: str, outcome: RunOutcome) -> None:
+        if on_event:
+            on_event(event, outcome, counts())
 
     def counts() -> dict[str, int]:
         statuses = [outcome.status for outcome in outcomes.values()]
-        return {status: statuses.count(status) for status in ("done", "skipped", "running", "failed", "busy", "left")}
+        return {
+            status: statuses.count(status) for status in ("done", "skipped", "running", "failed", "busy", "left", "deferred")
+        }
 
     try:
-        while queue or pending:
+        while queue or pending or stepped_aside:
+            if stepped_aside and not queue and len(pending) < backend.capacity:
+                queue, stepped_aside = stepped_aside, []  # nothing else to start: they wait for their references
             if start_until is not None and time.time() >= start_until:
-                for run in queue:  # (the others stay "left")
+                for run in queue:  # (the others stay "left", or "deferred")
                     if run.complete(root):
                         outcomes[run].status = "skipped"
-                queue.clear()
+                queue, stepped_aside = [], []
                 if not pending:
                     break
             while queue and len(pending) < backend.capacity:
                 run = queue.pop(0)
                 if run.complete(root):
                     outcomes[run].status = "skipped"
-                    if on_event:
-                        on_event("end", outcomes[run], counts())
+                    notify("end", outcomes[run])
                     continue
                 outcomes[run].attempts += 1
                 outcomes[run].status = "running"
-                pending[backend.submit(run, root)] = run
-                if on_event:
-                    on_event("start", outcomes[run], counts())
+                # Deferring a transfer test pays only while there is other work for the core meanwhile
+                defer = any(other not in deferred for other in queue)
+                pending[backend.submit(run, root, defer=defer)] = run
+                notify("start", outcomes[run])
             done, _ = backend.wait_any(set(pending))
             for handle in done:
                 run = pending.pop(handle)
                 outcome = outcomes[run]
-                try_again = outcome.attempts < MAX_ATTEMPTS
-                try:
-                    status, seconds = backend.result(handle)
-                except Exception as error:  # a backend failure (a lost Ray worker): the run failed this time
-                    status, seconds = "failed", 0.0
-                    outcome.log_tail = [f"{type(error).__name__}: {error}"]
-                    # (a second try would meet the same code)
-                    try_again = try_again and not isinstance(error, CodeMismatchError)
-                if status in ("done", "skipped") and not run.complete(root):
-                    # (and would find the run finished out of sight again)
-                    status, try_again = "failed", False
-                    outcome.log_tail = [unseen_run_message(run.run_folder(root))]
-                outcome.seconds = seconds
+                status, try_again = _ended_run(backend, handle, outcome, root)
+                if status == "deferred":
+                    outcome.attempts -= 1
+                    outcome.status = "deferred"
+                    deferred.add(run)
+                    stepped_aside.append(run)
+                    notify("end", outcome)
+                    continue
+                queue[:0], stepped_aside = stepped_aside, []  # another run ended: their turn first
                 if status == "failed" and try_again:
                     outcome.status = "left"
                     queue.insert(0, run)  # once more, from its last checkpoint
@@ -468,8 +518,7 @@ def run_all(
                 outcome.status = status
                 if status == "failed":
                     outcome.log_tail = outcome.log_tail or log_tail(run.log_file(root))
-                if on_event:
-                    on_event("end", outcome, counts())
+                notify("end", outcome)
         for outcome in outcomes.values():
             if outcome.status == "left" and outcome.attempts:  # failed, its second try left by the start time
                 outcome.status = "failed"

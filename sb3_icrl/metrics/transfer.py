@@ -61,6 +61,9 @@ LEARNERS = ("learned", *REFERENCE_LEARNERS)
 #: Bumped when the results change meaning
 TRANSFER_VERSION = 1
 #: What a reference learner depends on, of a transfer's settings (never the run's constraint, model or budget)
+#: Exit status of ``sb3-icrl transfer --no-wait`` when the references it lacks are all being trained by other runs
+#: (EX_TEMPFAIL: try again later; the learned-cost result is kept in the partial file)
+DEFERRED_EXIT = 75
 REFERENCE_SETTINGS = ("version", "env", "env_kwargs", "transition_noise", "n_timesteps", "seed", "eval_episodes", "eval_seed")
 
 
@@ -343,6 +346,10 @@ def transfer_cost_fn(icrl_model: Any) -> Any:
     return cost_fn
 
 
+class ReferencesBusyError(RuntimeError):
+    """The references a transfer lacks are all being trained by other runs, and it was told not to wait for them."""
+
+
 def run_transfer(
     run_folder: str | os.PathLike,
     task: str,
@@ -355,6 +362,7 @@ def run_transfer(
     log: Any = print,
     references_dir: str | os.PathLike | None = None,
     retrain_references: bool = False,
+    wait: bool = True,
 ) -> dict[str, Any]:
     """
     Train the learned-cost learner (and the references) on a transfer task, evaluate them and write
@@ -372,7 +380,11 @@ def run_transfer(
     :param references_dir: Where the references are kept and looked up (default: ``transfer_references`` beside the
         run's algorithm folder, shared by every run of the log folder)
     :param retrain_references: Train the references even when a saved result with the same settings exists
+    :param wait: When every reference still missing is being trained by another run, wait for them; ``False``: raise
+        :class:`ReferencesBusyError` instead (the learned-cost result stays in the partial file, so the same call later
+        only reads the references), leaving the core to other work meanwhile
     :return: The JSON written
+    :raises ReferencesBusyError: See ``wait``
     """
     run, args = read_icrl_run(run_folder)
     if n_timesteps is not None and n_timesteps < 1:
@@ -487,6 +499,11 @@ def run_transfer(
         if pending and not taken_any:
             # Another run is training every reference still missing: wait for the first, then read what it saved
             learner, (cache, _) = next(iter(pending.items()))
+            if not wait:
+                raise ReferencesBusyError(
+                    f"transfer ({task}) on {env_id}: {', '.join(pending)} being trained by another run ({cache}): "
+                    "deferred, its learned-cost result kept for the next try"
+                )
             log(f"transfer ({task}) on {env_id}: waiting for {learner}, which another run is training ({cache})")
             with file_lock(cache.with_suffix(".lock"), blocking=True):
                 pass
@@ -606,6 +623,12 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
     parser.add_argument(
         "--retrain-references", action="store_true", help="Train the references even when saved ones match the settings"
     )
+    parser.add_argument(
+        "--no-wait",
+        action="store_true",
+        help=f"Exit with status {DEFERRED_EXIT} instead of waiting when other runs are training every reference still "
+        "missing (the learned-cost result is kept: running the same command later only reads the references)",
+    )
     parser.add_argument("--num-threads", type=int, default=1, help="Torch threads (default 1)")
     parser.add_argument(
         "--gym-packages",
@@ -622,7 +645,7 @@ def main(argv: Sequence[str] | None = None, prog: str | None = None) -> int:
 
     :param argv: Arguments (default: ``sys.argv[1:]``)
     :param prog: Program name in the usage line
-    :return: Exit status: 0, or 2 after a clear error
+    :return: Exit status: 0, 2 after a clear error, or :data:`DEFERRED_EXIT` (``--no-wait``)
     """
     args = get_parser(prog).parse_args(argv)
     th.set_num_threads(max(1, args.num_threads))
@@ -640,7 +663,11 @@ def main(argv: Sequence[str] | None = None, prog: str | None = None) -> int:
             references_dir=args.references_dir,
             retrain_references=args.retrain_references,
             log=partial(print, flush=True),  # progress shows in a log file as it happens
+            wait=not args.no_wait,
         )
+    except ReferencesBusyError as error:
+        print(error, flush=True)
+        return DEFERRED_EXIT
     except (FileNotFoundError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
