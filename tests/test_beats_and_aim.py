@@ -12,6 +12,7 @@ import pytest
 from script_loader import load_script
 
 from sb3_icrl.benchmark import load_suite, summarise_suite
+from sb3_icrl.benchmark.judgements import beats, oracle_problem
 from sb3_icrl.benchmark.report_numbers import finite_or_null
 from sb3_icrl.benchmark.report_text import markdown_table
 from sb3_icrl.benchmark.suite import BeatsRule, SuiteError
@@ -368,6 +369,32 @@ def test_a_variant_some_methods_do_not_run_is_judged_for_those_that_do(tmp_path)
     assert summary["aggregated_envs"] == [["GridWorldWall-v0", "base"], ["GridWorldSquare-v0", "base"]]
     reasons = {entry["variant"]: entry["reason"] for entry in summary["aggregates_left_out"]}
     assert reasons == {"only-mecl": "the variant does not run bc2l (its `algos`)"}
+
+
+def test_a_method_that_runs_no_judged_variant_neither_holds_the_outcome_open_nor_counts_as_best(tmp_path):
+    text = SUITE.replace(
+        "algos: [bc2l, mecl, ppo, ppolag]", "algos: [bc2l, mecl, ppo, ppolag]\nvariants:\n  base: {algos: [mecl, ppo, ppolag]}"
+    )
+    suite = load_suite(write(tmp_path, text + BEATS.replace("[heldout, last_training]", "[heldout]")), dry_build=False)
+    # MECL, the one method judged, is below the paper on Square: the outcome is decided, not met
+    held = {**HELDOUT, ("GridWorldSquare-v0", "mecl"): [(19.0, 0.0), (19.0, 0.0)]}
+    judgement = summary_of(suite, held)["beats_judgement"]
+    methods = {method["algo"]: method for method in judgement["methods"]}
+    assert methods["bc2l"]["n_tasks"] == 0 and methods["mecl"]["n_tasks"] == 2
+    assert judgement["outcome"] is False and judgement["best"] == ["mecl"]
+
+
+def test_a_mean_that_is_not_a_number_is_not_judged_and_an_oracle_without_a_violation_rate_normalises_nothing():
+    nan = float("nan")
+    assert beats({"feasible_reward_mean": 10.0, "violation_rate_mean": nan}, [5.0, 0.5]) is None
+    assert beats({"feasible_reward_mean": nan, "violation_rate_mean": 0.0}, [5.0, 0.5]) is None
+    assert beats({"feasible_reward_mean": 10.0, "violation_rate_mean": 0.5}, [5.0, 0.5]) is True
+    ppo = {"feasible_reward_mean": 0.0, "violation_rate_mean": 1.0}
+    assert (
+        oracle_problem(ppo, {"feasible_reward_mean": 10.0, "violation_rate_mean": nan}) == "the oracle has no violation rate"
+    )
+    assert oracle_problem(ppo, {"feasible_reward_mean": 10.0, "violation_rate_mean": 0.05}) is None
+    assert "6% of episodes" in oracle_problem(ppo, {"feasible_reward_mean": 10.0, "violation_rate_mean": 0.06})
 
 
 def test_a_partial_report_keeps_its_verdict_provisional(tmp_path):

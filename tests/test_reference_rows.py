@@ -376,6 +376,9 @@ def test_aggregates_of_one_seed_per_env_have_no_interval(tmp_path) -> None:
     table = markdown_table(summary)
     assert "| bc2l | 2 | 2 | 0.30 | 0.30 | 0.70 |" in table and "| bc2l | mecl | 2 | 0.00 |" in table
     assert "no interval: one run per env" in table
+    # The violation rate's aggregate alike, over the same envs
+    violation = next(entry for entry in summary["aggregates"] if entry["algo"] == "bc2l")
+    assert violation["n_cells"] == 2 and violation["violation_rate_iqm_ci95"] is None
     (ax,) = performance_profile_figure(summary).axes
     assert not ax.collections  # no band either
 

@@ -42,14 +42,17 @@ def beats(cell: dict[str, Any], pair: Sequence[float] | None) -> bool | None:
     """
     Whether a cell beats a published ``[feasible reward, violation rate]``: a higher mean feasible reward and a mean
     violation rate no higher (a mean equal to it up to float rounding counts as equal). ``None`` without a published
-    pair.
+    pair, or where either mean is missing or not a number (not judged, rather than judged not to beat it).
 
     :param cell: A cell of :func:`~sb3_icrl.benchmark.report.summarise_suite`
     :param pair: The published numbers
     """
     if pair is None:
         return None
-    return bool(cell["feasible_reward_mean"] > pair[0] and cell["violation_rate_mean"] <= pair[1] + 1e-9)
+    reward, violation = cell.get("feasible_reward_mean"), cell.get("violation_rate_mean")
+    if reward is None or violation is None or not (math.isfinite(reward) and math.isfinite(violation)):
+        return None
+    return bool(reward > pair[0] and violation <= pair[1] + 1e-9)
 
 
 def published_pairs(cell: dict[str, Any]) -> dict[str, Sequence[float]]:
@@ -101,6 +104,8 @@ def oracle_problem(ppo: dict[str, Any], oracle: dict[str, Any]) -> str | None:
     :param ppo: The env's ``ppo`` cell
     :param oracle: Its ``ppolag`` cell
     """
+    if oracle["violation_rate_mean"] is None or not math.isfinite(oracle["violation_rate_mean"]):
+        return "the oracle has no violation rate"
     if oracle["violation_rate_mean"] > ORACLE_MAX_VIOLATION_RATE + 1e-9:
         return f"the oracle breaks the constraint in {100 * oracle['violation_rate_mean']:.0f}% of episodes"
     if not oracle["feasible_reward_mean"] > ppo["feasible_reward_mean"]:
@@ -351,16 +356,22 @@ def beats_judgement(cells: list[dict[str, Any]], suite: Suite) -> dict[str, Any]
                 },
             }
         )
-    most = max(len(method["beaten"]) for method in methods)
-    everywhere = [method["algo"] for method in methods if method["n_tasks"] and len(method["beaten"]) == method["n_tasks"]]
+    # A method that runs none of the judged variants is not judged
+    judged_methods = [method for method in methods if method["n_tasks"]]
+    most = max((len(method["beaten"]) for method in judged_methods), default=0)
+    everywhere = [method["algo"] for method in judged_methods if len(method["beaten"]) == method["n_tasks"]]
     return {
         "against": rule.against,
         "columns": list(rule.columns),
         "paper": {env: list(suite.paper[env][rule.against]) for env in rule.envs},
         "tasks": [list(task) for task in tasks],
         "methods": methods,
-        "best": [method["algo"] for method in methods if len(method["beaten"]) == most],
-        "outcome": True if everywhere else False if all(method["not_beaten"] for method in methods) else None,
+        "best": [method["algo"] for method in judged_methods if len(method["beaten"]) == most],
+        "outcome": (
+            True
+            if everywhere
+            else False if judged_methods and all(method["not_beaten"] for method in judged_methods) else None
+        ),
     }
 
 

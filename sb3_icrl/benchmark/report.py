@@ -36,6 +36,8 @@ import yaml
 
 from sb3_icrl.benchmark.judgements import (
     LAST_TRAINING_COLUMNS,
+    ORACLE_ROW,
+    PPO_ROW,
     add_reference_scores,
     aggregated_envs,
     aim_outcome,
@@ -620,21 +622,25 @@ def summarise_suite(
         cell["aggregated"] = (cell["env"], cell["variant"]) in aggregated
     normalised, improvements = normalised_aggregates([cell for cell in cells if cell["aggregated"]], suite.algos)
     aggregates = []
+    # Over the envs of the normalised aggregates, every method over the same ones (a suite without both reference rows
+    # has none: its headline envs); an interval only where some env has more than one run, as theirs
+    pooled = "aggregated" if PPO_ROW in suite.algos and ORACLE_ROW in suite.algos else "headline"
     for algo in suite.algos:
-        # The headline envs only, as the normalised aggregates
         tasks = [
-            [seed["violation_rate"] for seed in cell["per_seed"]]
+            finite
             for cell in cells
-            if cell["algo"] == algo and cell["headline"]
+            if cell["algo"] == algo and cell[pooled]
+            for finite in [[seed["violation_rate"] for seed in cell["per_seed"] if math.isfinite(seed["violation_rate"])]]
+            if finite
         ]
         if tasks:
-            lower, upper = stratified_bootstrap_ci(tasks)
+            spread_out = any(len(values) > 1 for values in tasks)
             aggregates.append(
                 {
                     "algo": algo,
                     "n_cells": len(tasks),
                     "violation_rate_iqm": iqm(np.concatenate(tasks)),
-                    "violation_rate_iqm_ci95": [lower, upper],
+                    "violation_rate_iqm_ci95": list(stratified_bootstrap_ci(tasks)) if spread_out else None,
                 }
             )
     all_seeds = [seed for cell in cells for seed in cell["per_seed"]]
