@@ -55,6 +55,9 @@ def test_summary_means_stds_and_wilcoxon_by_seed() -> None:
     assert mecl["wilcoxon_pairs"] == 5 and mecl["wilcoxon_p"] == pytest.approx(2 / 32)
     assert "wilcoxon_p" not in summary["vicrl"] and summary["vicrl"]["feasible_reward_std"] == 0.0
     assert np.isnan(summarise([*results[:5], _result("mecl", 1, 10.0)], "vicrl")["mecl"]["wilcoxon_p"])  # no difference
+    # A tied seed carries no sign: six pairs, one tied, test as five (the smallest p of five pairs, not of six)
+    tied = summarise([*results, _result("vicrl", 6, 100.0)], reference="vicrl")["mecl"]
+    assert tied["wilcoxon_pairs"] == 5 and tied["wilcoxon_p"] == pytest.approx(2 / 32)
 
 
 def test_training_wall_time_is_the_runs_own_record_not_the_time_it_was_stopped(tmp_path: pathlib.Path) -> None:
