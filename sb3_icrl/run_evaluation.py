@@ -415,8 +415,9 @@ def summarise(results: list[RunResult], reference: str | None = None) -> dict[st
         if reference is not None and algo != reference:
             paired = sorted(set(runs) & set(by_algo[reference]))
             differences = [runs[s].feasible_reward - by_algo[reference][s].feasible_reward for s in paired]
-            # The pairs the signed-rank test ranks: seeds with no difference carry no sign (Wilcoxon's zero method)
-            entry["wilcoxon_pairs"] = sum(difference != 0 for difference in differences)
+            entry["wilcoxon_pairs"] = len(paired)
+            # The pairs the signed-rank test ranks: a seed with no difference carries no sign (Wilcoxon's zero method)
+            entry["wilcoxon_ranked_pairs"] = sum(difference != 0 for difference in differences)
             entry["wilcoxon_p"] = wilcoxon_p(differences)
         summary[algo] = entry
     return summary

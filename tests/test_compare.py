@@ -26,6 +26,7 @@ from sb3_icrl.zoo.compare import (
     recipe_differences,
     summarise,
     training_wall_time,
+    wilcoxon_warnings,
 )
 from sb3_icrl.zoo.train import cli
 
@@ -57,7 +58,9 @@ def test_summary_means_stds_and_wilcoxon_by_seed() -> None:
     assert np.isnan(summarise([*results[:5], _result("mecl", 1, 10.0)], "vicrl")["mecl"]["wilcoxon_p"])  # no difference
     # A tied seed carries no sign: six pairs, one tied, test as five (the smallest p of five pairs, not of six)
     tied = summarise([*results, _result("vicrl", 6, 100.0)], reference="vicrl")["mecl"]
-    assert tied["wilcoxon_pairs"] == 5 and tied["wilcoxon_p"] == pytest.approx(2 / 32)
+    assert tied["wilcoxon_pairs"] == 6 and tied["wilcoxon_ranked_pairs"] == 5 and tied["wilcoxon_p"] == pytest.approx(2 / 32)
+    (warning,) = wilcoxon_warnings({"mecl": tied}, "vicrl")
+    assert "6 seed pair(s) (1 tied, which the test does not rank)" in warning and "smallest p with 5 is 0.0625" in warning
 
 
 def test_training_wall_time_is_the_runs_own_record_not_the_time_it_was_stopped(tmp_path: pathlib.Path) -> None:

@@ -316,6 +316,12 @@ BEST_MODELS_NOTE = (
 )
 
 
+def ranked_pairs(entry: dict[str, Any]) -> int:
+    """The seed pairs a cell's Wilcoxon test ranks (tied seeds left out; a summary written before they were counted
+    apart: every pair)."""
+    return int(entry.get("wilcoxon_ranked_pairs", entry.get("wilcoxon_pairs")) or 0)
+
+
 def markdown_table(summary: dict[str, Any]) -> str:
     """
     The cells as a Markdown table: ours (mean ± sample std, and IQM [95% CI] from 5 seeds on or mean [min, max] below,
@@ -327,7 +333,7 @@ def markdown_table(summary: dict[str, Any]) -> str:
     cells = summary["cells"]
     normalised = any("normalised_score_spread" in cell or "normalisation_problem" in cell for cell in cells)
     success = any("success_probability" in cell for cell in cells)
-    wilcoxon = any((cell.get("wilcoxon_pairs") or 0) >= MIN_PAIRS_FOR_WILCOXON for cell in cells)
+    wilcoxon = any(ranked_pairs(cell) >= MIN_PAIRS_FOR_WILCOXON for cell in cells)
     last_training = any(cell.get("last_training_feasible_reward_mean") is not None for cell in cells)
     headings = ["env", "variant", "algo", "seeds", "feasible reward (mean ± std)", "IQM [95% CI] or mean [min, max]"]
     headings += ["normalised score"] * normalised + ["success [Wilson 95%]"] * success
@@ -355,8 +361,7 @@ def markdown_table(summary: dict[str, Any]) -> str:
         identification = ", ".join(f"{s['seed']}: {_identification_text(s)}" for s in cell["per_seed"])
         transfer = ", ".join(f"{s['seed']}: {_transfer_text(s)}" for s in cell["per_seed"] if _transfer_text(s) != "-")
         hours = cell.get("core_hours")
-        pairs = cell.get("wilcoxon_pairs") or 0
-        p_value = cell.get("wilcoxon_p") if pairs >= MIN_PAIRS_FOR_WILCOXON else None
+        p_value = cell.get("wilcoxon_p") if ranked_pairs(cell) >= MIN_PAIRS_FOR_WILCOXON else None
         # † marks an env outside the headline aggregates (the suite's headline_envs)
         row = [cell["env"] + ("" if cell.get("headline", True) else " †"), cell["variant"], cell["algo"], str(cell["n_seeds"])]
         row += [f"{_fmt(cell['feasible_reward_mean'])} ± {_fmt(cell['feasible_reward_std'])}"]

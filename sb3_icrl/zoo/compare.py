@@ -123,11 +123,15 @@ def wilcoxon_warnings(summary: dict[str, dict[str, Any]], reference: str | None)
     messages = []
     for algo, entry in sorted(summary.items()):
         pairs = entry.get("wilcoxon_pairs")
-        if pairs is not None and pairs < WILCOXON_MIN_PAIRS:
+        if pairs is None:
+            continue
+        ranked = entry.get("wilcoxon_ranked_pairs", pairs)  # tied seeds carry no sign
+        if ranked < WILCOXON_MIN_PAIRS:
+            tied = f" ({pairs - ranked} tied, which the test does not rank)" if ranked < pairs else ""
             messages.append(
-                f"{algo} vs {reference}: {pairs} seed pair(s); a two-sided Wilcoxon test needs at least "
-                f"{WILCOXON_MIN_PAIRS} to reach p < 0.05 (its smallest p with {pairs} is {2 / 2**pairs if pairs else 1:.3g}): "
-                "train more seeds before reading the p-value."
+                f"{algo} vs {reference}: {pairs} seed pair(s){tied}; a two-sided Wilcoxon test needs at least "
+                f"{WILCOXON_MIN_PAIRS} ranked to reach p < 0.05 (its smallest p with {ranked} is "
+                f"{2 / 2**ranked if ranked else 1:.3g}): train more seeds before reading the p-value."
             )
     return messages
 
