@@ -132,6 +132,65 @@ def test_a_deferred_transfer_left_by_the_start_time_says_so(clock, finished):
     assert [(outcome.status, outcome.attempts) for outcome in outcomes] == [("deferred", 0), ("done", 1)]
 
 
+class _Timeline(Backend):
+    """Runs of given lengths on ``capacity`` cores of a fake clock; runs in ``busy`` are held by another process,
+    those in ``waiting`` defer (when they may) until ``saved_at``."""
+
+    def __init__(self, clock, finished, capacity, lengths, busy=(), waiting=(), saved_at=0.0) -> None:
+        self.clock, self.finished, self.capacity, self.lengths = clock, finished, capacity, lengths
+        self.busy, self.waiting, self.saved_at = set(busy), set(waiting), saved_at
+        self.submitted: list[tuple[RunSpec, bool, float]] = []
+        self.ends: dict[RunSpec, tuple[float, str]] = {}
+
+    def submit(self, run: RunSpec, root: str, defer: bool = False) -> RunSpec:
+        self.submitted.append((run, defer, self.clock.now))
+        if run in self.busy:
+            self.ends[run] = (self.clock.now, "busy")
+        elif run in self.waiting and defer and self.clock.now < self.saved_at:
+            self.ends[run] = (self.clock.now + 1, "deferred")
+        else:
+            self.ends[run] = (self.clock.now + self.lengths.get(run, 10), "done")
+        return run
+
+    def wait_any(self, pending: set) -> tuple[set, set]:
+        if not pending:
+            return set(), set()
+        first = min(self.ends[run][0] for run in pending)
+        self.clock.now = max(self.clock.now, first)
+        done = {run for run in pending if self.ends[run][0] <= self.clock.now}
+        return done, set(pending) - done
+
+    def result(self, handle: RunSpec) -> tuple[str, float]:
+        status = self.ends[handle][1]
+        if status == "done":
+            self.finished.add(handle)
+        return status, 0.0
+
+
+def test_a_run_busy_elsewhere_does_not_call_a_deferred_run_back(clock, finished):
+    runs = [RunSpec("smoke", "base", "bc2l", "sb3_icrl/GridWorldWall-v0", seed, 2048) for seed in range(6)]
+    backend = _Timeline(clock, finished, 1, {}, busy=runs[1:4], waiting={runs[0]}, saved_at=100)
+    outcomes = run_all(runs, "logs", backend)
+    # Back once the fifth run, which trained, has ended (and again after the sixth), not after each run held elsewhere
+    assert [defer for run, defer, _ in backend.submitted if run == runs[0]] == [True, True, False]
+    assert [outcome.status for outcome in outcomes] == ["done", "busy", "busy", "busy", "done", "done"]
+
+
+def test_queued_runs_already_complete_are_no_reason_to_defer(clock, finished):
+    finished.update(RUNS[1:3])
+    backend = _Timeline(clock, finished, 1, {}, waiting={RUNS[0]}, saved_at=100)
+    run_all(RUNS[:3], "logs", backend)
+    assert [(run, defer) for run, defer, _ in backend.submitted] == [(RUNS[0], False)]
+
+
+def test_after_the_start_time_a_deferred_run_ends_on_a_core_the_runs_under_way_leave_free(clock, finished):
+    # Two cores; the first run defers at 1, the second takes a core until 100, the third ends at 45
+    backend = _Timeline(clock, finished, 2, {RUNS[1]: 100, RUNS[2]: 44}, waiting={RUNS[0]}, saved_at=60)
+    outcomes = run_all(RUNS[:3], "logs", backend, start_until=30)
+    assert (RUNS[0], False, 45) in backend.submitted
+    assert [(outcome.status, outcome.attempts) for outcome in outcomes] == [("done", 1)] * 3
+
+
 @pytest.mark.parametrize("text, seconds", [("2h30m", 9000), ("90m", 5400), ("1.5h", 5400), ("600s", 600), ("45", 45)])
 def test_durations(text, seconds):
     assert cli.duration_seconds(text) == seconds
@@ -149,15 +208,34 @@ def test_a_bad_duration_is_refused_with_the_forms_it_takes(text, capsys, tmp_pat
 def test_a_transfer_test_ending_with_the_deferred_status_defers_its_run_only_when_asked(tmp_path, monkeypatch, defer, status):
     run_folder = tmp_path / "bc2l" / "GridWorldWall-v0_1"
     run_folder.mkdir(parents=True)
-    (run_folder / FINISHED_FILE).write_text('{"num_timesteps": 2048}')  # trained: only its transfer test is left
+    (run_folder / FINISHED_FILE).write_text('{"num_timesteps": 2048}')  # trained: only its transfer tests are left
     commands = []
 
     def transfer_command(argv):
         commands.append(list(argv))
-        return [sys.executable, "-c", f"raise SystemExit({DEFERRED_EXIT})"]
+        # The reward task's references are taken; the dynamics task's are free, and it completes
+        if "reward" in argv:
+            return [sys.executable, "-c", f"raise SystemExit({DEFERRED_EXIT})"]
+        return [sys.executable, "-c", f"open({str(run_folder / 'transfer_dynamics.json')!r}, 'w').write('{{}}')"]
 
     monkeypatch.setattr(runner, "transfer_command", transfer_command)
     log = str(tmp_path / "run.log")
-    transfers = [("transfer_reward.json", [str(run_folder), "--task", "reward"])]
+    transfers = [
+        ("transfer_reward.json", [str(run_folder), "--task", "reward"]),
+        ("transfer_dynamics.json", [str(run_folder), "--task", "dynamics"]),
+    ]
     assert runner.execute_run(["--algo", "bc2l"], log, str(run_folder), transfers, defer=defer)[0] == status
-    assert commands == [[str(run_folder), "--task", "reward", *(["--no-wait"] if defer else [])]]
+    no_wait = ["--no-wait"] if defer else []
+    assert commands == [[str(run_folder), "--task", task, *no_wait] for task in ("reward", "dynamics")]
+    # Deferred, the run's other test still runs; failed, nothing after it does
+    assert (run_folder / "transfer_dynamics.json").is_file() == defer
+
+
+def test_training_that_ends_with_the_deferred_status_is_a_failure(tmp_path, monkeypatch):
+    run_folder = tmp_path / "bc2l" / "GridWorldWall-v0_1"
+    finished = str(run_folder / FINISHED_FILE)
+    command = f"import os; os.makedirs({str(run_folder)!r}); open({finished!r}, 'w').write('{{}}'); raise SystemExit(75)"
+    monkeypatch.setattr(runner, "train_command", lambda argv: [sys.executable, "-c", command])
+    log = str(tmp_path / "run.log")
+    transfers = [("transfer_reward.json", [str(run_folder), "--task", "reward"])]
+    assert runner.execute_run(["--algo", "bc2l"], log, str(run_folder), transfers, defer=True)[0] == "failed"

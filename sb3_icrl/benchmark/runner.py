@@ -53,8 +53,8 @@ class RunOutcome:
 
     :param run: The run
     :param status: ``"done"`` (trained now), ``"skipped"`` (had finished before), ``"busy"`` (another process holds
-        it), ``"failed"``, or ``"left"`` (not started: the time to start runs had passed; or trained, its transfer
-        test deferred, see :func:`run_all`)
+        it), ``"failed"``, ``"left"`` (not started: the time to start runs had passed), or ``"deferred"`` (trained, its
+        transfer test waiting for references other runs train, see :func:`run_all`)
     :param attempts: How many times it was started
     :param seconds: Wall time of its last attempt
     :param log_tail: The end of its log, when it failed
@@ -132,7 +132,9 @@ def execute_run(
         commands = [] if is_finished(run_folder) else [train_command(argv)]
         missing = [targv for file, targv in transfers if not result_current(run_folder, file)]
         commands += [transfer_command([*targv, "--no-wait"] if defer else targv) for targv in missing]
-        for command in commands:
+        deferred = False
+        first_transfer = len(commands) - len(missing)
+        for index, command in enumerate(commands):
             # Unbuffered: nothing is left to flush at close, where a full disk would fail again without the file's name
             with open(log_file, "ab", buffering=0) as log:
                 try:
@@ -148,10 +150,13 @@ def execute_run(
                 finally:
                     with _RUNNING_LOCK:
                         _RUNNING.discard(process)
-            if defer and process.returncode == DEFERRED_EXIT and is_finished(run_folder):  # (a transfer test's status)
-                return "deferred", time.time() - start
+            if defer and index >= first_transfer and process.returncode == DEFERRED_EXIT:
+                deferred = True  # its other transfer tests, whose references may be free, still run
+                continue
             if process.returncode != 0 or not is_finished(run_folder):
                 return "failed", time.time() - start
+        if deferred:
+            return "deferred", time.time() - start
         return ("done" if complete() else "failed"), time.time() - start
 
 
@@ -445,9 +450,10 @@ def run_all(
     """
     Run every run to its end; finished runs are skipped, failed ones retried once. A run whose transfer test finds
     the references it lacks all being trained by other runs (two queues on one seed) steps aside, its learned-cost
-    result kept, and gives its core to the next run; it comes back first once another run has ended (by then the
-    references are most likely saved), or when nothing else is left to start (then it waits for them). Stepping aside
-    does not count as an attempt.
+    result kept, and gives its core to the next run; it comes back first once another run has run and ended (not one
+    busy elsewhere: by then the references are most likely saved), or when nothing else is left to start (then it
+    waits for them); after ``start_until``, on a core the runs under way leave free. Stepping aside does not count as an
+    attempt.
 
     :param runs: The runs
     :param root: The log root (``-f``)
@@ -483,7 +489,9 @@ def run_all(
                 for run in queue:  # (the others stay "left", or "deferred")
                     if run.complete(root):
                         outcomes[run].status = "skipped"
-                queue, stepped_aside = [], []
+                # Deferred runs were started in time: they may end on the cores the runs under way leave free
+                queue = [run for run in (*queue, *stepped_aside) if outcomes[run].status == "deferred"] if pending else []
+                stepped_aside = []
                 if not pending:
                     break
             while queue and len(pending) < backend.capacity:
@@ -495,7 +503,7 @@ def run_all(
                 outcomes[run].attempts += 1
                 outcomes[run].status = "running"
                 # Deferring a transfer test pays only while there is other work for the core meanwhile
-                defer = any(other not in deferred for other in queue)
+                defer = any(other not in deferred and not other.complete(root) for other in queue)
                 pending[backend.submit(run, root, defer=defer)] = run
                 notify("start", outcomes[run])
             done, _ = backend.wait_any(set(pending))
@@ -510,7 +518,8 @@ def run_all(
                     stepped_aside.append(run)
                     notify("end", outcome)
                     continue
-                queue[:0], stepped_aside = stepped_aside, []  # another run ended: their turn first
+                if status != "busy":  # another run ran and ended: their turn first
+                    queue[:0], stepped_aside = stepped_aside, []
                 if status == "failed" and try_again:
                     outcome.status = "left"
                     queue.insert(0, run)  # once more, from its last checkpoint

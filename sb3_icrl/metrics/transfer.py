@@ -60,10 +60,10 @@ REFERENCE_LEARNERS = ("oracle", "ppo")
 LEARNERS = ("learned", *REFERENCE_LEARNERS)
 #: Bumped when the results change meaning
 TRANSFER_VERSION = 1
-#: What a reference learner depends on, of a transfer's settings (never the run's constraint, model or budget)
 #: Exit status of ``sb3-icrl transfer --no-wait`` when the references it lacks are all being trained by other runs
 #: (EX_TEMPFAIL: try again later; the learned-cost result is kept in the partial file)
 DEFERRED_EXIT = 75
+#: What a reference learner depends on, of a transfer's settings (never the run's constraint, model or budget)
 REFERENCE_SETTINGS = ("version", "env", "env_kwargs", "transition_noise", "n_timesteps", "seed", "eval_episodes", "eval_seed")
 
 
