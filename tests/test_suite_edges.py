@@ -163,6 +163,13 @@ def _ignore_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
+def _sigint_as_a_terminal_leaves_it() -> None:
+    # At its default and not blocked, as an interactive shell starts a command, whatever this test process inherited
+    # or was left with by the tests before it (a child inherits both the disposition and the blocked set)
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
 def _start_training_suite(tmp_path: pathlib.Path, in_background: bool = False) -> tuple[subprocess.Popen, str]:
     """
     A one-run suite started in its own session, returned once its run has logged a training step (its log file);
@@ -177,7 +184,7 @@ def _start_training_suite(tmp_path: pathlib.Path, in_background: bool = False) -
         stderr=subprocess.PIPE,
         text=True,
         start_new_session=True,
-        preexec_fn=_ignore_sigint if in_background else None,
+        preexec_fn=_ignore_sigint if in_background else _sigint_as_a_terminal_leaves_it,
         # A SIGABRT then prints where every thread of the engine and its run stands (see _end_of)
         env={**os.environ, "PYTHONFAULTHANDLER": "1"},
     )
@@ -195,10 +202,34 @@ def _end_of(process: subprocess.Popen, log: str, timeout: float = 60.0) -> str:
         return process.communicate(timeout=timeout)[1]
     except subprocess.TimeoutExpired:
         pass
+    masks = "\n".join(_signal_masks(process.pid))
     os.killpg(process.pid, signal.SIGABRT)
     errors = process.communicate(timeout=30)[1]
-    log_end = pathlib.Path(log).read_text()[-3000:] if os.path.isfile(log) else "(no log)"
-    pytest.fail(f"the engine still ran {timeout:.0f} s after the signal.\nIts stderr:\n{errors}\nIts run's log:\n{log_end}")
+    log_text = pathlib.Path(log).read_text() if os.path.isfile(log) else "(no log)"
+    # Before the run's own stack dump, and without its list of extension modules
+    log_end = "\n".join(line for line in log_text.splitlines()[-80:] if not line.startswith("Extension modules"))
+    pytest.fail(
+        f"the engine still ran {timeout:.0f} s after the signal.\nSignal masks (pid, command, pending/blocked/ignored/"
+        f"caught):\n{masks}\nIts stderr:\n{errors}\nIts run's log:\n{log_end}"
+    )
+
+
+def _signal_masks(group: int) -> list[str]:
+    """Per process of a process group, its signal masks from ``/proc`` (Linux): was SIGINT pending, blocked, ignored?"""
+    lines = []
+    for status in pathlib.Path("/proc").glob("[0-9]*/stat"):
+        try:
+            if int(status.read_text().rsplit(")", 1)[1].split()[2]) != group:
+                continue
+            fields = dict(
+                line.split(":", 1) for line in (status.parent / "status").read_text().splitlines() if line.startswith("Sig")
+            )
+            command = (status.parent / "cmdline").read_bytes().replace(b"\0", b" ").decode()[:90]
+        except (OSError, ValueError, IndexError):
+            continue  # ended meanwhile
+        masks = " ".join(fields.get(name, "?").strip() for name in ("SigPnd", "SigBlk", "SigIgn", "SigCgt"))
+        lines.append(f"{status.parent.name} {command}: {masks} (SIGINT is bit 0x2)")
+    return lines
 
 
 def test_ctrl_c_ends_a_suite_with_one_line(tmp_path):
