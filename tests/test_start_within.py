@@ -85,53 +85,6 @@ def test_without_a_time_every_run_starts(clock, finished):
     assert [outcome.status for outcome in run_all(RUNS, "logs", backend)] == ["done"] * 4
 
 
-class _BusyReferences(_TenSecondRuns):
-    """Runs in ``waiting`` find their transfer's references all taken by other runs until ``saved_at`` (fake clock),
-    and step aside while they may defer."""
-
-    def __init__(self, clock: _Clock, finished: set[RunSpec], waiting: set[RunSpec], saved_at: float) -> None:
-        super().__init__(clock, finished)
-        self.waiting, self.saved_at = waiting, saved_at
-        self.deferrable: list[tuple[RunSpec, bool]] = []
-
-    def submit(self, run: RunSpec, root: str, defer: bool = False) -> RunSpec:
-        self.deferrable.append((run, defer))
-        return super().submit(run, root, defer)
-
-    def result(self, handle: RunSpec) -> tuple[str, float]:
-        _, defer = [entry for entry in self.deferrable if entry[0] == handle][-1]
-        if handle in self.waiting and defer and self.clock.now <= self.saved_at:
-            return "deferred", 10.0
-        return super().result(handle)
-
-
-def test_a_deferred_transfer_gives_its_turn_to_the_next_run_and_comes_back_after_it(clock, finished):
-    backend = _BusyReferences(clock, finished, waiting={RUNS[0]}, saved_at=15)
-    events = []
-    outcomes = run_all(RUNS[:3], "logs", backend, on_event=lambda event, outcome, _: events.append((event, outcome.status)))
-    # Deferred at 10, the first run is back once the next has ended (at 20), before the third starts
-    assert backend.deferrable == [(RUNS[0], True), (RUNS[1], True), (RUNS[0], True), (RUNS[2], False)]
-    assert [(outcome.status, outcome.attempts) for outcome in outcomes] == [("done", 1), ("done", 1), ("done", 1)]
-    assert ("end", "deferred") in events
-
-
-def test_with_nothing_else_to_start_a_deferred_transfer_waits_for_its_references(clock, finished):
-    backend = _BusyReferences(clock, finished, waiting={RUNS[0]}, saved_at=1000)
-    outcomes = run_all(RUNS[:1], "logs", backend)
-    assert backend.deferrable == [(RUNS[0], False)]
-    backend = _BusyReferences(clock, finished, waiting={RUNS[1]}, saved_at=1000)
-    outcomes = run_all(RUNS[1:3], "logs", backend)
-    assert backend.deferrable == [(RUNS[1], True), (RUNS[2], False), (RUNS[1], False)]
-    assert [outcome.status for outcome in outcomes] == ["done", "done"]
-
-
-def test_a_deferred_transfer_left_by_the_start_time_says_so(clock, finished):
-    backend = _BusyReferences(clock, finished, waiting={RUNS[0]}, saved_at=1000)
-    outcomes = run_all(RUNS[:2], "logs", backend, start_until=15)
-    assert backend.deferrable == [(RUNS[0], True), (RUNS[1], False)]
-    assert [(outcome.status, outcome.attempts) for outcome in outcomes] == [("deferred", 0), ("done", 1)]
-
-
 class _Timeline(Backend):
     """Runs of given lengths on ``capacity`` cores of a fake clock; runs in ``busy`` are held by another process,
     those in ``waiting`` defer (when they may) until ``saved_at``."""
@@ -152,6 +105,11 @@ class _Timeline(Backend):
             self.ends[run] = (self.clock.now + self.lengths.get(run, 10), "done")
         return run
 
+    @property
+    def deferrable(self) -> list[tuple[RunSpec, bool]]:
+        """Each run submitted, with whether it could defer, in order."""
+        return [(run, defer) for run, defer, _ in self.submitted]
+
     def wait_any(self, pending: set) -> tuple[set, set]:
         if not pending:
             return set(), set()
@@ -165,6 +123,34 @@ class _Timeline(Backend):
         if status == "done":
             self.finished.add(handle)
         return status, 0.0
+
+
+def test_a_deferred_transfer_gives_its_turn_to_the_next_run_and_comes_back_after_it(clock, finished):
+    backend = _Timeline(clock, finished, 1, {}, waiting={RUNS[0]}, saved_at=5)
+    events = []
+    outcomes = run_all(RUNS[:3], "logs", backend, on_event=lambda event, outcome, _: events.append((event, outcome.status)))
+    # Deferred at 1, the first run is back once the next has ended (at 11), before the third starts
+    assert backend.deferrable == [(RUNS[0], True), (RUNS[1], True), (RUNS[0], True), (RUNS[2], False)]
+    assert [(outcome.status, outcome.attempts) for outcome in outcomes] == [("done", 1), ("done", 1), ("done", 1)]
+    assert ("end", "deferred") in events
+
+
+def test_with_nothing_else_to_start_a_deferred_transfer_waits_for_its_references(clock, finished):
+    backend = _Timeline(clock, finished, 1, {}, waiting={RUNS[0]}, saved_at=1000)
+    outcomes = run_all(RUNS[:1], "logs", backend)
+    assert backend.deferrable == [(RUNS[0], False)]
+    backend = _Timeline(clock, finished, 1, {}, waiting={RUNS[1]}, saved_at=1000)
+    outcomes = run_all(RUNS[1:3], "logs", backend)
+    assert backend.deferrable == [(RUNS[1], True), (RUNS[2], False), (RUNS[1], False)]
+    assert [outcome.status for outcome in outcomes] == ["done", "done"]
+
+
+def test_a_deferred_transfer_left_by_the_start_time_says_so(clock, finished):
+    # The second run holds the core from 1 to 21: the start time passes meanwhile
+    backend = _Timeline(clock, finished, 1, {RUNS[1]: 20}, waiting={RUNS[0]}, saved_at=1000)
+    outcomes = run_all(RUNS[:2], "logs", backend, start_until=15)
+    assert backend.deferrable == [(RUNS[0], True), (RUNS[1], False)]
+    assert [(outcome.status, outcome.attempts) for outcome in outcomes] == [("deferred", 0), ("done", 1)]
 
 
 def test_a_run_busy_elsewhere_does_not_call_a_deferred_run_back(clock, finished):

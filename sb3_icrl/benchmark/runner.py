@@ -467,7 +467,6 @@ def run_all(
     outcomes = {run: RunOutcome(run, "left") for run in runs}
     queue = list(runs)
     pending: dict[Any, RunSpec] = {}
-    deferred: set[RunSpec] = set()
     #: Deferred runs not back in the queue yet
     stepped_aside: list[RunSpec] = []
 
@@ -503,7 +502,7 @@ def run_all(
                 outcomes[run].attempts += 1
                 outcomes[run].status = "running"
                 # Deferring a transfer test pays only while there is other work for the core meanwhile
-                defer = any(other not in deferred and not other.complete(root) for other in queue)
+                defer = any(outcomes[other].status != "deferred" and not other.complete(root) for other in queue)
                 pending[backend.submit(run, root, defer=defer)] = run
                 notify("start", outcomes[run])
             done, _ = backend.wait_any(set(pending))
@@ -514,7 +513,6 @@ def run_all(
                 if status == "deferred":
                     outcome.attempts -= 1
                     outcome.status = "deferred"
-                    deferred.add(run)
                     stepped_aside.append(run)
                     notify("end", outcome)
                     continue
