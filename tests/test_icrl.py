@@ -522,6 +522,22 @@ def test_match_tolerance_skips_updates_once_the_learner_matches_the_expert(cls, 
     assert loaded.n_constraint_updates == 3
 
 
+@pytest.mark.parametrize(
+    "two_sided, skipped", [(False, [0.0, 0.0, 1.0, 1.0, 1.0, 0.0]), (True, [0.0, 0.0, 0.0, 1.0, 1.0, 0.0])]
+)
+def test_match_two_sided_updates_a_learner_that_looks_more_feasible_than_the_expert(two_sided, skipped, monkeypatch):
+    """One-sided, any gap below the tolerance skips, a negative one too; two-sided, only a gap of small size does."""
+    gaps = iter([0.5, 0.3, -0.2, 0.01, -0.01, 0.2])
+    monkeypatch.setattr(ICRLTrainer, "feasibility_gap", lambda self, nominal: next(gaps))
+    writer = CapturingWriter()
+    kwargs = {"match_tolerance": 0.05, "match_two_sided": two_sided, "match_warmup_updates": 2}
+    model = make_model(MECL, trainer_kwargs=kwargs)
+    model.set_logger(Logger(folder=None, output_formats=[writer]))
+    model.learn(32 * 6)
+    assert writer.values["constraint/skipped"] == skipped
+    assert model.n_constraint_updates == skipped.count(0.0)
+
+
 def test_feasibility_gap_is_the_expert_mean_less_the_learner_mean():
     model = make_model(MECL)
     model.learn(32)

@@ -92,6 +92,11 @@ class ICRLTrainer(BaseCallback):
         and the learner, charged for its own gait, falls back (seen on BlockedHalfCheetah, ``benchmarks/RESULTS.md``).
         A skipped update leaves the model, its learning rate and the budget as they were (``constraint/skipped`` is
         1). The gap is small too while the model has learned nothing yet, hence ``match_warmup_updates``
+    :param match_two_sided: Skip only while the gap's size is below ``match_tolerance``. One-sided (the default), a
+        learner that looks *more* feasible than the expert skips its updates too, however far: a learner that ran into
+        a region where the model extrapolates a low cost (past the true line, where neither the expert nor the early
+        learner went) keeps it, and the model is frozen while the learner breaks the constraint (seen on
+        BlockedHalfCheetahReach, ``benchmarks/log/2026-11-29.md``). Two-sided, that learner gets an update
     :param match_warmup_updates: Updates always made before ``match_tolerance`` may skip one (counted over the
         model's life: saved with it, so a resumed run does not warm up again)
     :param seed: Seed of the minibatch sampling (the model's seed, when it has one, replaces it before the first update)
@@ -121,6 +126,7 @@ class ICRLTrainer(BaseCallback):
         nominal_memory: int = 0,
         learning_rate_decay: float = 1.0,
         match_tolerance: float | None = None,
+        match_two_sided: bool = False,
         match_warmup_updates: int = 3,
         seed: int | None = None,
         budget_from_expert: bool = False,
@@ -165,6 +171,7 @@ class ICRLTrainer(BaseCallback):
         self.nominal_memory = int(nominal_memory)
         self.learning_rate_decay = float(learning_rate_decay)
         self.match_tolerance = match_tolerance
+        self.match_two_sided = bool(match_two_sided)
         self.match_warmup_updates = int(match_warmup_updates)
         self.remembered: list[NominalTrajectory] = []
         self.budget_from_expert = budget_from_expert
@@ -212,7 +219,7 @@ class ICRLTrainer(BaseCallback):
         self._last_update = self.num_timesteps
         n_recalled = len(self.remembered)
         gap = self.feasibility_gap(NominalData.from_trajectories(trajectories))
-        if self.match_tolerance is not None and self.n_updates >= self.match_warmup_updates and gap < self.match_tolerance:
+        if self.skips_update(gap):
             stats: dict[str, float] = {"skipped": 1.0}
         else:
             stats = {**self.update(NominalData.from_trajectories(self.remembered + trajectories)), "skipped": 0.0}
@@ -268,6 +275,15 @@ class ICRLTrainer(BaseCallback):
         self._restored = True
 
     # ------------------------------------------------------------------ nominal data
+
+    def skips_update(self, gap: float) -> bool:
+        """
+        :param gap: The :meth:`feasibility_gap` of the learner's new trajectories
+        :return: Whether ``match_tolerance`` skips this update (never during the warm-up)
+        """
+        if self.match_tolerance is None or self.n_updates < self.match_warmup_updates:
+            return False
+        return (abs(gap) if self.match_two_sided else gap) < self.match_tolerance
 
     def feasibility_gap(self, nominal: NominalData) -> float:
         """
