@@ -819,6 +819,33 @@ variants:
     assert os.path.isfile(written[1])
 
 
+def test_constraint_updates_made_reach_the_csv(tmp_path, finished_suite):
+    """An ICRL run's count of constraint updates, read from its final model's data, is a CSV column."""
+    import zipfile
+
+    from sb3_icrl.benchmark.report import constraint_updates_made
+
+    model = tmp_path / "model.zip"
+    with zipfile.ZipFile(model, "w") as archive:
+        archive.writestr("data", json.dumps({"n_constraint_updates": 6, "gamma": 0.99}))
+    assert constraint_updates_made(model) == 6
+    assert constraint_updates_made(tmp_path / "missing.zip") is None
+    with zipfile.ZipFile(tmp_path / "plain.zip", "w") as archive:
+        archive.writestr("data", json.dumps({"gamma": 0.99}))  # a model without a constraint
+    assert constraint_updates_made(tmp_path / "plain.zip") is None
+    (tmp_path / "broken.zip").write_text("not a zip")
+    assert constraint_updates_made(tmp_path / "broken.zip") is None
+
+    suite, root, results = finished_suite
+    first = results[0][0]
+    shutil.copy(model, os.path.join(root, results[0][1].run, f"{env_name(first.env_id)}.zip"))
+    summary = summarise_suite(suite, suite.runs(), results, constraint_metrics(results, root, log=lambda line: None))
+    rows = list(csv.DictReader(io.StringIO(csv_rows(summary))))
+    updates = {(row["env"], row["algo"], row["seed"]): row["constraint_updates"] for row in rows}
+    assert updates.pop((env_name(first.env_id), first.algo, str(first.seed))) == "6"
+    assert set(updates.values()) == {""}  # the other runs saved no model
+
+
 def test_training_provenance_says_which_code_and_how_many_starts(tmp_path, finished_suite):
     """A run's code revision (versions.yml at its start) and its training starts (command.txt lines) reach the CSV."""
     from sb3_icrl.benchmark.report import training_provenance

@@ -27,6 +27,7 @@ import json
 import math
 import os
 import pathlib
+import zipfile
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, fields
 from typing import Any
@@ -305,6 +306,10 @@ def run_facts(results: Sequence[tuple[RunSpec, RunResult]], root: str) -> dict[s
         if version is not None:
             entry["recipe_version"] = version
         entry.update(training_provenance(folder))
+        if run.algo in ICRL_ALGOS:
+            updates = constraint_updates_made(os.path.join(folder, f"{env_name(run.env_id)}.zip"))
+            if updates is not None:
+                entry["constraint_updates"] = updates
         last = last_training_episodes(folder)
         if last is not None:  # the paper's protocol: the last training episodes of the stochastic policy
             entry["last_training_violation_rate"] = last["violation_rate"]
@@ -417,6 +422,24 @@ def training_provenance(folder: str | os.PathLike) -> dict[str, Any]:
     except OSError:
         pass
     return provenance
+
+
+def constraint_updates_made(model_file: str | os.PathLike) -> int | None:
+    """
+    How many times an ICRL model's constraint was updated (its ``n_constraint_updates``), read from the model zip's
+    data without loading the model. A run whose count is far below its peers' stopped learning its constraint early
+    (``match_tolerance`` skipped its updates, or its episodes rarely ended).
+
+    :param model_file: A saved ICRL model
+    :return: The count, ``None`` when there is no such file or it keeps no count
+    """
+    try:
+        with zipfile.ZipFile(model_file) as archive:
+            data = json.loads(archive.read("data"))
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile):
+        return None
+    count = data.get("n_constraint_updates") if isinstance(data, dict) else None
+    return int(count) if isinstance(count, int) else None
 
 
 def recorded_recipe_version(folder: str | os.PathLike) -> str | None:

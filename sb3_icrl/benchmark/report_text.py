@@ -649,6 +649,7 @@ def csv_rows(summary: dict[str, Any]) -> str:
             "wall_time_s",
             "transfer_wall_time_s",
             "training_starts",
+            "constraint_updates",
             "git_revision",
             "expert_return",
             *published,
@@ -679,6 +680,7 @@ def csv_rows(summary: dict[str, Any]) -> str:
                     _csv_number(seed.get("wall_time_s")),
                     _csv_number(seed.get("transfer_wall_time_s")),
                     seed.get("training_starts", ""),
+                    seed.get("constraint_updates", ""),
                     seed.get("git_revision", ""),
                     *("" if value is None else value for value in (cell.get("expert_return"), *numbers)),
                 ]
