@@ -557,6 +557,10 @@ def test_match_tolerance_and_warmup_must_be_positive():
         make_model(BC2L, trainer_kwargs={"match_tolerance": 0.0}).learn(32)
     with pytest.raises(ValueError, match="`match_warmup_updates` must be >= 1"):
         make_model(BC2L, trainer_kwargs={"match_warmup_updates": 0}).learn(32)
+    with pytest.raises(ValueError, match="needs a `match_tolerance`"):
+        make_model(BC2L, trainer_kwargs={"match_two_sided": True}).learn(32)
+    with pytest.raises(TypeError, match="`match_two_sided` must be True or False, got 'false'"):
+        make_model(BC2L, trainer_kwargs={"match_tolerance": 0.05, "match_two_sided": "false"}).learn(32)
 
 
 def test_a_loaded_model_samples_its_constraint_minibatches_from_its_seed(tmp_path):

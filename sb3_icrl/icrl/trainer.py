@@ -96,7 +96,8 @@ class ICRLTrainer(BaseCallback):
         learner that looks *more* feasible than the expert skips its updates too, however far: a learner that ran into
         a region where the model extrapolates a low cost (past the true line, where neither the expert nor the early
         learner went) keeps it, and the model is frozen while the learner breaks the constraint (seen on
-        BlockedHalfCheetahReach, ``benchmarks/log/2026-11-29.md``). Two-sided, that learner gets an update
+        BlockedHalfCheetahReach, ``benchmarks/log/2026-11-29.md``). Two-sided, that learner gets an update. Needs
+        ``match_tolerance``
     :param match_warmup_updates: Updates always made before ``match_tolerance`` may skip one (counted over the
         model's life: saved with it, so a resumed run does not warm up again)
     :param seed: Seed of the minibatch sampling (the model's seed, when it has one, replaces it before the first update)
@@ -146,6 +147,10 @@ class ICRLTrainer(BaseCallback):
             raise ValueError(f"`learning_rate_decay` must be in (0, 1] (1: constant rate), got {learning_rate_decay}.")
         if match_tolerance is not None and match_tolerance <= 0.0:
             raise ValueError(f"`match_tolerance` must be > 0 or None (never skip), got {match_tolerance}.")
+        if not isinstance(match_two_sided, bool):
+            raise TypeError(f"`match_two_sided` must be True or False, got {match_two_sided!r}.")
+        if match_two_sided and match_tolerance is None:
+            raise ValueError("`match_two_sided=True` needs a `match_tolerance` (without one no update is ever skipped).")
         if match_warmup_updates < 1:
             raise ValueError(
                 f"`match_warmup_updates` must be >= 1 (the first model is not fitted yet), got {match_warmup_updates}."
@@ -171,7 +176,7 @@ class ICRLTrainer(BaseCallback):
         self.nominal_memory = int(nominal_memory)
         self.learning_rate_decay = float(learning_rate_decay)
         self.match_tolerance = match_tolerance
-        self.match_two_sided = bool(match_two_sided)
+        self.match_two_sided = match_two_sided
         self.match_warmup_updates = int(match_warmup_updates)
         self.remembered: list[NominalTrajectory] = []
         self.budget_from_expert = budget_from_expert
@@ -278,8 +283,10 @@ class ICRLTrainer(BaseCallback):
 
     def skips_update(self, gap: float) -> bool:
         """
+        Whether ``match_tolerance`` skips the update due now (never during the warm-up).
+
         :param gap: The :meth:`feasibility_gap` of the learner's new trajectories
-        :return: Whether ``match_tolerance`` skips this update (never during the warm-up)
+        :return: ``True`` to skip it
         """
         if self.match_tolerance is None or self.n_updates < self.match_warmup_updates:
             return False
