@@ -819,6 +819,27 @@ variants:
     assert os.path.isfile(written[1])
 
 
+def test_saved_data_text_is_read_without_loading_and_leaves_a_file_where_it_was(tmp_path):
+    """A model zip's ``data`` entry comes back as text; a file object is left at its position; unreadable -> None."""
+    import io
+    import zipfile
+
+    from sb3_icrl.common.saved import read_saved_data_text
+
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w") as archive:
+        archive.writestr("data", '{"gamma": 0.99}')
+    buffer.seek(0)
+    assert read_saved_data_text(buffer) == '{"gamma": 0.99}'
+    assert buffer.tell() == 0  # SB3's load reads the same file object again
+    with zipfile.ZipFile(tmp_path / "no_data.zip", "w") as archive:
+        archive.writestr("policy.pth", b"weights")
+    assert read_saved_data_text(tmp_path / "no_data.zip") is None
+    assert read_saved_data_text(tmp_path / "missing.zip") is None
+    (tmp_path / "broken.zip").write_text("not a zip")
+    assert read_saved_data_text(tmp_path / "broken.zip") is None
+
+
 def test_constraint_updates_made_reach_the_csv(tmp_path, finished_suite):
     """An ICRL run's count of constraint updates, read from its final model's data, is a CSV column."""
     import zipfile

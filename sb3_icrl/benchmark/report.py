@@ -27,7 +27,6 @@ import json
 import math
 import os
 import pathlib
-import zipfile
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, fields
 from typing import Any
@@ -54,6 +53,7 @@ from sb3_icrl.benchmark.report_text import csv_rows, latex_table, markdown_table
 from sb3_icrl.benchmark.suite import RunSpec, Suite, result_current
 from sb3_icrl.common.constraint_spec import get_constraint_spec
 from sb3_icrl.common.evaluation import CONSTRAINT_VIOLATION_PREFIX, OUTCOME_RATE_KEYS
+from sb3_icrl.common.saved import read_saved_data_text
 from sb3_icrl.common.statistics import MIN_SEEDS_FOR_INTERVAL, iqm, stratified_bootstrap_ci
 from sb3_icrl.common.utils import atomic_write_bytes, atomic_write_json
 from sb3_icrl.data import load_demonstrations
@@ -433,10 +433,10 @@ def constraint_updates_made(model_file: str | os.PathLike) -> int | None:
     :param model_file: A saved ICRL model
     :return: The count, ``None`` when there is no such file or it keeps no count
     """
+    text = read_saved_data_text(pathlib.Path(model_file))
     try:
-        with zipfile.ZipFile(model_file) as archive:
-            data = json.loads(archive.read("data"))
-    except (OSError, KeyError, ValueError, zipfile.BadZipFile):
+        data = json.loads(text) if text is not None else None
+    except ValueError:
         return None
     count = data.get("n_constraint_updates") if isinstance(data, dict) else None
     return int(count) if isinstance(count, int) else None

@@ -70,8 +70,14 @@ def saved_algorithm(data: dict[str, Any]) -> str | None:
     return None
 
 
-def _read_data(path: str | pathlib.Path | io.BufferedIOBase, custom_objects: dict[str, Any] | None) -> dict[str, Any] | None:
-    """The ``data`` of an SB3 zip, or ``None`` when it cannot be read (SB3's own ``load`` then says why)."""
+def read_saved_data_text(path: str | pathlib.Path | io.BufferedIOBase) -> str | None:
+    """
+    The ``data`` entry of an SB3 model zip as JSON text, without unpickling anything, or ``None`` when the zip cannot
+    be read or has no such entry. A file object given is left where it was (SB3 reads it again).
+
+    :param path: A model zip (path, or file object open for reading)
+    :return: The entry's text
+    """
     try:
         file = open_path(path, "r", verbose=0, suffix="zip")
     except (OSError, ValueError):
@@ -81,14 +87,25 @@ def _read_data(path: str | pathlib.Path | io.BufferedIOBase, custom_objects: dic
         with zipfile.ZipFile(file) as archive:
             if "data" not in archive.namelist():
                 return None
-            return json_to_data(archive.read("data").decode(), custom_objects=custom_objects)
-    except (zipfile.BadZipFile, ValueError, OSError):
+            return archive.read("data").decode()
+    except (zipfile.BadZipFile, UnicodeDecodeError, OSError):
         return None
     finally:
         if isinstance(path, (str, pathlib.Path)):
             file.close()
         else:
-            file.seek(start)  # the caller's file object: SB3 reads it again
+            file.seek(start)
+
+
+def _read_data(path: str | pathlib.Path | io.BufferedIOBase, custom_objects: dict[str, Any] | None) -> dict[str, Any] | None:
+    """The ``data`` of an SB3 zip, or ``None`` when it cannot be read (SB3's own ``load`` then says why)."""
+    text = read_saved_data_text(path)
+    if text is None:
+        return None
+    try:
+        return json_to_data(text, custom_objects=custom_objects)
+    except ValueError:
+        return None
 
 
 def check_saved_algorithm(
