@@ -70,7 +70,7 @@ def run(env_name: str, algo: str, seed: int, steps: int | None, out: str) -> str
     start = time.time()
     model.learn(steps, callback=recorder)
     wall_time = time.time() - start
-    evaluation = evaluate_constraint(model, env, n_episodes=10, deterministic=True, seed=seed + 1000)
+    evaluation = evaluate_constraint(model, env, n_eval_episodes=10, deterministic=True, seed=seed + 1000)
     result = dict(
         env=env_name,
         algo=algo,

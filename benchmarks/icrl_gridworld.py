@@ -151,7 +151,7 @@ def run(algo: str, env_id: str, solver: str, budget: int, seed: int, bc2l_per_pa
     # The net sees the cell only: the cost of any action in a cell is the cell's cost
     costs = cost_table(net, grid.n_states, grid.n_actions)[:, 0].reshape(grid.n_rows, grid.n_cols)
     # Deterministic env and policy: the 10 episodes are identical, kept for the metrics' definitions
-    evaluation = evaluate_constraint(policy, make_env(env_id), n_episodes=10, deterministic=True, seed=seed)
+    evaluation = evaluate_constraint(policy, make_env(env_id), n_eval_episodes=10, deterministic=True, seed=seed)
     return dict(algo=algo, env_id=env_id, solver=solver, grid=grid, costs=costs, evaluation=evaluation, wall_time=wall_time)
 
 

@@ -58,7 +58,7 @@ def main() -> None:
         assert recorder is not None
         model = ALGOS[algo].load(path, device="cpu", demonstrations_source=None)
         recorder.recording = True
-        result = evaluate_constraint(model, env, n_episodes=args.episodes, deterministic=True)
+        result = evaluate_constraint(model, env, n_eval_episodes=args.episodes, deterministic=True)
         env.close()
         episodes = recorder.episodes[: args.episodes]
         score = learned_selection_score(model, learned_episode_stats(episodes, model.constraint_net.cost))

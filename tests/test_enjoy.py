@@ -68,7 +68,7 @@ def _reference(run: pathlib.Path, algo: str, env: str, zip_name: str, stats: str
     venv, _ = create_env(f"sb3_icrl/{name}", params, 1, seed, env_kwargs, 0.0, None, eval_env=True, stats_path=stats)
     model = ALGOS[algo].load(run / zip_name, device="cpu")
     model.set_random_seed(seed)
-    return evaluate_constraint(model, venv, n_episodes=n_episodes, deterministic=False)
+    return evaluate_constraint(model, venv, n_eval_episodes=n_episodes, deterministic=False)
 
 
 def test_reports_the_true_constraint_metrics(logs: pathlib.Path, monkeypatch, capsys) -> None:

@@ -453,10 +453,10 @@ def test_grid_world_constraint_recovery(trainer_class, net_class):
     unconstrained = PILagrangian(gym.make("sb3_icrl/GridWorldWall-v0"), lagrange_init=0.0, lagrange_lr=0.0)
     unconstrained.set_cost_table(np.zeros((49, 8)))
     unconstrained.learn()
-    assert evaluate_constraint(unconstrained, gym.make("sb3_icrl/GridWorldWall-v0"), n_episodes=2).violation_rate == 1.0
+    assert evaluate_constraint(unconstrained, gym.make("sb3_icrl/GridWorldWall-v0"), n_eval_episodes=2).violation_rate == 1.0
 
     result = tabular_icrl(trainer_class, net, env, load_demonstrations("GridWorldWall-v0"), n_iterations=20)
-    evaluation = evaluate_constraint(result.planner, gym.make("sb3_icrl/GridWorldWall-v0"), n_episodes=10)
+    evaluation = evaluate_constraint(result.planner, gym.make("sb3_icrl/GridWorldWall-v0"), n_eval_episodes=10)
     assert evaluation.violation_rate <= 0.1
     assert np.all(evaluation.episode_rewards > 0)  # every episode reaches the goal
 

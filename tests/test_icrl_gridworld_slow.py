@@ -62,6 +62,6 @@ def test_grid_world_recovery_reaches_the_goal_safely(algo: str, env_id: str) -> 
         planner_kwargs=planner_kwargs,
         seed=0,
     )
-    evaluation = evaluate_constraint(result.planner, gym.make(f"sb3_icrl/{env_id}"), n_episodes=10, seed=0)
+    evaluation = evaluate_constraint(result.planner, gym.make(f"sb3_icrl/{env_id}"), n_eval_episodes=10, seed=0)
     assert evaluation.violation_rate <= 0.1
     assert np.all(evaluation.episode_rewards > 0)  # every episode reaches the goal
