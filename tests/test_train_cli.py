@@ -111,6 +111,20 @@ def test_normalize_noise_and_run_ids(tmp_path: pathlib.Path) -> None:
     assert (np.load(first / "evaluations.npz")["ep_lengths"] == 8).all()  # --env-kwargs reached the envs
 
 
+def test_a_run_trained_in_process_closes_its_envs(tmp_path: pathlib.Path) -> None:
+    """Training from Python (a notebook, a worker that trains several runs) leaves no monitor file open behind it."""
+    import gc
+    import warnings
+
+    args = ["--algo", "mecl", "--env", "GridWorldWall-v0", *FAST, "-f", str(tmp_path), "--verbose", "0"]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ResourceWarning)
+        assert main(args) == 0
+        gc.collect()  # an env nobody closed warns when it is collected
+    unclosed = [str(warning.message) for warning in caught if issubclass(warning.category, ResourceWarning)]
+    assert not [message for message in unclosed if "monitor.csv" in message], unclosed
+
+
 def test_violating_fraction_picks_the_shipped_variant(tmp_path: pathlib.Path) -> None:
     args = ["--algo", "bc2l", "--env", "GridWorldWall-v0", *FAST, "--violating-fraction", "0.2", "-f", str(tmp_path)]
     assert main([*args, "--verbose", "0"]) == 0

@@ -765,6 +765,20 @@ def _evaluation(callbacks: list[BaseCallback]) -> ConstraintEvalCallback | None:
     return next((callback for callback in callbacks if isinstance(callback, ConstraintEvalCallback)), None)
 
 
+def _close_envs(model: BaseAlgorithm, callbacks: list[BaseCallback]) -> None:
+    """
+    Close the run's training and evaluation envs (their monitor files, simulators), as rl-zoo3 closes its training env.
+
+    :param model: The run's model
+    :param callbacks: The run's callbacks (the evaluation callback holds the evaluation env)
+    """
+    evaluation = _evaluation(callbacks)
+    for env in (model.get_env(), evaluation.eval_env if evaluation is not None else None):
+        if env is not None:
+            with contextlib.suppress(EOFError, BrokenPipeError):  # the workers of a SubprocVecEnv that already ended
+                env.close()
+
+
 def _absolute_if_file(path: str | None) -> str | None:
     """
     A demonstrations file as an absolute path, so that args.yml names it for reports and plots run elsewhere; a shipped
@@ -861,55 +875,62 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
     if resume_from is not None:
         # The same total as the interrupted run: only the steps it had left
         n_timesteps = max(n_timesteps - model.num_timesteps, 0)
-    evaluation = _evaluation(callbacks)
-    _go_on(args, model, callbacks, name, resuming)
-    _pin_tensorboard(args, model, params_path, name, resuming)
-    clock = _wall_clock(args, callbacks, name, resuming)
-    finished = False
     try:
-        learn_function(model, solver, params.get("planner_kwargs"))(
-            n_timesteps,
-            callback=callbacks,
-            tb_log_name=f"{args.algo}_{name}",
-            progress_bar=args.progress or show_progress_bar(args.verbose),
-            reset_num_timesteps=not args.trained_agent,
+        evaluation = _evaluation(callbacks)
+        _go_on(args, model, callbacks, name, resuming)
+        _pin_tensorboard(args, model, params_path, name, resuming)
+        clock = _wall_clock(args, callbacks, name, resuming)
+        finished = False
+        try:
+            learn_function(model, solver, params.get("planner_kwargs"))(
+                n_timesteps,
+                callback=callbacks,
+                tb_log_name=f"{args.algo}_{name}",
+                progress_bar=args.progress or show_progress_bar(args.verbose),
+                reset_num_timesteps=not args.trained_agent,
+            )
+            finished = True
+        except KeyboardInterrupt:
+            print("Interrupted: saving the model")
+            _release_refill(callbacks)
+        except Exception as error:
+            # No final model: enjoy and compare would take it for a trained one; the checkpoints stay for --resume
+            _mark_failed(save_path, error, model)
+            raise
+        final_model = os.path.join(save_path, f"{name}.zip")
+        # Before the model it goes with
+        save_training_state(
+            model,
+            training_state_path(final_model, name),
+            evaluation,
+            wall_time_s=clock.elapsed(),
+            cpu_time_s=clock.cpu_elapsed(),
         )
-        finished = True
-    except KeyboardInterrupt:
-        print("Interrupted: saving the model")
-        _release_refill(callbacks)
-    except Exception as error:
-        # No final model: enjoy and compare would take it for a trained one; the checkpoints stay for --resume
-        _mark_failed(save_path, error, model)
-        raise
-    final_model = os.path.join(save_path, f"{name}.zip")
-    # Before the model it goes with
-    save_training_state(
-        model, training_state_path(final_model, name), evaluation, wall_time_s=clock.elapsed(), cpu_time_s=clock.cpu_elapsed()
-    )
-    atomic_save_model(model, final_model)
-    vec_normalize = model.get_vec_normalize_env()
-    if vec_normalize is not None:
-        atomic_save_pickle(vec_normalize, os.path.join(params_path, "vecnormalize.pkl"))
-    if finished:
-        atomic_write_json(
-            os.path.join(save_path, FINISHED_FILE),
-            {
-                "num_timesteps": int(model.num_timesteps),
-                "wall_time_s": clock.segment_elapsed(),
-                "wall_time_total_s": clock.elapsed(),
-                # CPU time of this process's training (this segment of a resumed run): the machine's load does not
-                # stretch it as it stretches wall time
-                "cpu_time_s": clock.segment_cpu_elapsed(),
-                # The whole run's, earlier segments included (null when a checkpoint resumed from did not record it)
-                "cpu_time_total_s": clock.cpu_elapsed(),
-                **({"evaluation_cpu_time_s": evaluation.eval_seconds} if evaluation is not None else {}),
-                "resumed_from": args.trained_agent if resuming else None,
-            },
-        )
-    print_recovered_constraint(model, env_id, args.env_kwargs)
-    print(f"Saved {save_path} ({clock.segment_elapsed():.1f} s)")
-    return save_path
+        atomic_save_model(model, final_model)
+        vec_normalize = model.get_vec_normalize_env()
+        if vec_normalize is not None:
+            atomic_save_pickle(vec_normalize, os.path.join(params_path, "vecnormalize.pkl"))
+        if finished:
+            atomic_write_json(
+                os.path.join(save_path, FINISHED_FILE),
+                {
+                    "num_timesteps": int(model.num_timesteps),
+                    "wall_time_s": clock.segment_elapsed(),
+                    "wall_time_total_s": clock.elapsed(),
+                    # CPU time of this process's training (this segment of a resumed run): the machine's load does not
+                    # stretch it as it stretches wall time
+                    "cpu_time_s": clock.segment_cpu_elapsed(),
+                    # The whole run's, earlier segments included (null when a checkpoint resumed from did not record it)
+                    "cpu_time_total_s": clock.cpu_elapsed(),
+                    **({"evaluation_cpu_time_s": evaluation.eval_seconds} if evaluation is not None else {}),
+                    "resumed_from": args.trained_agent if resuming else None,
+                },
+            )
+        print_recovered_constraint(model, env_id, args.env_kwargs)
+        print(f"Saved {save_path} ({clock.segment_elapsed():.1f} s)")
+        return save_path
+    finally:
+        _close_envs(model, callbacks)  # a run trained inside a longer process leaves no file or simulator open
 
 
 def main(argv: list[str] | None = None, prog: str | None = None) -> int:
