@@ -16,6 +16,7 @@ import os
 import pathlib
 import pickle
 import re
+import time
 import warnings
 from typing import Any, TypeGuard
 
@@ -463,6 +464,54 @@ def last_training_episodes(run: str | os.PathLike, n_episodes: int = LAST_TRAINI
         "feasible_reward": float(sum(row[3] for row in last) / len(last)),
         "n_episodes": float(len(last)),
     }
+
+
+def training_progress(run: str | os.PathLike, now: float | None = None) -> tuple[int, float] | None:
+    """
+    How far a run still training has come, read from its training envs' Monitor files (as the files are written, at
+    each episode's end): the env steps of the episodes they hold, and its training time so far.
+
+    A Monitor records each episode's end as seconds since it was made, so a resumed run's file holds one stretch per
+    attempt (the times start again from zero; the episodes after the checkpoint it resumed from were trimmed). The
+    training time is the sum of each stretch's last time, plus the time since the file was last written: it leaves
+    out each attempt's start before its first episode ended (seconds), and counts a stopped run's idle time since then.
+
+    :param run: The run folder
+    :param now: The time to count to (default: now)
+    :return: ``(env steps, seconds)``, or ``None`` when the run has no training Monitor file or no episode in one
+    """
+    now = time.time() if now is None else now
+    steps, seconds = 0, None
+    for name in monitor_files(run):
+        if os.path.dirname(name):  # the evaluation envs' files
+            continue
+        path = os.path.join(run, name)
+        try:
+            with open(path) as file:
+                lines = [line for line in file.read().splitlines() if line.strip()][1:]
+            written = os.path.getmtime(path)
+        except OSError:  # a file that went away between listing and reading
+            continue
+        if len(lines) < 2 or "l" not in lines[0].split(",") or "t" not in lines[0].split(","):
+            continue
+        header = lines[0].split(",")
+        length, end = header.index("l"), header.index("t")
+        file_seconds, stretch_end = 0.0, 0.0
+        for line in lines[1:]:
+            fields = line.split(",")
+            try:
+                episode_steps, episode_end = int(float(fields[length])), float(fields[end])
+            except (IndexError, ValueError):  # a line cut short while it was written
+                continue
+            if episode_end < stretch_end:  # a new attempt: its Monitor counts from zero again
+                file_seconds += stretch_end
+            steps += episode_steps
+            stretch_end = episode_end
+        file_seconds += stretch_end + max(now - written, 0.0)
+        seconds = file_seconds if seconds is None else max(seconds, file_seconds)  # the envs step together
+    if seconds is None or steps == 0:
+        return None
+    return steps, seconds
 
 
 def monitor_row_counts(run: str | os.PathLike) -> dict[str, int]:

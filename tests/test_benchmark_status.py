@@ -6,6 +6,7 @@ import io
 import json
 import os
 import textwrap
+import time
 import zipfile
 
 import pytest
@@ -23,6 +24,7 @@ from sb3_icrl.benchmark.status import (
     suite_status,
     transfer_seconds,
 )
+from sb3_icrl.run_folder import training_progress
 from sb3_icrl.zoo.hyperparams import load_hyperparams
 from sb3_icrl.zoo.runs import FAILED_FILE, FINISHED_FILE
 
@@ -101,6 +103,49 @@ def test_without_a_finished_run_the_time_left_is_not_guessed(suite_in_five_state
     statuses = suite_status(runs, root)
     assert seconds_left(statuses) == (0.0, 5)
     assert status_lines(statuses)[-1].endswith(" · time left unknown until a run of an env finishes")
+
+
+def _write_monitor(folder: str, rows: list[tuple[int, float]], written: float) -> None:
+    """A training Monitor file with episodes of (steps, end time in seconds), last written at ``written``."""
+    path = os.path.join(folder, "0.monitor.csv")
+    with open(path, "w") as file:
+        file.write('#{"t_start": 0.0, "env_id": "GridWorldWall-v0"}\nr,l,t\n')
+        file.writelines(f"1.0,{steps},{end}\n" for steps, end in rows)
+    os.utime(path, (written, written))
+
+
+def test_training_progress_counts_each_attempt_of_a_resumed_run(tmp_path):
+    run = str(tmp_path)
+    assert training_progress(run) is None  # no Monitor file yet
+    # One attempt to 30 s, then a resumed one (its Monitor counts from zero again) to 15 s, written 10 s ago
+    _write_monitor(run, [(100, 10.0), (100, 20.0), (100, 30.0), (100, 5.0), (100, 15.0)], written=1000.0)
+    os.makedirs(os.path.join(run, "eval"))
+    _write_monitor(os.path.join(run, "eval"), [(9999, 99999.0)], written=1000.0)  # evaluation episodes do not count
+    assert training_progress(run, now=1010.0) == (500, pytest.approx(30.0 + 15.0 + 10.0))
+    with open(os.path.join(run, "0.monitor.csv"), "a") as file:
+        file.write("1.0,10")  # an episode cut short while it is written
+    assert training_progress(run, now=1010.0)[0] == 500
+
+
+@LINUX_LOCKS
+def test_a_running_run_shows_its_steps_time_and_pace_from_its_monitor(suite_in_five_states):
+    _, root, runs = suite_in_five_states
+    folder = runs[3].run_folder(root)  # its last checkpoint is at 600 steps
+    now = time.time()
+    _write_monitor(folder, [(350, 100.0), (350, 200.0)], written=now - 50.0)
+    with run_lock(folder):
+        statuses = suite_status(runs, root)
+    running = statuses[3]
+    assert running.state == "running" and running.steps_done == 700  # the episodes are newer than the checkpoint
+    assert running.wall_time_s == pytest.approx(250.0, abs=5.0)
+    lines = status_lines(statuses)
+    # Its own pace: 300 steps left at about 250 s / 700 steps
+    line = next(line for line in lines if line.startswith("running"))
+    assert "700 / 1,000" in line and "4.2 min" in line and line.endswith("(about 2 min of training left at its pace so far)")
+    assert "the running runs' at their own so far" in lines[-1]
+    # (800 + 600 + 1000) steps at the finished run's 0.5 s a step, and 300 at the running run's
+    assert seconds_left(statuses) == (pytest.approx(1200.0 + 300 * running.wall_time_s / 700), 0)
+    assert "core-hours in the finished runs" in lines[-1]  # the running run's time is not counted as spent
 
 
 def test_lock_table_parsing(tmp_path):

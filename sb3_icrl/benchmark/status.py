@@ -17,7 +17,15 @@ from sb3_icrl.common.saved import model_damage
 from sb3_icrl.hyperparams import load_hyperparams
 from sb3_icrl.metrics.transfer import transfer_spent_seconds, transfer_times
 from sb3_icrl.registry import REFERENCE_ALGOS, env_name
-from sb3_icrl.run_folder import checkpoints, failure, finished_wall_time, is_finished, read_finished, unreadable_finished
+from sb3_icrl.run_folder import (
+    checkpoints,
+    failure,
+    finished_wall_time,
+    is_finished,
+    read_finished,
+    training_progress,
+    unreadable_finished,
+)
 
 #: The states of a run, in the order the summary line counts them
 STATES = ("finished", "reported", "running", "interrupted", "failed", "not started")
@@ -38,9 +46,11 @@ class RunStatus:
         it now; a run training on another machine of a cluster shows as interrupted),
         ``"interrupted"`` when it has a folder but neither finished nor failed (the suite resumes it), ``"failed"``
         when its training stopped on an error (``failed.json``)
-    :param steps_done: Env steps of its final model or last checkpoint (``None`` before the first checkpoint)
+    :param steps_done: Env steps of its final model or last checkpoint (``None`` before the first checkpoint); of a
+        running run, of its last episode's end where that is newer
     :param steps_total: The steps it trains for (``None`` when they cannot be told)
-    :param wall_time_s: Training time of a finished run
+    :param wall_time_s: Training time of a finished run; of a running run, its training time so far as its Monitor
+        files tell it (:func:`~sb3_icrl.run_folder.training_progress`)
     :param error: The error of a failed run
     :param note: What is wrong with a run's files that its state does not tell: a finished run whose final model is
         missing or damaged (the report leaves it out), a ``finished.json`` that does not read; a finished run's transfer
@@ -182,7 +192,13 @@ def _training_status(
     # The lock first: a failed run that a suite tries again keeps its failed.json until its training starts
     lock = folder + ".lock"
     if locked_inodes is not None and os.path.exists(lock) and os.stat(lock).st_ino in locked_inodes:
-        return RunStatus(run, "running", newest, total)
+        progress = training_progress(folder)
+        if progress is None:
+            return RunStatus(run, "running", newest, total)
+        steps, seconds = progress
+        # Episodes end between checkpoints, so the Monitor files are the newer count; a checkpoint can be newer only
+        # in the middle of a long episode
+        return RunStatus(run, "running", max(steps, newest or 0), total, wall_time_s=seconds)
     resumed, damaged = _resumable_checkpoint(saved)
     error = failure(folder)
     if error is not None:
@@ -310,11 +326,21 @@ def mark_reported(statuses: list[RunStatus], reported: dict[tuple[str, str, str,
     return marked
 
 
+def own_pace(status: RunStatus) -> float | None:
+    """
+    A running run's own pace so far, in seconds per step (it trains on this machine, at its load, now); ``None`` for
+    a run that is not running or whose Monitor files tell no time yet.
+    """
+    if status.state != "running" or not status.wall_time_s or not status.steps_done:
+        return None
+    return status.wall_time_s / status.steps_done
+
+
 def seconds_left(statuses: list[RunStatus]) -> tuple[float, int]:
     """
     The training time left, at the pace (seconds per step) of the finished runs of the same variant, env and
-    algorithm, else of the same variant and env. Variants can change the learner (a recipe at another throughput), so
-    another variant's pace is not used.
+    algorithm, else of the same variant and env; a running run at its own pace so far (:func:`own_pace`). Variants can
+    change the learner (a recipe at another throughput), so another variant's pace is not used.
 
     :return: ``(seconds, runs not estimated)``: runs whose steps are unknown or whose variant and env have no finished
         run
@@ -332,6 +358,9 @@ def seconds_left(statuses: list[RunStatus]) -> tuple[float, int]:
             continue
         run = status.run
         rates = pace.get((run.variant, run.env_id, run.algo)) or pace.get((run.variant, run.env_id))
+        own = own_pace(status)
+        if own is not None:
+            rates = [own]
         if status.steps_total is None or not rates:
             unknown += 1
             continue
@@ -405,6 +434,10 @@ def status_lines(statuses: list[RunStatus], verbose: bool = False) -> list[str]:
             total = "?" if status.steps_total is None else f"{status.steps_total:,}"
             time_text = "-" if status.wall_time_s is None else f"{status.wall_time_s / 60:.1f} min"
             line = f"{status.state:12s} {done + ' / ' + total:>21s} {time_text:>10s}  {status.run.name}"
+            pace = own_pace(status)
+            if pace is not None and status.steps_total is not None and status.steps_done is not None:
+                left = max(status.steps_total - status.steps_done, 0) * pace
+                line += f" (about {left / 60:.0f} min of training left at its pace so far)"
             if status.error:
                 line += f": {status.error.strip().splitlines()[0] if status.error.strip() else 'unknown error'}"
             if status.note:
@@ -429,6 +462,8 @@ def status_lines(statuses: list[RunStatus], verbose: bool = False) -> list[str]:
             estimate = "time left unknown until a run of an env finishes"
         else:
             estimate = f"about {(left + transfer_left) / 3600:.1f} core-hours left at the finished runs' pace"
+            if any(own_pace(status) is not None for status in statuses):
+                estimate += ", the running runs' at their own so far"
             parts = [f"{left / 3600:.1f} training, {transfer_left / 3600:.1f} transfer tests"] if transfers else []
             skipped = [f"{unknown} run{'s' if unknown > 1 else ''} of unknown pace or steps"] if unknown else []
             if transfer_unknown:
