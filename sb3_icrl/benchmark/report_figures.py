@@ -204,7 +204,6 @@ def write_figures(summary: dict[str, Any], suite: Suite, root: str, output: str)
             ax.set_xticks(positions, labels, rotation=90, fontsize=7)
             ax.set_title(title)
             ax.legend(fontsize=7)
-        figure.tight_layout()
         written.append(str(save_figure(figure, os.path.join(output, "ours_vs_paper.png"))))
     profile = performance_profile_figure(summary)
     if profile is not None:
@@ -287,7 +286,6 @@ def study_figure(summary: dict[str, Any], key: str, levels: dict[str, float]) ->
     # One legend with every method, whichever env it has cells on
     handles = [Line2D([], [], marker="o", color=colours[algo], label=algo) for algo in algos]
     axes[0, 0].legend(handles=handles, fontsize=7)
-    figure.tight_layout()
     return figure
 
 
@@ -336,5 +334,4 @@ def performance_profile_figure(summary: dict[str, Any]) -> Any:
     ax.set_ylabel("share of runs with score > τ")
     ax.set_ylim(0, 1.08)
     ax.legend(fontsize=7)
-    figure.tight_layout()
     return figure
