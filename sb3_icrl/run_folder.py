@@ -421,6 +421,23 @@ def monitor_files(run: str | os.PathLike) -> list[str]:
     return found
 
 
+def training_monitor_files(run: str | os.PathLike) -> list[str]:
+    """The training envs' Monitor files of a run folder, relative to it (:func:`monitor_files` less ``eval/``)."""
+    return [name for name in monitor_files(run) if not os.path.dirname(name)]
+
+
+def _monitor_table(path: str | os.PathLike) -> tuple[list[str], list[list[str]]] | None:
+    """
+    A Monitor file's column names and its episodes' fields, one list per episode; ``None`` when it holds no column
+    line (only its JSON header, or nothing).
+    """
+    with open(path) as file:
+        lines = [line for line in file.read().splitlines() if line.strip()][1:]  # the JSON header first
+    if not lines:
+        return None
+    return lines[0].split(","), [line.split(",") for line in lines[1:]]
+
+
 #: Training episodes the paper's protocol averages over, at the end of a run
 LAST_TRAINING_EPISODES = 100
 
@@ -439,21 +456,17 @@ def last_training_episodes(run: str | os.PathLike, n_episodes: int = LAST_TRAINI
         (runs trained before they were written) or hold no episode
     """
     ends = []  # (env steps at the episode's end, env index, violated, feasible reward)
-    for name in monitor_files(run):
-        if os.path.dirname(name):  # the evaluation envs' files
+    for name in training_monitor_files(run):
+        table = _monitor_table(os.path.join(run, name))
+        if table is None:
             continue
-        with open(os.path.join(run, name)) as file:
-            lines = [line for line in file.read().splitlines() if line.strip()][1:]
-        if not lines:
-            continue
-        header = lines[0].split(",")
+        header, rows = table
         if "true_violation" not in header or "true_feasible_reward" not in header:
             return None
         length, violated, feasible = header.index("l"), header.index("true_violation"), header.index("true_feasible_reward")
         env_index = int(os.path.basename(name).split(".")[0]) if os.path.basename(name).split(".")[0].isdigit() else 0
         steps = 0
-        for line in lines[1:]:
-            fields = line.split(",")
+        for fields in rows:
             steps += int(float(fields[length]))
             ends.append((steps, env_index, float(fields[violated]), float(fields[feasible])))
     if not ends:
@@ -482,23 +495,19 @@ def training_progress(run: str | os.PathLike, now: float | None = None) -> tuple
     """
     now = time.time() if now is None else now
     steps, seconds = 0, None
-    for name in monitor_files(run):
-        if os.path.dirname(name):  # the evaluation envs' files
-            continue
+    for name in training_monitor_files(run):
         path = os.path.join(run, name)
         try:
-            with open(path) as file:
-                lines = [line for line in file.read().splitlines() if line.strip()][1:]
+            table = _monitor_table(path)
             written = os.path.getmtime(path)
         except OSError:  # a file that went away between listing and reading
             continue
-        if len(lines) < 2 or "l" not in lines[0].split(",") or "t" not in lines[0].split(","):
+        if table is None or not table[1] or "l" not in table[0] or "t" not in table[0]:
             continue
-        header = lines[0].split(",")
+        header, rows = table
         length, end = header.index("l"), header.index("t")
         file_seconds, stretch_end = 0.0, 0.0
-        for line in lines[1:]:
-            fields = line.split(",")
+        for fields in rows:
             try:
                 episode_steps, episode_end = int(float(fields[length])), float(fields[end])
             except (IndexError, ValueError):  # a line cut short while it was written
