@@ -7,8 +7,9 @@ import sys
 import pytest
 
 from sb3_icrl.benchmark import cli, runner
-from sb3_icrl.benchmark.runner import Backend, run_all
+from sb3_icrl.benchmark.runner import Backend, run_all, run_lock
 from sb3_icrl.benchmark.suite import RunSpec
+from sb3_icrl.common.utils import held_lock_inodes
 from sb3_icrl.metrics.transfer import DEFERRED_EXIT
 from sb3_icrl.run_folder import FINISHED_FILE
 
@@ -160,6 +161,19 @@ def test_a_run_busy_elsewhere_does_not_call_a_deferred_run_back(clock, finished)
     # Back once the fifth run, which trained, has ended (and again after the sixth), not after each run held elsewhere
     assert [defer for run, defer, _ in backend.submitted if run == runs[0]] == [True, True, False]
     assert [outcome.status for outcome in outcomes] == ["done", "busy", "busy", "busy", "done", "done"]
+
+
+@pytest.mark.skipif(held_lock_inodes() is None, reason="no readable /proc/locks")
+def test_a_run_another_queue_trains_is_busy_without_a_start(clock, finished, tmp_path):
+    root = str(tmp_path)
+    backend = _Timeline(clock, finished, 1, {})
+    events = []
+    with run_lock(RUNS[0].run_folder(root)) as taken:  # the other queue's lock (an open file of its own)
+        assert taken
+        outcomes = run_all(RUNS[:2], root, backend, on_event=lambda event, outcome, _: events.append((event, outcome.run)))
+    assert [run for run, _, _ in backend.submitted] == [RUNS[1]]
+    assert [(outcome.status, outcome.attempts) for outcome in outcomes] == [("busy", 0), ("done", 1)]
+    assert events[0] == ("end", RUNS[0]) and ("start", RUNS[0]) not in events
 
 
 def test_queued_runs_already_complete_are_no_reason_to_defer(clock, finished):

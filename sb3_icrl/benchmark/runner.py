@@ -21,7 +21,7 @@ from typing import Any
 import yaml
 
 from sb3_icrl.benchmark.suite import RunSpec, result_current, run_complete
-from sb3_icrl.common.utils import file_lock
+from sb3_icrl.common.utils import file_lock, held_lock_inodes, lock_held
 from sb3_icrl.common.versions import versions
 from sb3_icrl.metrics.transfer import DEFERRED_EXIT
 from sb3_icrl.run_folder import FINISHED_FILE, is_finished
@@ -84,6 +84,17 @@ def run_lock(run_folder: str) -> Iterator[bool]:
     os.makedirs(os.path.dirname(run_folder), exist_ok=True)
     with file_lock(run_folder + ".lock") as taken:
         yield taken
+
+
+def run_lock_held(run_folder: str) -> bool:
+    """
+    Whether another process holds :func:`run_lock` on a run folder, read without taking the lock (a suite taking it
+    at that moment never finds the run busy because of this look).
+
+    :param run_folder: The run folder
+    :return: ``True`` when held; ``False`` when free, or where the lock table cannot be read (not Linux)
+    """
+    return lock_held(run_folder + ".lock", held_lock_inodes())
 
 
 def train_command(argv: Sequence[str]) -> list[str]:
@@ -440,6 +451,18 @@ def _ended_run(backend: Backend, handle: Any, outcome: RunOutcome, root: str) ->
     return status, try_again
 
 
+def _reason_not_to_start(run: RunSpec, root: str, backend: Backend) -> str | None:
+    """
+    :return: ``"skipped"`` for a run with nothing left to do, ``"busy"`` for one another queue on this machine trains
+        (said before a start line would be), ``None`` for a run to start
+    """
+    if run.complete(root):
+        return "skipped"
+    if backend.address is None and run_lock_held(run.run_folder(root)):
+        return "busy"
+    return None
+
+
 def run_all(
     runs: Sequence[RunSpec],
     root: str,
@@ -495,8 +518,9 @@ def run_all(
                     break
             while queue and len(pending) < backend.capacity:
                 run = queue.pop(0)
-                if run.complete(root):
-                    outcomes[run].status = "skipped"
+                reason = _reason_not_to_start(run, root, backend)
+                if reason:
+                    outcomes[run].status = reason
                     notify("end", outcomes[run])
                     continue
                 outcomes[run].attempts += 1

@@ -14,6 +14,7 @@ import yaml
 
 from sb3_icrl.benchmark.suite import RunSpec, result_current
 from sb3_icrl.common.saved import model_damage
+from sb3_icrl.common.utils import held_lock_inodes, lock_held
 from sb3_icrl.hyperparams import load_hyperparams
 from sb3_icrl.metrics.transfer import transfer_spent_seconds, transfer_times
 from sb3_icrl.registry import REFERENCE_ALGOS, env_name
@@ -31,8 +32,6 @@ from sb3_icrl.run_folder import (
 STATES = ("finished", "reported", "running", "interrupted", "failed", "not started")
 #: The states of a run that needs no more training: its folder here finished, or a committed report holds it
 DONE_STATES = ("finished", "reported")
-#: Where Linux lists the file locks held on this machine
-PROC_LOCKS = "/proc/locks"
 
 
 @dataclass
@@ -72,30 +71,6 @@ class RunStatus:
     transfers_left: int = 0
     transfer_wall_time_s: float | None = None
     transfer_references_s: dict[str, float] = field(default_factory=dict)
-
-
-def held_lock_inodes(proc_locks: str = PROC_LOCKS) -> set[int] | None:
-    """
-    The inodes of the files that some process holds a lock on, read from ``/proc/locks``; reading it takes no lock,
-    so a suite starting a run at that moment never finds the run busy.
-
-    :param proc_locks: The lock table (Linux)
-    :return: The inodes, or ``None`` where the table cannot be read (not Linux)
-    """
-    try:
-        with open(proc_locks) as file:
-            lines = file.readlines()
-    except OSError:
-        return None
-    inodes = set()
-    for line in lines:
-        fields = line.split()
-        # "1: FLOCK  ADVISORY  WRITE 1234 00:2f:5678 0 EOF": the sixth field is major:minor:inode
-        if len(fields) >= 6 and fields[1] == "FLOCK" and fields[5].count(":") == 2:
-            inode = fields[5].rsplit(":", 1)[1]
-            if inode.isdigit():
-                inodes.add(int(inode))
-    return inodes
 
 
 def planned_steps(run: RunSpec, root: str, recipes: dict[tuple[str, ...], int | None] | None = None) -> int | None:
@@ -165,8 +140,7 @@ def run_status(
             done.append(saved)
     status.transfer_wall_time_s, status.transfer_references_s = transfer_times(done)
     if status.transfers_left:
-        lock = folder + ".lock"
-        running = locked_inodes is not None and os.path.exists(lock) and os.stat(lock).st_ino in locked_inodes
+        running = lock_held(folder + ".lock", locked_inodes)
         tests = f"{status.transfers_left} transfer test{'s' if status.transfers_left > 1 else ''}"
         notes = [status.note, f"{tests} {'running' if running else 'to come'}"]
         status.note = "; ".join(note for note in notes if note)
@@ -190,8 +164,7 @@ def _training_status(
     saved = checkpoints(folder)
     newest = saved[0][0] if saved else None
     # The lock first: a failed run that a suite tries again keeps its failed.json until its training starts
-    lock = folder + ".lock"
-    if locked_inodes is not None and os.path.exists(lock) and os.stat(lock).st_ino in locked_inodes:
+    if lock_held(folder + ".lock", locked_inodes):
         progress = training_progress(folder)
         if progress is None:
             return RunStatus(run, "running", newest, total)

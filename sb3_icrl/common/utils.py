@@ -68,6 +68,8 @@ def _naming(error: OSError, path: pathlib.Path) -> OSError:
     return OSError(error.errno, error.strerror or str(error), str(path))
 
 
+#: Where Linux lists the file locks held on this machine
+PROC_LOCKS = "/proc/locks"
 #: The errors of a write that the user fixes by freeing space or by writing elsewhere
 WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EFBIG}
 
@@ -223,6 +225,42 @@ def atomic_save_npz(path: str | pathlib.Path, arrays: Mapping[str, Any], compres
     save = np.savez_compressed if compressed else np.savez
     atomic_write(path, lambda file: save(file, **arrays))
     return path
+
+
+def held_lock_inodes(proc_locks: str = PROC_LOCKS) -> set[int] | None:
+    """
+    The inodes of the files that some process holds a lock on, read from ``/proc/locks``; reading it takes no lock,
+    so a suite starting a run at that moment never finds the run busy.
+
+    :param proc_locks: The lock table (Linux)
+    :return: The inodes, or ``None`` where the table cannot be read (not Linux)
+    """
+    try:
+        with open(proc_locks) as file:
+            lines = file.readlines()
+    except OSError:
+        return None
+    inodes = set()
+    for line in lines:
+        fields = line.split()
+        # "1: FLOCK  ADVISORY  WRITE 1234 00:2f:5678 0 EOF": the sixth field is major:minor:inode
+        if len(fields) >= 6 and fields[1] == "FLOCK" and fields[5].count(":") == 2:
+            inode = fields[5].rsplit(":", 1)[1]
+            if inode.isdigit():
+                inodes.add(int(inode))
+    return inodes
+
+
+def lock_held(path: str | pathlib.Path, locked_inodes: set[int] | None) -> bool:
+    """
+    :param path: A lock file of :func:`file_lock`
+    :param locked_inodes: :func:`held_lock_inodes`
+    :return: Whether some process holds the lock on ``path`` (``False`` where the lock table could not be read)
+    """
+    try:
+        return locked_inodes is not None and os.stat(path).st_ino in locked_inodes
+    except FileNotFoundError:
+        return False
 
 
 @contextlib.contextmanager
