@@ -381,3 +381,32 @@ def test_transfer_tests_to_come_and_their_time(tmp_path):
         "1 transfer test to come · 0.4 core-hours in the finished and reported runs and 2.0 in their transfer tests · "
         "about 1.0 core-hours left at the finished runs' pace (0.0 training, 1.0 transfer tests)"
     )
+
+
+@LINUX_LOCKS
+def test_a_running_transfer_test_shows_its_learner_s_steps_from_the_run_s_log(tmp_path):
+    path = tmp_path / "transfer.yml"
+    path.write_text(textwrap.dedent(SUITE).replace("seeds: [0, 1, 2, 3, 4]\n", "seeds: [0]\ntransfer: {tasks: [same]}\n"))
+    run = load_suite(str(path)).runs()[0]
+    root = str(tmp_path / "logs")
+    folder = run.run_folder(root)
+    os.makedirs(folder)
+    with open(os.path.join(folder, FINISHED_FILE), "w") as file:
+        json.dump({"num_timesteps": 1000, "wall_time_total_s": 500.0}, file)
+    _whole_zip(os.path.join(folder, "GridWorldWall-v0.zip"))
+    os.makedirs(os.path.dirname(run.log_file(root)))
+    with open(run.log_file(root), "w") as file:
+        file.write(
+            "\n=== 2026-01-01 10:00:00 python -m sb3_icrl.zoo train --algo bc2l\n...training output...\n"
+            "\n=== 2026-01-01 10:30:00 python -m sb3_icrl.metrics.transfer logs/bc2l/GridWorldWall-v0_1 --task same\n"
+            "transfer (same) on sb3_icrl/GridWorldWall-v0: training learned for 2000000 steps\n"
+            "  learned: 200000/2000000 steps, 2000 steps/s\n"
+            "  learned: 400000/2000000 steps, 2000 steps/s\n"
+        )
+    with run_lock(folder) as taken:  # the engine's lock while it runs the test
+        assert taken
+        (status,) = suite_status([run], root)
+    learner = "the same task's learned learner at 400,000 / 2,000,000 steps (about 13 min left at its pace)"
+    assert status.note == f"1 transfer test running, {learner}"
+    (status,) = suite_status([run], root)  # the lock released: the test is to come, whatever its log says
+    assert status.note == "1 transfer test to come"

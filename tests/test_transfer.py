@@ -21,10 +21,14 @@ from sb3_icrl.envs import BINDING_ENV_SPECS, ENV_SPECS, REWARD_TRANSFER_TASKS, T
 from sb3_icrl.metrics.identification import _load_run_policy, run_demonstration_pairs
 from sb3_icrl.metrics.transfer import (
     DYNAMICS_NOISE,
+    TRAINING_LINE,
+    ProgressLines,
+    TransferProgress,
     feasible_reward_ratio,
     read_transfers,
     train_learner,
     transfer_env,
+    transfer_progress,
     transfer_spent_seconds,
 )
 from sb3_icrl.zoo.compare import RunResult
@@ -413,3 +417,34 @@ def test_transfer_spent_counts_each_reference_file_once_and_untimed_learners_as_
     ]
     assert transfer_spent_seconds(times) == 600 + 60 + 900 + 300 + 120
     assert transfer_spent_seconds([]) == 0.0
+
+
+def test_transfer_progress_reads_the_learner_under_way_from_the_end_of_a_log(tmp_path):
+    log = tmp_path / "run.log"
+    assert transfer_progress(log) is None  # no log yet
+    header = "\n=== 2026-01-01 10:30:00 python -m sb3_icrl.metrics.transfer run --task dynamics\n"
+    log.write_text(header + "transfer (dynamics) on sb3_icrl/GridWorldWall-v0: learned reused from run/partial.json\n")
+    assert transfer_progress(log) is None  # reusing trains nothing
+    with open(log, "a") as file:
+        file.write(
+            "transfer (dynamics) on sb3_icrl/GridWorldWall-v0: training oracle for 1000 steps\n"
+            "  learned: 900/1000 steps, 90 steps/s\n"  # not the learner under way
+        )
+    assert transfer_progress(log) == TransferProgress("dynamics", "oracle", 0, 1000, None)
+    with open(log, "a") as file:
+        file.write("  oracle: 300/1000 steps, 150 steps/s\n")
+    assert transfer_progress(log) == TransferProgress("dynamics", "oracle", 300, 1000, 150.0)
+    with open(log, "a") as file:
+        file.write("\n=== 2026-01-01 11:00:00 python -m sb3_icrl.zoo train --algo bc2l --resume\n")
+    assert transfer_progress(log) is None  # the run's last command trains the run itself
+
+
+def test_transfer_progress_reads_the_lines_the_test_writes(tmp_path):
+    lines = [TRAINING_LINE.format(task="same", env="sb3_icrl/GridWorldWall-v0", learner="ppo", steps=64)]
+    callback = ProgressLines("ppo", 64, lines.append)
+    callback.num_timesteps = 32
+    callback._on_step()
+    (tmp_path / "run.log").write_text("\n".join(lines) + "\n")
+    progress = transfer_progress(tmp_path / "run.log")
+    assert (progress.task, progress.learner, progress.steps, progress.total) == ("same", "ppo", 32, 64)
+    assert progress.steps_per_s > 0

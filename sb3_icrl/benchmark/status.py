@@ -16,7 +16,7 @@ from sb3_icrl.benchmark.suite import RunSpec, result_current
 from sb3_icrl.common.saved import model_damage
 from sb3_icrl.common.utils import held_lock_inodes, lock_held
 from sb3_icrl.hyperparams import load_hyperparams
-from sb3_icrl.metrics.transfer import transfer_spent_seconds, transfer_times
+from sb3_icrl.metrics.transfer import TransferProgress, transfer_progress, transfer_spent_seconds, transfer_times
 from sb3_icrl.registry import REFERENCE_ALGOS, env_name
 from sb3_icrl.run_folder import (
     checkpoints,
@@ -143,8 +143,22 @@ def run_status(
         running = lock_held(folder + ".lock", locked_inodes)
         tests = f"{status.transfers_left} transfer test{'s' if status.transfers_left > 1 else ''}"
         notes = [status.note, f"{tests} {'running' if running else 'to come'}"]
+        progress = transfer_progress(run.log_file(root)) if running else None
+        if progress is not None:
+            notes[-1] += f", {progress_words(progress)}"
         status.note = "; ".join(note for note in notes if note)
     return status
+
+
+def progress_words(progress: TransferProgress) -> str:
+    """
+    :param progress: A transfer test's learner under way
+    :return: E.g. ``the reward task's learned learner at 600,000 / 2,000,000 steps (about 8 min left at its pace)``
+    """
+    words = f"the {progress.task} task's {progress.learner} learner at {progress.steps:,} / {progress.total:,} steps"
+    if progress.steps_per_s:
+        words += f" (about {max(progress.total - progress.steps, 0) / progress.steps_per_s / 60:.0f} min left at its pace)"
+    return words
 
 
 def _training_status(

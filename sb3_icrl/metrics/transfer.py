@@ -29,9 +29,11 @@ import inspect
 import json
 import os
 import pathlib
+import re
 import sys
 import time
 from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
 from functools import partial
 from typing import Any
 
@@ -65,6 +67,14 @@ TRANSFER_VERSION = 1
 DEFERRED_EXIT = 75
 #: What a reference learner depends on, of a transfer's settings (never the run's constraint, model or budget)
 REFERENCE_SETTINGS = ("version", "env", "env_kwargs", "transition_noise", "n_timesteps", "seed", "eval_episodes", "eval_seed")
+#: The line a transfer test logs as a learner starts training, and one of the ten it logs as it goes (read back by
+#: :func:`transfer_progress`)
+TRAINING_LINE = "transfer ({task}) on {env}: training {learner} for {steps} steps"
+PROGRESS_LINE = "  {learner}: {steps}/{total} steps, {speed:.0f} steps/s"
+_TRAINING_PATTERN = re.compile(r"transfer \((\w+)\) on \S+: training (\w+) for (\d+) steps")
+_PROGRESS_PATTERN = re.compile(r"  (\w+): (\d+)/(\d+) steps, (\d+) steps/s")
+#: How much of the end of a run's log :func:`transfer_progress` reads (a test logs a few lines per learner)
+PROGRESS_TAIL_BYTES = 1 << 16
 
 
 def transfer_file(task: str) -> str:
@@ -154,7 +164,9 @@ class ProgressLines(BaseCallback):
     def _on_step(self) -> bool:
         if self.num_timesteps >= self.next_line:
             speed = self.num_timesteps / max(time.time() - self.start, 1e-9)
-            self.log(f"  {self.name}: {self.num_timesteps}/{self.total_timesteps} steps, {speed:.0f} steps/s")
+            self.log(
+                PROGRESS_LINE.format(learner=self.name, steps=self.num_timesteps, total=self.total_timesteps, speed=speed)
+            )
             self.next_line = (self.num_timesteps // self.every + 1) * self.every  # one line even when a step spans several
         return True
 
@@ -429,7 +441,7 @@ def run_transfer(
 
     def train_and_evaluate(learner: str) -> dict[str, float]:
         start = time.time()
-        log(f"transfer ({task}) on {env_id}: training {learner} for {steps} steps")
+        log(TRAINING_LINE.format(task=task, env=env_id, learner=learner, steps=steps))
         trained, train_env = train_learner(
             learner,
             env_id,
@@ -598,6 +610,51 @@ def transfer_spent_seconds(times: Iterable[tuple[float | None, Mapping[str, floa
         learned += run_learned or 0.0
         references.update(run_references)
     return learned + sum(references.values())
+
+
+@dataclass
+class TransferProgress:
+    """
+    Where a transfer test under way stands, as its log shows it.
+
+    :param task: Its task
+    :param learner: The learner training now (one of :data:`LEARNERS`)
+    :param steps: Its steps so far (at the last of its ten progress lines)
+    :param total: Its training steps
+    :param steps_per_s: Its speed so far (``None`` before its first progress line)
+    """
+
+    task: str
+    learner: str
+    steps: int
+    total: int
+    steps_per_s: float | None = None
+
+
+def transfer_progress(log_file: str | os.PathLike) -> TransferProgress | None:
+    """
+    The learner a run's transfer test is training, read from the end of the run's log (the engine appends each
+    command's output to it, after a ``===`` line naming the command).
+
+    :param log_file: The run's log
+    :return: The learner's progress; ``None`` when the log is missing, or its last command is not a transfer test or
+        trains no learner yet
+    """
+    try:
+        with open(log_file, "rb") as file:
+            file.seek(max(0, os.fstat(file.fileno()).st_size - PROGRESS_TAIL_BYTES))
+            lines = file.read().decode(errors="replace").splitlines()
+    except OSError:
+        return None
+    progress = None
+    for line in lines:
+        if line.startswith("=== "):  # a command starts: a test's progress ends with it
+            progress = None
+        elif match := _TRAINING_PATTERN.fullmatch(line):
+            progress = TransferProgress(match[1], match[2], 0, int(match[3]))
+        elif progress is not None and (match := _PROGRESS_PATTERN.fullmatch(line)) and match[1] == progress.learner:
+            progress.steps, progress.steps_per_s = int(match[2]), float(match[4])
+    return progress
 
 
 def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
