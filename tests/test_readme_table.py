@@ -20,32 +20,50 @@ def test_readme_is_at_most_120_lines():
     assert len((ROOT / "README.md").read_text().splitlines()) <= 120
 
 
-def test_glance_table_has_a_row_per_method_and_a_column_per_env(tmp_path):
-    def cell(algo, env, reward, rate, seeds, paper=None):
-        extra = {"paper_feasible_reward": paper[0], "paper_violation_rate": paper[1]} if paper else {}
+def test_glance_table_has_a_row_per_headline_env_and_a_column_per_method(tmp_path):
+    def cell(algo, env, score, rate, seeds, successes=0, reward=100.0):
+        scores = {"normalised_score_mean": score, "success_count": successes} if score is not None else {}
         return {
             "algo": algo,
             "env": env,
             "variant": "base",
             "feasible_reward_mean": reward,
             "violation_rate_mean": rate,
-            "per_seed": [{"seed": seed} for seed in seeds],
-            **extra,
+            "n_seeds": seeds,
+            "per_seed": [{"seed": seed} for seed in range(seeds)],
+            **scores,
         }
 
     cells = [
-        cell("mecl", "BlockedHalfCheetah-v0", 3021.4, 0.0, [1, 2, 3], (3025, 0.4)),
-        cell("mecl", "BiasedPendulum-v0", 2.356, 0.5, [1, 2, 3, 4, 5]),
-        cell("ppo", "BiasedPendulum-v0", 0.83, 1.0, [1, 2, 3]),
-        cell("mecl", "BlockedHalfCheetah-v0", 1.0, 1.0, [1], None) | {"variant": "other"},  # not the base variant
+        cell("mecl", "BlockedSwimmer-v0", 0.2214, 0.425, 2, 1),
+        cell("ppo", "BlockedSwimmer-v0", -1.6e-17, 0.7, 3),  # a mean that is 0 but for rounding
+        cell("mecl", "BiasedPendulum-v0", None, 0.5, 5, reward=2.356),  # its reference rows give no scores
+        cell("mecl", "BlockedHalfCheetah-v0", 0.5, 0.0, 1),  # not a headline env
+        cell("mecl", "BlockedSwimmer-v0", 1.0, 1.0, 1) | {"variant": "other"},  # not the base variant
     ]
+    summary = {
+        "suite": "table3",
+        "cells": cells,
+        "headline_envs": ["BiasedPendulum-v0", "BlockedSwimmer-v0", "BlockedWalkerReach-v0"],
+        "eval_episodes": 20,
+        "success_rule": {"max_violation_rate": 0.05, "min_normalised_score": 0.5},
+        "core_hours": 2.5,
+        "core_hours_runs": 11,
+        "runs_missing": ["a", "b"],
+    }
     (tmp_path / "table3").mkdir()
-    (tmp_path / "table3" / "summary.json").write_text(json.dumps({"suite": "table3", "description": "d", "cells": cells}))
+    (tmp_path / "table3" / "summary.json").write_text(json.dumps(summary))
     lines = readme_table.glance(tmp_path, "table3").splitlines()
-    assert lines[0] == "| | BiasedPendulum | BlockedHalfCheetah |"
-    assert lines[2] == "| MECL | 2.36 / 50% | 3021 / 0% (3025 / 40%) |"
-    assert lines[3] == "| PPO | 0.83 / 100% | - |"
-    assert "mean over 3 to 5 seeds" in lines[-1]
+    assert lines[:4] == [
+        "| | MECL | PPO |",
+        "|---|---|---|",
+        "| BiasedPendulum | 2.36 / 50% (n=5) | - |",
+        "| BlockedSwimmer | 0.22 / 42% (1/2) | 0.00 / 70% (0/3) |",
+    ]  # no run of BlockedWalkerReach yet: no row
+    note = lines[5]
+    assert "1 to 5 seeds per cell so far (11 runs, 2.5 core-hours of training; 2 runs to come)" in note
+    assert "a violation rate of at most 5% and a normalised score of at least 0.5" in note
+    assert note.endswith("outside its headline envs, are in its report: BlockedHalfCheetah-v0.")
 
 
 def test_table_rows_come_from_the_summaries(tmp_path):
