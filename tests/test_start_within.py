@@ -176,6 +176,17 @@ def test_a_run_another_queue_trains_is_busy_without_a_start(clock, finished, tmp
     assert events[0] == ("end", RUNS[0]) and ("start", RUNS[0]) not in events
 
 
+def test_a_free_run_whose_inode_the_lock_table_shows_is_not_busy(tmp_path, monkeypatch):
+    # The lock table names inodes only: a lock on a file of another file system may share this lock file's number
+    folder = RUNS[0].run_folder(str(tmp_path))
+    with run_lock(folder):
+        pass
+    monkeypatch.setattr(runner, "held_lock_inodes", lambda: {os.stat(folder + ".lock").st_ino})
+    assert not runner.run_lock_held(folder)
+    with run_lock(folder):  # held for real: busy
+        assert runner.run_lock_held(folder)
+
+
 def test_queued_runs_already_complete_are_no_reason_to_defer(clock, finished):
     finished.update(RUNS[1:3])
     backend = _Timeline(clock, finished, 1, {}, waiting={RUNS[0]}, saved_at=100)

@@ -88,13 +88,17 @@ def run_lock(run_folder: str) -> Iterator[bool]:
 
 def run_lock_held(run_folder: str) -> bool:
     """
-    Whether another process holds :func:`run_lock` on a run folder, read without taking the lock (a suite taking it
-    at that moment never finds the run busy because of this look).
+    Whether another process holds :func:`run_lock` on a run folder. The lock table is read first, which takes no lock,
+    so that a suite taking a free run's lock at that moment never finds it busy because of this look; a lock the table
+    shows is confirmed by trying it (the table names inodes, and a file of another file system may share the number).
 
     :param run_folder: The run folder
     :return: ``True`` when held; ``False`` when free, or where the lock table cannot be read (not Linux)
     """
-    return lock_held(run_folder + ".lock", held_lock_inodes())
+    if not lock_held(run_folder + ".lock", held_lock_inodes()):
+        return False
+    with run_lock(run_folder) as taken:
+        return not taken
 
 
 def train_command(argv: Sequence[str]) -> list[str]:
