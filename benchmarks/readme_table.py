@@ -53,9 +53,12 @@ GLANCE_ALGOS = {
 
 def glance_cell(cell: dict) -> str:
     """
-    One cell of the glance table: mean normalised score / mean violation rate, then successful runs of seeds; where
-    the env's reference rows give no normalised scores (the oracle breaks the constraint, or earns no more than PPO),
-    the mean feasible reward instead, then the seeds.
+    One cell of the glance table.
+
+    :param cell: A cell of the suite's ``summary.json``
+    :return: Its mean normalised score / mean violation rate, then its successful runs of its seeds; where the env's
+        reference rows give no normalised scores (the oracle breaks the constraint, or earns no more than PPO), its
+        mean feasible reward instead, then its seeds
     """
     rate = format_rate(cell["violation_rate_mean"])
     score = cell.get("normalised_score_mean")
@@ -86,8 +89,8 @@ def glance(results: pathlib.Path = RESULTS, suite: str = GLANCE_SUITE) -> str:
     for env in headline:
         entries = [glance_cell(cells[env, algo]) if (env, algo) in cells else "-" for algo in algos]
         rows.append(f"| {env.removesuffix('-v0')} | " + " | ".join(entries) + " |")
-    n_seeds = sorted({cell["n_seeds"] for cell in cells.values()})
-    seeds = f"{n_seeds[0]}" if len(n_seeds) == 1 else f"{n_seeds[0]} to {n_seeds[-1]}"
+    n_seeds = sorted({cell["n_seeds"] for (env, _), cell in cells.items() if env in headline})
+    seeds = "no" if not n_seeds else f"{n_seeds[0]}" if len(n_seeds) == 1 else f"{n_seeds[0]} to {n_seeds[-1]}"
     rule = summary.get("success_rule") or {}
     success = (
         f"a violation rate of at most {format_rate(rule['max_violation_rate'])} and a normalised score of at least "

@@ -406,7 +406,7 @@ def test_a_running_transfer_test_shows_its_learner_s_steps_from_the_run_s_log(tm
     with run_lock(folder) as taken:  # the engine's lock while it runs the test
         assert taken
         (status,) = suite_status([run], root)
-    learner = "the same task's learned learner at 400,000 / 2,000,000 steps (about 13 min left at its pace)"
-    assert status.note == f"1 transfer test running, {learner}"
+    learner = "the same task's learned learner at 400,000 / 2,000,000 steps, about 13 min left at its pace"
+    assert status.note == f"1 transfer test running: {learner}"
     (status,) = suite_status([run], root)  # the lock released: the test is to come, whatever its log says
     assert status.note == "1 transfer test to come"

@@ -61,7 +61,7 @@ def test_glance_table_has_a_row_per_headline_env_and_a_column_per_method(tmp_pat
         "| BlockedSwimmer | 0.22 / 42% (1/2) | 0.00 / 70% (0/3) |",
     ]  # no run of BlockedWalkerReach yet: no row
     note = lines[5]
-    assert "1 to 5 seeds per cell so far (11 runs, 2.5 core-hours of training; 2 runs to come)" in note
+    assert "2 to 5 seeds per cell so far (11 runs, 2.5 core-hours of training; 2 runs to come)" in note
     assert "a violation rate of at most 5% and a normalised score of at least 0.5" in note
     assert note.endswith("outside its headline envs, are in its report: BlockedHalfCheetah-v0.")
 

@@ -9,7 +9,7 @@ import pytest
 from sb3_icrl.benchmark import cli, runner
 from sb3_icrl.benchmark.runner import Backend, run_all, run_lock
 from sb3_icrl.benchmark.suite import RunSpec
-from sb3_icrl.common.utils import held_lock_inodes
+from sb3_icrl.common.utils import held_lock_inodes, lock_held
 from sb3_icrl.metrics.transfer import DEFERRED_EXIT
 from sb3_icrl.run_folder import FINISHED_FILE
 
@@ -185,6 +185,23 @@ def test_a_free_run_whose_inode_the_lock_table_shows_is_not_busy(tmp_path, monke
     assert not runner.run_lock_held(folder)
     with run_lock(folder):  # held for real: busy
         assert runner.run_lock_held(folder)
+
+
+def test_a_cluster_backend_does_not_look_at_this_machine_s_locks(clock, finished, tmp_path):
+    root = str(tmp_path)
+    backend = _Timeline(clock, finished, 1, {})
+    backend.address = "ray://head:10001"  # its runs lock their folders on the nodes that train them
+    with run_lock(RUNS[0].run_folder(root)):
+        run_all(RUNS[:1], root, backend)
+    assert [run for run, _, _ in backend.submitted] == [RUNS[0]]
+
+
+def test_lock_held_without_a_lock_table_or_a_lock_file(tmp_path):
+    path = tmp_path / "run.lock"
+    assert not lock_held(path, {1, 2, 3})  # no such file
+    path.write_text("")
+    assert not lock_held(path, None)  # no lock table (not Linux)
+    assert lock_held(path, {path.stat().st_ino})
 
 
 def test_queued_runs_already_complete_are_no_reason_to_defer(clock, finished):

@@ -16,12 +16,14 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import sb3_icrl.envs  # noqa: F401  (registers the environments)
 from sb3_icrl.benchmark.report import constraint_metrics
+from sb3_icrl.benchmark.status import progress_words
 from sb3_icrl.benchmark.suite import RunSpec
 from sb3_icrl.envs import BINDING_ENV_SPECS, ENV_SPECS, REWARD_TRANSFER_TASKS, TRANSFER_ENV_SPECS
 from sb3_icrl.metrics.identification import _load_run_policy, run_demonstration_pairs
 from sb3_icrl.metrics.transfer import (
     DYNAMICS_NOISE,
     TRAINING_LINE,
+    WAITING_LINE,
     ProgressLines,
     TransferProgress,
     feasible_reward_ratio,
@@ -435,6 +437,17 @@ def test_transfer_progress_reads_the_learner_under_way_from_the_end_of_a_log(tmp
         file.write("  oracle: 300/1000 steps, 150 steps/s\n")
     assert transfer_progress(log) == TransferProgress("dynamics", "oracle", 300, 1000, 150.0)
     with open(log, "a") as file:
+        file.write("  oracle: 1000/1000 steps, 150 steps/s\n")
+    assert progress_words(transfer_progress(log)) == "the dynamics task's oracle learner trained, being evaluated"
+    with open(log, "a") as file:
+        file.write("transfer (dynamics) on sb3_icrl/GridWorldWall-v0: ppo reused from refs/ppo.json\n")
+    assert transfer_progress(log) is None  # the oracle's numbers are not shown for the reused PPO
+    with open(log, "a") as file:
+        file.write("transfer (dynamics) on sb3_icrl/GridWorldWall-v0: waiting for ppo, which another run is training (x)\n")
+    progress = transfer_progress(log)
+    assert progress == TransferProgress("dynamics", "ppo", 0, 0, waiting=True)
+    assert progress_words(progress) == "the dynamics task waits for its ppo reference, which another run is training"
+    with open(log, "a") as file:
         file.write("\n=== 2026-01-01 11:00:00 python -m sb3_icrl.zoo train --algo bc2l --resume\n")
     assert transfer_progress(log) is None  # the run's last command trains the run itself
 
@@ -448,3 +461,6 @@ def test_transfer_progress_reads_the_lines_the_test_writes(tmp_path):
     progress = transfer_progress(tmp_path / "run.log")
     assert (progress.task, progress.learner, progress.steps, progress.total) == ("same", "ppo", 32, 64)
     assert progress.steps_per_s > 0
+    waiting = WAITING_LINE.format(task="same", env="sb3_icrl/GridWorldWall-v0", learner="oracle", file="refs/o.json")
+    (tmp_path / "run.log").write_text(waiting + "\n")
+    assert transfer_progress(tmp_path / "run.log") == TransferProgress("same", "oracle", 0, 0, waiting=True)

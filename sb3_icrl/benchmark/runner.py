@@ -88,9 +88,9 @@ def run_lock(run_folder: str) -> Iterator[bool]:
 
 def run_lock_held(run_folder: str) -> bool:
     """
-    Whether another process holds :func:`run_lock` on a run folder. The lock table is read first, which takes no lock,
-    so that a suite taking a free run's lock at that moment never finds it busy because of this look; a lock the table
-    shows is confirmed by trying it (the table names inodes, and a file of another file system may share the number).
+    Whether another open file (another suite's, as a rule) holds :func:`run_lock` on a run folder. The lock table is
+    read first, which takes no lock; only a lock it shows is confirmed by trying it (the table names inodes, and a file
+    of another file system may share the number), so a run nobody holds is looked at without touching its lock.
 
     :param run_folder: The run folder
     :return: ``True`` when held; ``False`` when free, or where the lock table cannot be read (not Linux)
@@ -457,8 +457,13 @@ def _ended_run(backend: Backend, handle: Any, outcome: RunOutcome, root: str) ->
 
 def _reason_not_to_start(run: RunSpec, root: str, backend: Backend) -> str | None:
     """
-    :return: ``"skipped"`` for a run with nothing left to do, ``"busy"`` for one another queue on this machine trains
-        (said before a start line would be), ``None`` for a run to start
+    Why a run the queue reaches is not started, looked at before its start line would be printed.
+
+    :param run: The run
+    :param root: The log root (``-f``)
+    :param backend: Where it would go (only a backend on this machine can see this machine's locks)
+    :return: ``"skipped"`` for a run with nothing left to do, ``"busy"`` for one another suite on this machine trains,
+        ``None`` for a run to start
     """
     if run.complete(root):
         return "skipped"

@@ -114,8 +114,8 @@ def run_status(
     """
     :param run: The run
     :param root: The log root (``-f``)
-    :param locked_inodes: :func:`held_lock_inodes` (``None``: a run that is neither finished nor failed counts as
-        interrupted)
+    :param locked_inodes: :func:`~sb3_icrl.common.utils.held_lock_inodes` (``None``: a run that is neither finished
+        nor failed counts as interrupted)
     :param recipes: See :func:`planned_steps`
     """
     status = _training_status(run, root, locked_inodes, recipes)
@@ -142,22 +142,30 @@ def run_status(
     if status.transfers_left:
         running = lock_held(folder + ".lock", locked_inodes)
         tests = f"{status.transfers_left} transfer test{'s' if status.transfers_left > 1 else ''}"
-        notes = [status.note, f"{tests} {'running' if running else 'to come'}"]
         progress = transfer_progress(run.log_file(root)) if running else None
+        tests += " running" if running else " to come"
         if progress is not None:
-            notes[-1] += f", {progress_words(progress)}"
+            tests += f": {progress_words(progress)}"
+        notes = [status.note, tests]
         status.note = "; ".join(note for note in notes if note)
     return status
 
 
 def progress_words(progress: TransferProgress) -> str:
     """
-    :param progress: A transfer test's learner under way
-    :return: E.g. ``the reward task's learned learner at 600,000 / 2,000,000 steps (about 8 min left at its pace)``
+    A transfer test's progress in words.
+
+    :param progress: Its learner under way (:func:`~sb3_icrl.metrics.transfer.transfer_progress`)
+    :return: E.g. ``the reward task's learned learner at 600,000 / 2,000,000 steps, about 8 min left at its pace``
     """
-    words = f"the {progress.task} task's {progress.learner} learner at {progress.steps:,} / {progress.total:,} steps"
+    if progress.waiting:
+        return f"the {progress.task} task waits for its {progress.learner} reference, which another run is training"
+    learner = f"the {progress.task} task's {progress.learner} learner"
+    if progress.steps >= progress.total:
+        return f"{learner} trained, being evaluated"
+    words = f"{learner} at {progress.steps:,} / {progress.total:,} steps"
     if progress.steps_per_s:
-        words += f" (about {max(progress.total - progress.steps, 0) / progress.steps_per_s / 60:.0f} min left at its pace)"
+        words += f", about {(progress.total - progress.steps) / progress.steps_per_s / 60:.0f} min left at its pace"
     return words
 
 

@@ -230,7 +230,7 @@ def atomic_save_npz(path: str | pathlib.Path, arrays: Mapping[str, Any], compres
 def held_lock_inodes(proc_locks: str = PROC_LOCKS) -> set[int] | None:
     """
     The inodes of the files that some process holds a lock on, read from ``/proc/locks``; reading it takes no lock,
-    so a suite starting a run at that moment never finds the run busy.
+    so a process taking one of those locks at that moment never finds it taken because of this look.
 
     :param proc_locks: The lock table (Linux)
     :return: The inodes, or ``None`` where the table cannot be read (not Linux)
@@ -253,13 +253,19 @@ def held_lock_inodes(proc_locks: str = PROC_LOCKS) -> set[int] | None:
 
 def lock_held(path: str | pathlib.Path, locked_inodes: set[int] | None) -> bool:
     """
+    Whether the lock table shows a lock on ``path``. The table names inodes only, and a file of another file system may
+    share the number: where that matters, confirm by trying the lock.
+
     :param path: A lock file of :func:`file_lock`
     :param locked_inodes: :func:`held_lock_inodes`
-    :return: Whether some process holds the lock on ``path`` (``False`` where the lock table could not be read)
+    :return: ``True`` when the table holds the file's inode; ``False`` when it does not, when the table could not be
+        read, or when the file cannot be looked at (missing, ...)
     """
+    if locked_inodes is None:
+        return False
     try:
-        return locked_inodes is not None and os.stat(path).st_ino in locked_inodes
-    except FileNotFoundError:
+        return os.stat(path).st_ino in locked_inodes
+    except OSError:
         return False
 
 

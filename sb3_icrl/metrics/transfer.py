@@ -71,8 +71,13 @@ REFERENCE_SETTINGS = ("version", "env", "env_kwargs", "transition_noise", "n_tim
 #: :func:`transfer_progress`)
 TRAINING_LINE = "transfer ({task}) on {env}: training {learner} for {steps} steps"
 PROGRESS_LINE = "  {learner}: {steps}/{total} steps, {speed:.0f} steps/s"
+#: The line a transfer test logs while it waits for a reference another run trains
+WAITING_LINE = "transfer ({task}) on {env}: waiting for {learner}, which another run is training ({file})"
 _TRAINING_PATTERN = re.compile(r"transfer \((\w+)\) on \S+: training (\w+) for (\d+) steps")
 _PROGRESS_PATTERN = re.compile(r"  (\w+): (\d+)/(\d+) steps, (\d+) steps/s")
+_WAITING_PATTERN = re.compile(r"transfer \((\w+)\) on \S+: waiting for (\w+), .*")
+#: Any other line of a transfer test (a learner reused, ...): no learner trains after it until the next training line
+_OTHER_TRANSFER_PATTERN = re.compile(r"transfer \(\w+\) on \S+: .*")
 #: How much of the end of a run's log :func:`transfer_progress` reads (a test logs a few lines per learner)
 PROGRESS_TAIL_BYTES = 1 << 16
 
@@ -516,7 +521,7 @@ def run_transfer(
                     f"transfer ({task}) on {env_id}: {', '.join(pending)} being trained by another run ({cache}): "
                     "deferred, its learned-cost result kept for the next try"
                 )
-            log(f"transfer ({task}) on {env_id}: waiting for {learner}, which another run is training ({cache})")
+            log(WAITING_LINE.format(task=task, env=env_id, learner=learner, file=cache))
             with file_lock(cache.with_suffix(".lock"), blocking=True):
                 pass
     results = {learner: results[learner] for learner in learners}
@@ -618,10 +623,11 @@ class TransferProgress:
     Where a transfer test under way stands, as its log shows it.
 
     :param task: Its task
-    :param learner: The learner training now (one of :data:`LEARNERS`)
+    :param learner: The learner training now (one of :data:`LEARNERS`), or the reference it waits for
     :param steps: Its steps so far (at the last of its ten progress lines)
-    :param total: Its training steps
+    :param total: Its training steps (0 while waiting)
     :param steps_per_s: Its speed so far (``None`` before its first progress line)
+    :param waiting: The test waits for ``learner``, a reference another run is training
     """
 
     task: str
@@ -629,6 +635,7 @@ class TransferProgress:
     steps: int
     total: int
     steps_per_s: float | None = None
+    waiting: bool = False
 
 
 def transfer_progress(log_file: str | os.PathLike) -> TransferProgress | None:
@@ -637,8 +644,8 @@ def transfer_progress(log_file: str | os.PathLike) -> TransferProgress | None:
     command's output to it, after a ``===`` line naming the command).
 
     :param log_file: The run's log
-    :return: The learner's progress; ``None`` when the log is missing, or its last command is not a transfer test or
-        trains no learner yet
+    :return: The learner's progress (or the reference it waits for); ``None`` when the log is missing, or its last
+        command is not a transfer test or trains no learner now (it reuses one)
     """
     try:
         with open(log_file, "rb") as file:
@@ -652,6 +659,10 @@ def transfer_progress(log_file: str | os.PathLike) -> TransferProgress | None:
             progress = None
         elif match := _TRAINING_PATTERN.fullmatch(line):
             progress = TransferProgress(match[1], match[2], 0, int(match[3]))
+        elif match := _WAITING_PATTERN.fullmatch(line):
+            progress = TransferProgress(match[1], match[2], 0, 0, waiting=True)
+        elif _OTHER_TRANSFER_PATTERN.fullmatch(line):
+            progress = None
         elif progress is not None and (match := _PROGRESS_PATTERN.fullmatch(line)) and match[1] == progress.learner:
             progress.steps, progress.steps_per_s = int(match[2]), float(match[4])
     return progress
