@@ -64,7 +64,7 @@ def glance_cell(cell: dict) -> str:
     score = cell.get("normalised_score_mean")
     if score is None or not math.isfinite(score) or cell.get("success_count") is None:
         return f"{format_reward(cell['feasible_reward_mean'])} / {rate} (n={cell['n_seeds']})"
-    score = round(score, 2) + 0.0  # + 0.0: a mean of about -1e-17 reads 0.00, not -0.00
+    score = round(score, 2) + 0.0  # + 0.0: a mean that rounds to zero (PPO's own, -1e-17) reads 0.00, not -0.00
     return f"{format_score(score)} / {rate} ({cell['success_count']}/{cell['n_seeds']})"
 
 
