@@ -1,0 +1,163 @@
+"""
+Did a learner keep to the constraint it was given? For each finished run of a suite folder whose forward learner is
+Lagrangian (BC2L, MECL, VICRL, the oracle; IRL-Plus's multiplier is held at 1), prints the cost budget, the learner's
+mean cost per step in its last rollouts (the constraint value the multiplier compares with the budget), their ratio,
+and the final Lagrange multiplier; for ICRL runs also the learned cost's mean on the expert's pairs and on the
+learner's own evaluation episodes (from the run's ``identification.json``). With ``--through N``, N points of the
+multiplier and the constraint value through training, read from the run's log. A learner whose cost ends far over its
+budget did not meet the constraint it was given (its forward solver fell short), whatever its learned cost ranks; one
+within its budget that still breaks the true constraint was given a cost that does not price the breach::
+
+    python benchmarks/lagrangian_state.py logs/fresh/table3 --env BlockedHalfCheetahReach-v0 --through 6
+
+Nothing here is seen by a learner: it reads finished runs.
+"""
+
+import argparse
+import json
+import re
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.save_util import load_from_zip_file
+
+#: A line of SB3's logger table: ``|    lagrange_multiplier      | 3.87     |``
+_LOG_ROW = re.compile(r"^\|\s+(\w+)\s+\|\s+(\S+)\s+\|$")
+
+
+def first(value: Any) -> float | None:
+    """The first entry of a scalar or array, as a float (``None`` stays ``None``)."""
+    if value is None:
+        return None
+    return float(np.asarray(value, dtype=float).reshape(-1)[0])
+
+
+def saved_state(model_file: Path) -> dict[str, float | None]:
+    """
+    The Lagrangian state a model zip saved at the end of its training.
+
+    :param model_file: The run's final model zip
+    :return: ``budget``, ``step_cost`` (the last rollouts' mean cost per step), ``multiplier`` and the PID multiplier's
+        ``proportional`` and ``integral`` terms (``None`` where the learner has none)
+    """
+    data, _, _ = load_from_zip_file(model_file, device="cpu", load_data=True)
+    data = data or {}
+    multiplier = data.get("lagrange_multiplier")
+    return {
+        "budget": first(data.get("cost_budget")),
+        "step_cost": first(data.get("_rollout_mean_step_cost")),
+        "multiplier": first(multiplier.value) if multiplier is not None else None,
+        "proportional": first(getattr(multiplier, "delta_p", None)),
+        "integral": first(getattr(multiplier, "integral", None)),
+    }
+
+
+def learned_cost_means(identification_file: Path) -> dict[str, float | None]:
+    """
+    :param identification_file: A run's ``identification.json``
+    :return: The learned cost's mean per pair on the expert's demonstrations and on the learner's evaluation episodes
+    """
+    if not identification_file.is_file():
+        return {"expert_cost": None, "learner_cost": None}
+    sources = json.loads(identification_file.read_text()).get("scores", {}).get("sources", {})
+    return {
+        "expert_cost": sources.get("expert", {}).get("mean_cost"),
+        "learner_cost": sources.get("learner", {}).get("mean_cost"),
+    }
+
+
+def logged_trajectory(log_file: Path, points: int) -> list[tuple[int, float, float]]:
+    """
+    The multiplier and the constraint value through training, from the logger tables a run printed.
+
+    :param log_file: The run's log (the suite runner's ``logs/<variant>_<algo>_<env>_<seed>.log``)
+    :param points: How many evenly spaced points to keep (the last one always among them)
+    :return: ``(total_timesteps, lagrange_multiplier, constraint_value)`` per point kept
+    """
+    rows: list[tuple[int, float, float]] = []
+    table: dict[str, str] = {}
+    for line in log_file.read_text(errors="replace").splitlines():
+        match = _LOG_ROW.match(line.strip())
+        if match:
+            table[match.group(1)] = match.group(2)
+        elif line.startswith("---") and table:
+            if {"total_timesteps", "lagrange_multiplier", "constraint_value"} <= table.keys():
+                rows.append(
+                    (int(table["total_timesteps"]), float(table["lagrange_multiplier"]), float(table["constraint_value"]))
+                )
+            table = {}
+    if len(rows) <= points:
+        return rows
+    keep = np.unique(np.linspace(0, len(rows) - 1, points).round().astype(int))
+    return [rows[i] for i in keep]
+
+
+def run_folders(folder: Path, env: str | None) -> list[Path]:
+    """
+    :param folder: A suite's run folder (``<folder>/<variant>/<algo>/<env>_<seed>/``)
+    :param env: Only this env's runs (``None``: every env's)
+    :return: The finished runs' folders, sorted
+    """
+    pattern = f"*/*/{env}_*" if env else "*/*/*_*"
+    return sorted(path for path in folder.glob(pattern) if path.is_dir() and (path / "finished.json").is_file())
+
+
+def describe(run: Path, folder: Path, points: int) -> list[str]:
+    """
+    :param run: A finished run's folder
+    :param folder: The suite's run folder (its ``logs/`` holds the run's log)
+    :param points: Points of the trajectory to print (0: none)
+    :return: The lines printed for the run (none when its learner is not Lagrangian)
+    """
+    env, seed = run.name.rsplit("_", 1)
+    algo, variant = run.parent.name, run.parent.parent.name
+    if not (run / f"{env}.zip").is_file():
+        return [f"{variant}/{algo}/{env} seed {seed}: no final model ({env}.zip) in {run}"]
+    state = saved_state(run / f"{env}.zip")
+    if state["multiplier"] is None:
+        return []
+    costs = learned_cost_means(run / "identification.json")
+
+    def number(value: float | None) -> str:
+        return "-" if value is None else f"{value:.3g}"
+
+    budget, step_cost = state["budget"], state["step_cost"]
+    ratio = "-" if not budget or step_cost is None else f"{step_cost / budget:.1f}x"
+    lines = [
+        f"{variant}/{algo}/{env} seed {seed}: budget {number(budget)}, last step cost {number(step_cost)} ({ratio} the"
+        f" budget), multiplier {number(state['multiplier'])} (P {number(state['proportional'])}, I"
+        f" {number(state['integral'])}); learned cost on the expert {number(costs['expert_cost'])}, on the learner"
+        f" {number(costs['learner_cost'])}"
+    ]
+    log_file = folder / "logs" / f"{variant}_{algo}_{env}_{seed}.log"
+    if points and log_file.is_file():
+        trajectory = logged_trajectory(log_file, points)
+        lines.append(
+            "    through training (steps: multiplier / step cost): "
+            + ", ".join(f"{steps}: {multiplier:.3g} / {value:.3g}" for steps, multiplier, value in trajectory)
+        )
+    return lines
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("folder", type=Path, help="A suite's run folder, e.g. logs/fresh/table3")
+    parser.add_argument("--env", help="Only this env's runs, e.g. BlockedHalfCheetahReach-v0")
+    parser.add_argument("--through", type=int, default=0, help="Points of the multiplier's trajectory to print")
+    args = parser.parse_args(argv)
+    if not args.folder.is_dir():
+        parser.error(f"{args.folder} is not a folder; pass a suite's run folder such as logs/fresh/table3")
+    if args.through < 0:
+        parser.error(f"--through must be >= 0, got {args.through}")
+    runs = run_folders(args.folder, args.env)
+    if not runs:
+        parser.error(f"no finished run under {args.folder}" + (f" for {args.env}" if args.env else ""))
+    for run in runs:
+        for line in describe(run, args.folder, args.through):
+            print(line)
+
+
+if __name__ == "__main__":
+    main()
