@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pytest
 
+from sb3_icrl.common import statistics
 from sb3_icrl.common.statistics import (
     MIN_PAIRS_FOR_WILCOXON,
     MIN_SEEDS_FOR_INTERVAL,
@@ -122,3 +123,22 @@ def test_mean_of_task_means_and_its_interval():
     assert stratified_bootstrap_ci_of_task_means(even, reps=300) == pytest.approx(
         stratified_bootstrap_ci(even, statistic=np.mean, reps=300)
     )
+
+
+@pytest.mark.parametrize("sizes", [[1], [5], [3, 7, 2], [20, 20, 20, 20]])
+def test_row_wise_bootstrap_gives_the_per_resample_numbers(sizes: list[int]) -> None:
+    # The bootstrap computes IQM, optimality gap and mean of task means on all resamples at once; the numbers must be
+    # those of one call per resample on the same draws, to the last bit (committed reports must not move)
+    rng = np.random.default_rng(3)
+    tasks = [rng.normal(size=size) * 10.0 ** rng.integers(-3, 3) for size in sizes]
+    for statistic in (statistics.iqm, statistics.optimality_gap):
+
+        def of_resample(resample: list[np.ndarray], statistic=statistic) -> float:
+            return statistic(np.concatenate(resample))
+
+        one_by_one = statistics._bootstrap_interval(tasks, of_resample, 300, 0.95, 0)
+        assert statistics.stratified_bootstrap_ci(tasks, statistic=statistic, reps=300) == one_by_one
+    one_by_one = statistics._bootstrap_interval(tasks, statistics.mean_of_task_means, 300, 0.95, 0)
+    assert statistics.stratified_bootstrap_ci_of_task_means(tasks, reps=300) == one_by_one
+    assert statistics.stratified_bootstrap_ci([[], []]) == pytest.approx((np.nan, np.nan), nan_ok=True)
+    assert statistics.stratified_bootstrap_ci_of_task_means([[]]) == pytest.approx((np.nan, np.nan), nan_ok=True)

@@ -37,6 +37,11 @@ def iqm(scores: Sequence[float] | np.ndarray) -> float:
     return float(scipy.stats.trim_mean(values, proportiontocut=0.25))
 
 
+def iqm_of_rows(scores: np.ndarray) -> np.ndarray:
+    """:func:`iqm` of each row of a 2-D array (one resample per row), with the same trimming and arithmetic."""
+    return np.asarray(scipy.stats.trim_mean(scores, proportiontocut=0.25, axis=1), dtype=float)
+
+
 def sample_std(values: Sequence[float] | np.ndarray) -> float:
     """The sample standard deviation (``ddof=1``); ``nan`` with fewer than two values."""
     array = np.asarray(values, dtype=float).ravel()
@@ -49,6 +54,20 @@ def optimality_gap(scores: Sequence[float] | np.ndarray, target: float = 1.0) ->
     if values.size == 0:
         return float("nan")
     return float(np.mean(np.maximum(target - values, 0.0)))
+
+
+def optimality_gap_of_rows(scores: np.ndarray, target: float = 1.0) -> np.ndarray:
+    """:func:`optimality_gap` of each row of a 2-D array (one resample per row)."""
+    return np.mean(np.maximum(target - scores, 0.0), axis=1)
+
+
+#: The row-wise form of a statistic, with which a bootstrap computes every resample's estimate in one call instead of
+#: one call per resample (the same numbers: the same draws, trimming and summation; the report spent most of its time
+#: in those calls)
+_ROW_STATISTICS: dict[Callable[[np.ndarray], float], Callable[[np.ndarray], np.ndarray]] = {
+    iqm: iqm_of_rows,
+    optimality_gap: optimality_gap_of_rows,
+}
 
 
 def stratified_bootstrap_ci(
@@ -69,6 +88,12 @@ def stratified_bootstrap_ci(
     :param seed: Seed of the resampling
     :return: ``(lower, upper)``; ``(nan, nan)`` without scores
     """
+    rows = _ROW_STATISTICS.get(statistic)
+    if rows is not None:
+        tasks = _nonempty_tasks(scores_by_task)
+        if not tasks:
+            return float("nan"), float("nan")
+        return _percentile_interval(rows(np.concatenate(_resample_matrices(tasks, reps, seed), axis=1)), confidence)
     return _bootstrap_interval(scores_by_task, lambda tasks: statistic(np.concatenate(tasks)), reps, confidence, seed)
 
 
@@ -94,7 +119,11 @@ def stratified_bootstrap_ci_of_task_means(
 
     Arguments and return: see :func:`stratified_bootstrap_ci`.
     """
-    return _bootstrap_interval(scores_by_task, mean_of_task_means, reps, confidence, seed)
+    tasks = _nonempty_tasks(scores_by_task)
+    if not tasks:
+        return float("nan"), float("nan")
+    task_means = [matrix.mean(axis=1) for matrix in _resample_matrices(tasks, reps, seed)]
+    return _percentile_interval(np.mean(task_means, axis=0), confidence)
 
 
 def _bootstrap_interval(
@@ -119,6 +148,15 @@ def _stratified_resamples(tasks: list[np.ndarray], reps: int, seed: int) -> Iter
     rng = np.random.default_rng(seed)
     for _ in range(reps):
         yield [task[rng.integers(0, task.size, task.size)] for task in tasks]
+
+
+def _resample_matrices(tasks: list[np.ndarray], reps: int, seed: int) -> list[np.ndarray]:
+    """The resamples of :func:`_stratified_resamples` (the same draws), one ``(reps, task size)`` array per task."""
+    matrices = [np.empty((reps, task.size)) for task in tasks]
+    for rep, resample in enumerate(_stratified_resamples(tasks, reps, seed)):
+        for matrix, scores in zip(matrices, resample, strict=True):
+            matrix[rep] = scores
+    return matrices
 
 
 def performance_profile(scores_by_task: ScoresByTask, taus: Sequence[float] | np.ndarray) -> np.ndarray:
