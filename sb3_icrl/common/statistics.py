@@ -151,12 +151,15 @@ def _stratified_resamples(tasks: list[np.ndarray], reps: int, seed: int) -> Iter
 
 
 def _resample_matrices(tasks: list[np.ndarray], reps: int, seed: int) -> list[np.ndarray]:
-    """The resamples of :func:`_stratified_resamples` (the same draws), one ``(reps, task size)`` array per task."""
-    matrices = [np.empty((reps, task.size)) for task in tasks]
-    for rep, resample in enumerate(_stratified_resamples(tasks, reps, seed)):
-        for matrix, scores in zip(matrices, resample, strict=True):
-            matrix[rep] = scores
-    return matrices
+    """
+    The resamples of :func:`_stratified_resamples`, one ``(reps, task size)`` array per task, from one draw: the
+    bounds laid out in the loop's order (resample, task, seed) draw the same indices from the same stream.
+    """
+    sizes = [task.size for task in tasks]
+    bounds = np.concatenate([np.full(size, size) for size in sizes])
+    indices = np.random.default_rng(seed).integers(0, np.broadcast_to(bounds, (reps, bounds.size)))
+    starts = np.cumsum([0, *sizes[:-1]])
+    return [task[indices[:, start : start + task.size]] for task, start in zip(tasks, starts, strict=True)]
 
 
 def performance_profile(scores_by_task: ScoresByTask, taus: Sequence[float] | np.ndarray) -> np.ndarray:
