@@ -25,6 +25,8 @@ from stable_baselines3.common.save_util import load_from_zip_file
 
 #: A line of SB3's logger table: ``|    lagrange_multiplier      | 3.87     |``
 _LOG_ROW = re.compile(r"^\|\s+(\w+)\s+\|\s+(\S+)\s+\|$")
+#: How the suite runner heads each command it appends to a run's log, and what a training command holds
+_COMMAND_LINE, _TRAINING_COMMAND = "=== ", " sb3_icrl.zoo train "
 
 
 def first(value: Any) -> float | None:
@@ -34,18 +36,21 @@ def first(value: Any) -> float | None:
     return float(np.asarray(value, dtype=float).reshape(-1)[0])
 
 
-def saved_state(model_file: Path) -> dict[str, float | None]:
+def saved_state(model_file: Path) -> dict[str, Any]:
     """
-    The Lagrangian state a model zip saved at the end of its training.
+    The Lagrangian state a model zip saved at the end of its training (of its first constraint, where it has several).
 
     :param model_file: The run's final model zip
-    :return: ``budget``, ``step_cost`` (the last rollouts' mean cost per step), ``multiplier`` and the PID multiplier's
-        ``proportional`` and ``integral`` terms (``None`` where the learner has none)
+    :return: ``budget`` and ``budget_statistic`` (``"step"`` or ``"episode"``), ``n_costs``, ``step_cost`` (the last
+        rollouts' mean cost per step), ``multiplier`` and the PID multiplier's ``proportional`` and ``integral`` terms
+        (``None`` where the learner has none)
     """
     data, _, _ = load_from_zip_file(model_file, device="cpu", load_data=True)
     data = data or {}
     multiplier = data.get("lagrange_multiplier")
     return {
+        "budget_statistic": data.get("budget_statistic"),
+        "n_costs": data.get("n_costs", 1),
         "budget": first(data.get("cost_budget")),
         "step_cost": first(data.get("_rollout_mean_step_cost")),
         "multiplier": first(multiplier.value) if multiplier is not None else None,
@@ -70,7 +75,10 @@ def learned_cost_means(identification_file: Path) -> dict[str, float | None]:
 
 def logged_trajectory(log_file: Path, points: int) -> list[tuple[int, float, float]]:
     """
-    The multiplier and the constraint value through training, from the logger tables a run printed.
+    The multiplier and the constraint value through training (the first constraint's, where there are several), from
+    the logger tables the run's training commands printed. Tables printed by other commands in the log (its transfer
+    test) are left out; where a resumed attempt goes back to a checkpoint, its rows replace those of the attempt before
+    from that step on.
 
     :param log_file: The run's log (the suite runner's ``logs/<variant>_<algo>_<env>_<seed>.log``)
     :param points: How many evenly spaced points to keep (the last one always among them)
@@ -78,15 +86,22 @@ def logged_trajectory(log_file: Path, points: int) -> list[tuple[int, float, flo
     """
     rows: list[tuple[int, float, float]] = []
     table: dict[str, str] = {}
+    training = True  # a log without command lines holds one training run
     for line in log_file.read_text(errors="replace").splitlines():
+        if line.startswith(_COMMAND_LINE):
+            training, table = _TRAINING_COMMAND in line, {}
+            continue
         match = _LOG_ROW.match(line.strip())
         if match:
             table[match.group(1)] = match.group(2)
         elif line.startswith("---") and table:
-            if {"total_timesteps", "lagrange_multiplier", "constraint_value"} <= table.keys():
-                rows.append(
-                    (int(table["total_timesteps"]), float(table["lagrange_multiplier"]), float(table["constraint_value"]))
-                )
+            multiplier = table.get("lagrange_multiplier", table.get("lagrange_multiplier_0"))
+            value = table.get("constraint_value", table.get("constraint_value_0"))
+            if training and "total_timesteps" in table and multiplier is not None and value is not None:
+                steps = int(table["total_timesteps"])
+                while rows and rows[-1][0] >= steps:
+                    rows.pop()
+                rows.append((steps, float(multiplier), float(value)))
             table = {}
     if len(rows) <= points:
         return rows
@@ -115,19 +130,26 @@ def describe(run: Path, folder: Path, points: int) -> list[str]:
     algo, variant = run.parent.name, run.parent.parent.name
     if not (run / f"{env}.zip").is_file():
         return [f"{variant}/{algo}/{env} seed {seed}: no final model ({env}.zip) in {run}"]
-    state = saved_state(run / f"{env}.zip")
+    try:
+        state = saved_state(run / f"{env}.zip")
+        costs = learned_cost_means(run / "identification.json")
+    except (OSError, ValueError, KeyError) as error:  # a damaged zip or JSON: say so, go on with the other runs
+        return [f"{variant}/{algo}/{env} seed {seed}: cannot read its model or identification scores ({error})"]
     if state["multiplier"] is None:
         return []
-    costs = learned_cost_means(run / "identification.json")
 
     def number(value: float | None) -> str:
         return "-" if value is None else f"{value:.3g}"
 
-    budget, step_cost = state["budget"], state["step_cost"]
-    ratio = "-" if not budget or step_cost is None else f"{step_cost / budget:.1f}x"
+    budget, step_cost, per = state["budget"], state["step_cost"], state["budget_statistic"] or "episode"
+    if per == "step":
+        ratio = f" ({step_cost / budget:.3g}x the budget)" if budget and step_cost is not None else ""
+    else:  # a budget on the episode's cost does not compare with a cost per step
+        ratio = ""
+    several = f" (the first of {state['n_costs']} constraints)" if state["n_costs"] > 1 else ""
     lines = [
-        f"{variant}/{algo}/{env} seed {seed}: budget {number(budget)}, last step cost {number(step_cost)} ({ratio} the"
-        f" budget), multiplier {number(state['multiplier'])} (P {number(state['proportional'])}, I"
+        f"{variant}/{algo}/{env} seed {seed}{several}: budget {number(budget)} per {per}, last cost per step"
+        f" {number(step_cost)}{ratio}, multiplier {number(state['multiplier'])} (P {number(state['proportional'])}, I"
         f" {number(state['integral'])}); learned cost on the expert {number(costs['expert_cost'])}, on the learner"
         f" {number(costs['learner_cost'])}"
     ]
@@ -135,7 +157,7 @@ def describe(run: Path, folder: Path, points: int) -> list[str]:
     if points and log_file.is_file():
         trajectory = logged_trajectory(log_file, points)
         lines.append(
-            "    through training (steps: multiplier / step cost): "
+            f"    through training (steps: multiplier / constraint value per {per}): "
             + ", ".join(f"{steps}: {multiplier:.3g} / {value:.3g}" for steps, multiplier, value in trajectory)
         )
     return lines

@@ -41,9 +41,9 @@ def finished_run(folder: Path, algo: str, seed: int) -> Path:
 
 
 def test_saved_state_and_line_of_a_lagrangian_run(tmp_path: Path) -> None:
-    model = PPOLagrangian("MlpPolicy", DummyVecEnv([HalfCostCorridor]), cost_budget=0.1, lagrange_update="pid", **TINY).learn(
-        32
-    )
+    env = DummyVecEnv([HalfCostCorridor])
+    model = PPOLagrangian("MlpPolicy", env, cost_budget=0.1, budget_statistic="step", lagrange_update="pid", **TINY)
+    model.learn(32)
     run = finished_run(tmp_path, "ppolag", 7)
     model.save(run / "Corridor-v0.zip")
     sources = {"expert": {"mean_cost": 0.25}, "learner": {"mean_cost": 0.75}}
@@ -58,9 +58,25 @@ def test_saved_state_and_line_of_a_lagrangian_run(tmp_path: Path) -> None:
     assert state["multiplier"] == pytest.approx(float(np.asarray(model.lagrange_multiplier.value)[0]))
 
     lines = lagrangian_state.describe(run, tmp_path, points=5)
-    assert lines[0].startswith("base/ppolag/Corridor-v0 seed 7: budget 0.1, last step cost 0.5 (5.0x the budget)")
+    assert lines[0].startswith("base/ppolag/Corridor-v0 seed 7: budget 0.1 per step, last cost per step 0.5 (5x the budget)")
     assert lines[0].endswith("learned cost on the expert 0.25, on the learner 0.75")
-    assert lines[1] == "    through training (steps: multiplier / step cost): 16: 1.5 / 0.5, 32: 2 / 0.5"
+    assert lines[1] == "    through training (steps: multiplier / constraint value per step): 16: 1.5 / 0.5, 32: 2 / 0.5"
+
+
+def test_a_budget_per_episode_is_not_compared_with_a_cost_per_step(tmp_path: Path) -> None:
+    model = PPOLagrangian("MlpPolicy", DummyVecEnv([HalfCostCorridor]), cost_budget=5.0, budget_statistic="episode", **TINY)
+    run = finished_run(tmp_path, "ppolag", 8)
+    model.learn(32).save(run / "Corridor-v0.zip")
+    (line,) = lagrangian_state.describe(run, tmp_path, points=0)
+    assert "budget 5 per episode, last cost per step 0.5, multiplier" in line
+    assert "x the budget" not in line
+
+
+def test_a_damaged_model_is_named_and_the_listing_goes_on(tmp_path: Path) -> None:
+    run = finished_run(tmp_path, "mecl", 4)
+    (run / "Corridor-v0.zip").write_text("not a zip")
+    (line,) = lagrangian_state.describe(run, tmp_path, points=0)
+    assert line.startswith("base/mecl/Corridor-v0 seed 4: cannot read its model or identification scores")
 
 
 def test_a_run_without_a_multiplier_prints_nothing(tmp_path: Path) -> None:
@@ -81,6 +97,19 @@ def test_trajectory_keeps_evenly_spaced_points_and_the_last(tmp_path: Path) -> N
     log.write_text("".join(logger_table(step, step / 10, 0.1) for step in range(10, 110, 10)))
     assert [steps for steps, _, _ in lagrangian_state.logged_trajectory(log, 3)] == [10, 50, 100]
     assert len(lagrangian_state.logged_trajectory(log, 50)) == 10
+
+
+def test_trajectory_follows_a_resumed_attempt_and_leaves_out_the_transfer_test(tmp_path: Path) -> None:
+    log = tmp_path / "run.log"
+    log.write_text(
+        "=== 2026-01-01 00:00:00 python -m sb3_icrl.zoo train --algo mecl\n"
+        + "".join(logger_table(step, 1.0, 0.1) for step in (10, 20, 30))
+        + "=== 2026-01-01 01:00:00 python -m sb3_icrl.zoo train --algo mecl --resume\n"
+        + "".join(logger_table(step, 2.0, 0.2) for step in (20, 30, 40))  # back to the checkpoint at 10
+        + "=== 2026-01-01 02:00:00 python -m sb3_icrl.metrics.transfer RUN --task reward\n"
+        + logger_table(50, 9.0, 0.9)  # the transfer learner's table
+    )
+    assert lagrangian_state.logged_trajectory(log, 10) == [(10, 1.0, 0.1), (20, 2.0, 0.2), (30, 2.0, 0.2), (40, 2.0, 0.2)]
 
 
 def test_unfinished_runs_are_skipped_and_bad_input_is_named(tmp_path: Path, capsys) -> None:

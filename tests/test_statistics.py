@@ -125,7 +125,7 @@ def test_mean_of_task_means_and_its_interval():
     )
 
 
-@pytest.mark.parametrize("sizes", [[1], [5], [3, 7, 2], [20, 20, 20, 20], [1, 4, 9, 2, 35]])
+@pytest.mark.parametrize("sizes", [[1], [5], [3, 7, 2], [20, 20, 20, 20], [1, 4, 9, 2, 35], [5] * 9, [3] * 17])
 def test_row_wise_bootstrap_gives_the_per_resample_numbers(sizes: list[int]) -> None:
     # The bootstrap computes IQM, optimality gap and mean of task means on all resamples at once; the numbers must be
     # those of one call per resample on the same draws, to the last bit (committed reports must not move)

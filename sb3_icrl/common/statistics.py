@@ -122,8 +122,9 @@ def stratified_bootstrap_ci_of_task_means(
     tasks = _nonempty_tasks(scores_by_task)
     if not tasks:
         return float("nan"), float("nan")
-    task_means = [matrix.mean(axis=1) for matrix in _resample_matrices(tasks, reps, seed)]
-    return _percentile_interval(np.mean(task_means, axis=0), confidence)
+    # one row of task means per resample, averaged along the row: the summation of the per-resample mean
+    task_means = np.stack([matrix.mean(axis=1) for matrix in _resample_matrices(tasks, reps, seed)], axis=1)
+    return _percentile_interval(task_means.mean(axis=1), confidence)
 
 
 def _bootstrap_interval(
