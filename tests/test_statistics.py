@@ -142,3 +142,18 @@ def test_row_wise_bootstrap_gives_the_per_resample_numbers(sizes: list[int]) -> 
     assert statistics.stratified_bootstrap_ci_of_task_means(tasks, reps=300) == one_by_one
     assert statistics.stratified_bootstrap_ci([[], []]) == pytest.approx((np.nan, np.nan), nan_ok=True)
     assert statistics.stratified_bootstrap_ci_of_task_means([[]]) == pytest.approx((np.nan, np.nan), nan_ok=True)
+
+
+@pytest.mark.parametrize("sizes", [[(1, 1)], [(5, 5)], [(3, 4), (5, 1), (2, 2)], [(5, 5)] * 9])
+def test_row_wise_probability_of_improvement_gives_the_per_resample_numbers(sizes: list[tuple[int, int]]) -> None:
+    # The same draws as a loop that resamples X's seeds then Y's, task by task, and calls the statistic once per resample
+    rng = np.random.default_rng(4)
+    xs = [rng.integers(0, 4, size=nx).astype(float) for nx, _ in sizes]  # few values: ties happen
+    ys = [rng.integers(0, 4, size=ny).astype(float) for _, ny in sizes]
+    draws, estimates = np.random.default_rng(0), []
+    for _ in range(300):
+        pairs = zip(xs, ys, strict=True)
+        resampled = [(x[draws.integers(0, x.size, x.size)], y[draws.integers(0, y.size, y.size)]) for x, y in pairs]
+        estimates.append(statistics.probability_of_improvement([x for x, _ in resampled], [y for _, y in resampled]))
+    one_by_one = statistics._percentile_interval(np.array(estimates), 0.95)
+    assert statistics.probability_of_improvement_ci(xs, ys, reps=300) == one_by_one

@@ -249,12 +249,17 @@ def probability_of_improvement_ci(
     tasks = [(x, y) for x, y in tasks if x.size and y.size]
     if not tasks:
         return float("nan"), float("nan")
-    rng = np.random.default_rng(seed)
-    estimates = np.empty(reps)
-    for rep in range(reps):
-        resampled = [(x[rng.integers(0, x.size, x.size)], y[rng.integers(0, y.size, y.size)]) for x, y in tasks]
-        estimates[rep] = probability_of_improvement([x for x, _ in resampled], [y for _, y in resampled])
-    return _percentile_interval(estimates, confidence)
+    # each resample draws X's seeds then Y's, task by task: the order of the interleaved list below
+    matrices = _resample_matrices([scores for pair in tasks for scores in pair], reps, seed)
+    per_task = [_improvement_of_rows(x_rows, y_rows) for x_rows, y_rows in zip(matrices[::2], matrices[1::2], strict=True)]
+    return _percentile_interval(np.stack(per_task, axis=1).mean(axis=1), confidence)
+
+
+def _improvement_of_rows(x_rows: np.ndarray, y_rows: np.ndarray) -> np.ndarray:
+    """P(X > Y) on one task for each resample (row) of X's and Y's seeds, ties counting half."""
+    x, y = x_rows[:, :, None], y_rows[:, None, :]
+    wins = (x > y).sum(axis=(1, 2)) + 0.5 * (x == y).sum(axis=(1, 2))
+    return wins / (x_rows.shape[1] * y_rows.shape[1])
 
 
 def wilson_interval(successes: int, trials: int, confidence: float = 0.95) -> tuple[float, float]:
