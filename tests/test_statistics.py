@@ -157,3 +157,18 @@ def test_row_wise_probability_of_improvement_gives_the_per_resample_numbers(size
         estimates.append(statistics.probability_of_improvement([x for x, _ in resampled], [y for _, y in resampled]))
     one_by_one = statistics._percentile_interval(np.array(estimates), 0.95)
     assert statistics.probability_of_improvement_ci(xs, ys, reps=300) == one_by_one
+
+
+@pytest.mark.parametrize("sizes", [[1], [5], [3, 7, 2], [1, 4, 9, 2, 35]])
+def test_resamples_draw_the_indices_of_one_call_per_task(sizes: list[int]) -> None:
+    # The reports' intervals (and so the committed reports) rest on this stream: resample by resample, task by task
+    tasks = [np.arange(size, dtype=float) for size in sizes]
+    rng = np.random.default_rng(0)
+    expected = [[rng.integers(0, size, size) for size in sizes] for _ in range(50)]
+    matrices = statistics._resample_matrices(tasks, 50, 0)
+    for rep in range(50):
+        for matrix, indices in zip(matrices, expected[rep], strict=True):
+            assert np.array_equal(matrix[rep], indices)
+    assert [[list(row) for row in resample] for resample in statistics._stratified_resamples(tasks, 50, 0)] == [
+        [list(indices.astype(float)) for indices in resample] for resample in expected
+    ]

@@ -90,10 +90,9 @@ def stratified_bootstrap_ci(
     """
     rows = _ROW_STATISTICS.get(statistic)
     if rows is not None:
-        tasks = _nonempty_tasks(scores_by_task)
-        if not tasks:
-            return float("nan"), float("nan")
-        return _percentile_interval(rows(np.concatenate(_resample_matrices(tasks, reps, seed), axis=1)), confidence)
+        return _row_bootstrap_interval(
+            scores_by_task, lambda matrices: rows(np.concatenate(matrices, axis=1)), reps, confidence, seed
+        )
     return _bootstrap_interval(scores_by_task, lambda tasks: statistic(np.concatenate(tasks)), reps, confidence, seed)
 
 
@@ -119,12 +118,12 @@ def stratified_bootstrap_ci_of_task_means(
 
     Arguments and return: see :func:`stratified_bootstrap_ci`.
     """
-    tasks = _nonempty_tasks(scores_by_task)
-    if not tasks:
-        return float("nan"), float("nan")
-    # one row of task means per resample, averaged along the row: the summation of the per-resample mean
-    task_means = np.stack([matrix.mean(axis=1) for matrix in _resample_matrices(tasks, reps, seed)], axis=1)
-    return _percentile_interval(task_means.mean(axis=1), confidence)
+
+    def task_means(matrices: list[np.ndarray]) -> np.ndarray:
+        # one row of task means per resample, averaged along the row: the summation of the per-resample mean
+        return np.stack([matrix.mean(axis=1) for matrix in matrices], axis=1).mean(axis=1)
+
+    return _row_bootstrap_interval(scores_by_task, task_means, reps, confidence, seed)
 
 
 def _bootstrap_interval(
@@ -138,6 +137,20 @@ def _bootstrap_interval(
     return _percentile_interval(estimates, confidence)
 
 
+def _row_bootstrap_interval(
+    scores_by_task: ScoresByTask,
+    estimate_rows: Callable[[list[np.ndarray]], np.ndarray],
+    reps: int,
+    confidence: float,
+    seed: int,
+) -> tuple[float, float]:
+    """:func:`_bootstrap_interval` with an estimate of every resample at once (of the per-task resample matrices)."""
+    tasks = _nonempty_tasks(scores_by_task)
+    if not tasks:
+        return float("nan"), float("nan")
+    return _percentile_interval(estimate_rows(_resample_matrices(tasks, reps, seed)), confidence)
+
+
 def _nonempty_tasks(scores_by_task: ScoresByTask) -> list[np.ndarray]:
     """Each task's scores as a flat float array, tasks without scores left out."""
     tasks = [np.asarray(scores, dtype=float).ravel() for scores in scores_by_task]
@@ -146,15 +159,15 @@ def _nonempty_tasks(scores_by_task: ScoresByTask) -> list[np.ndarray]:
 
 def _stratified_resamples(tasks: list[np.ndarray], reps: int, seed: int) -> Iterator[list[np.ndarray]]:
     """``reps`` resamples of the tasks, each task's seeds drawn with replacement on their own (rliable's stratification)."""
-    rng = np.random.default_rng(seed)
-    for _ in range(reps):
-        yield [task[rng.integers(0, task.size, task.size)] for task in tasks]
+    matrices = _resample_matrices(tasks, reps, seed)
+    for rep in range(reps):
+        yield [matrix[rep] for matrix in matrices]
 
 
 def _resample_matrices(tasks: list[np.ndarray], reps: int, seed: int) -> list[np.ndarray]:
     """
-    The resamples of :func:`_stratified_resamples`, one ``(reps, task size)`` array per task, from one draw: the
-    bounds laid out in the loop's order (resample, task, seed) draw the same indices from the same stream.
+    ``reps`` stratified resamples as one ``(reps, task size)`` array per task, from one draw of the stream: resample by
+    resample, task by task, the indices a loop of ``rng.integers(0, size, size)`` per task would draw.
     """
     sizes = [task.size for task in tasks]
     bounds = np.concatenate([np.full(size, size) for size in sizes])
