@@ -23,10 +23,14 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.save_util import load_from_zip_file
 
+from sb3_icrl.benchmark.suite import RunSpec
+from sb3_icrl.metrics.transfer import LOG_COMMAND_PREFIX
+from sb3_icrl.run_folder import is_finished
+
 #: A line of SB3's logger table: ``|    lagrange_multiplier      | 3.87     |``
 _LOG_ROW = re.compile(r"^\|\s+(\w+)\s+\|\s+(\S+)\s+\|$")
-#: How the suite runner heads each command it appends to a run's log, and what a training command holds
-_COMMAND_LINE, _TRAINING_COMMAND = "=== ", " sb3_icrl.zoo train "
+#: What the runner's line heading a training command in a run's log holds
+_TRAINING_COMMAND = " sb3_icrl.zoo train "
 
 
 def first(value: Any) -> float | None:
@@ -88,7 +92,7 @@ def logged_trajectory(log_file: Path, points: int) -> list[tuple[int, float, flo
     table: dict[str, str] = {}
     training = True  # a log without command lines holds one training run
     for line in log_file.read_text(errors="replace").splitlines():
-        if line.startswith(_COMMAND_LINE):
+        if line.startswith(LOG_COMMAND_PREFIX):
             training, table = _TRAINING_COMMAND in line, {}
             continue
         match = _LOG_ROW.match(line.strip())
@@ -116,7 +120,7 @@ def run_folders(folder: Path, env: str | None) -> list[Path]:
     :return: The finished runs' folders, sorted
     """
     pattern = f"*/*/{env}_*" if env else "*/*/*_*"
-    return sorted(path for path in folder.glob(pattern) if path.is_dir() and (path / "finished.json").is_file())
+    return sorted(path for path in folder.glob(pattern) if path.is_dir() and is_finished(str(path)))
 
 
 def describe(run: Path, folder: Path, points: int) -> list[str]:
@@ -153,7 +157,7 @@ def describe(run: Path, folder: Path, points: int) -> list[str]:
         f" {number(state['integral'])}); learned cost on the expert {number(costs['expert_cost'])}, on the learner"
         f" {number(costs['learner_cost'])}"
     ]
-    log_file = folder / "logs" / f"{variant}_{algo}_{env}_{seed}.log"
+    log_file = Path(RunSpec(folder.name, variant, algo, env, int(seed), None).log_file(folder.parent))
     if points and log_file.is_file():
         trajectory = logged_trajectory(log_file, points)
         lines.append(

@@ -23,7 +23,7 @@ import yaml
 from sb3_icrl.benchmark.suite import RunSpec, result_current, run_complete
 from sb3_icrl.common.utils import file_lock, held_lock_inodes, lock_held
 from sb3_icrl.common.versions import versions
-from sb3_icrl.metrics.transfer import DEFERRED_EXIT
+from sb3_icrl.metrics.transfer import DEFERRED_EXIT, LOG_COMMAND_PREFIX
 from sb3_icrl.run_folder import FINISHED_FILE, is_finished
 
 #: Attempts per run before it is listed as failed
@@ -153,7 +153,7 @@ def execute_run(
             # Unbuffered: nothing is left to flush at close, where a full disk would fail again without the file's name
             with open(log_file, "ab", buffering=0) as log:
                 try:
-                    log.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} {' '.join(command)}\n".encode())
+                    log.write(f"\n{LOG_COMMAND_PREFIX}{time.strftime('%Y-%m-%d %H:%M:%S')} {' '.join(command)}\n".encode())
                 except OSError as error:  # a full disk: say which file, as the run's own writes do
                     raise OSError(error.errno, error.strerror, log_file) from error
                 env = {**os.environ, "PYTHONUNBUFFERED": "1"}

@@ -65,6 +65,9 @@ TRANSFER_VERSION = 1
 #: Exit status of ``sb3-icrl transfer --no-wait`` when the references it lacks are all being trained by other runs
 #: (EX_TEMPFAIL: try again later; the learned-cost result is kept in the partial file)
 DEFERRED_EXIT = 75
+#: How the suite runner heads each command it appends to a run's log (``=== <time> <command>``), so that readers of
+#: the log tell one command's output from the next
+LOG_COMMAND_PREFIX = "=== "
 #: What a reference learner depends on, of a transfer's settings (never the run's constraint, model or budget)
 REFERENCE_SETTINGS = ("version", "env", "env_kwargs", "transition_noise", "n_timesteps", "seed", "eval_episodes", "eval_seed")
 #: The line a transfer test logs as a learner starts training, and one of the ten it logs as it goes (read back by
@@ -655,7 +658,7 @@ def transfer_progress(log_file: str | os.PathLike) -> TransferProgress | None:
         return None
     progress = None
     for line in lines:
-        if line.startswith("=== "):  # a command starts: a test's progress ends with it
+        if line.startswith(LOG_COMMAND_PREFIX):  # a command starts: a test's progress ends with it
             progress = None
         elif match := _TRAINING_PATTERN.fullmatch(line):
             progress = TransferProgress(match[1], match[2], 0, int(match[3]))
