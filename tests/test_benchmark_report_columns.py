@@ -886,3 +886,26 @@ def test_training_provenance_says_which_code_and_how_many_starts(tmp_path, finis
     starts = {(row["env"], row["algo"], row["seed"]): (row["training_starts"], row["git_revision"]) for row in rows}
     assert starts.pop((env_name(first.env_id), first.algo, str(first.seed))) == ("1", "")
     assert set(starts.values()) == {("", "")}  # the others record neither
+
+
+def test_the_report_keeps_the_transfer_references_its_runs_read(finished_suite, tmp_path, monkeypatch):
+    from sb3_icrl.benchmark import cli
+
+    suite, root, results = finished_suite
+    run = results[0][0]
+    shared = pathlib.Path(run.log_folder(root), "transfer_references")
+    shared.mkdir(parents=True)
+    oracle = shared / "oracle_GridWorldWall-v0_0123456789abcdef.json"
+    oracle.write_text('{"settings": {}, "result": {"feasible_reward": 2.0, "wall_time_min": 3.0}}')
+    transfer = {
+        "settings": {"reference_files": {"oracle": str(oracle)}},
+        "results": {"learned": {"wall_time_min": 1.0}, "oracle": {"wall_time_min": 3.0}},
+        "violation_rate": 0.0,
+        "feasible_reward_ratio": 0.5,
+    }
+    pathlib.Path(run.run_folder(root), "transfer_same.json").write_text(json.dumps(transfer))
+    monkeypatch.setattr(cli, "evaluate_finished", lambda runs, *args, **kwargs: [item for item in results if item[0] in runs])
+    output = str(tmp_path / "report")
+    assert cli.main(["report", suite.path, "-f", root, "-o", output, "--no-figures"]) == 0
+    kept = pathlib.Path(output, "transfer_references", run.variant, oracle.name)
+    assert kept.read_text() == oracle.read_text()

@@ -410,3 +410,54 @@ def test_a_running_transfer_test_shows_its_learner_s_steps_from_the_run_s_log(tm
     assert status.note == f"1 transfer test running: {learner}"
     (status,) = suite_status([run], root)  # the lock released: the test is to come, whatever its log says
     assert status.note == "1 transfer test to come"
+
+
+def _transfer_with_references(run, root: str, outside: str) -> dict[str, str]:
+    """A transfer result in the run's folder that read an oracle kept beside the suite's runs and a PPO kept elsewhere."""
+    shared = os.path.join(run.log_folder(root), "transfer_references")
+    os.makedirs(shared, exist_ok=True)
+    os.makedirs(outside, exist_ok=True)
+    files = {
+        "oracle": os.path.join(shared, "oracle_GridWorldWall-v0_0123456789abcdef.json"),
+        "ppo": os.path.join(outside, "ppo_GridWorldWall-v0_fedcba9876543210.json"),
+    }
+    for learner, path in files.items():
+        with open(path, "w") as file:
+            json.dump({"settings": {"learner": learner}, "result": {"feasible_reward": 1.0}}, file)
+    with open(os.path.join(run.run_folder(root), "transfer_same.json"), "w") as file:
+        json.dump({"settings": {"reference_files": files}, "results": {}, "violation_rate": 0.0}, file)
+    return files
+
+
+def test_a_report_keeps_the_transfer_references_and_run_reported_restores_them(suite_in_five_states, tmp_path, capsys):
+    from sb3_icrl.benchmark.report import keep_transfer_references, restore_transfer_references
+
+    suite, root, runs = suite_in_five_states
+    files = _transfer_with_references(runs[0], root, str(tmp_path / "elsewhere"))
+    report = _committed_report(tmp_path / "report", suite.name, {4: 300.0})
+    kept = os.path.join(report, "transfer_references", "base", os.path.basename(files["oracle"]))
+    # Only the reference kept beside the suite's runs; a run with no folder here (seed 4) is passed over
+    assert keep_transfer_references([runs[0], runs[4]], root, report) == [kept]
+    with open(kept) as file, open(files["oracle"]) as original:
+        assert file.read() == original.read()
+    assert keep_transfer_references([runs[0]], root, report) == []  # kept as it is: not written again
+
+    # On a machine without the log folder: restored where the transfer tests look them up, never over a file there
+    other_root = str(tmp_path / "other")
+    restored = os.path.join(other_root, suite.name, "base", "transfer_references", os.path.basename(files["oracle"]))
+    os.makedirs(os.path.join(report, "transfer_references", "no-such-variant"))
+    with open(os.path.join(report, "transfer_references", "no-such-variant", "oracle_x.json"), "w") as file:
+        file.write("{}")
+    assert restore_transfer_references(report, other_root, suite) == [restored]
+    with open(restored, "w") as file:
+        file.write('{"made": "here"}')
+    assert restore_transfer_references(report, other_root, suite) == []
+    with open(restored) as file:
+        assert json.load(file) == {"made": "here"}
+
+    # `run --reported` restores them before any run starts
+    fresh_root = str(tmp_path / "fresh")
+    args = ["run", suite.path, "-f", fresh_root, "--only", "seed=4", "--reported", report, "--no-report"]
+    assert benchmark_main(args) == 0
+    assert "transfer references: 1 restored from" in capsys.readouterr().out
+    assert os.path.isfile(os.path.join(fresh_root, suite.name, "base", "transfer_references", os.path.basename(kept)))

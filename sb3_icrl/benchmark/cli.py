@@ -31,7 +31,9 @@ from sb3_icrl.benchmark.report import (
     REPORT_MODELS,
     constraint_metrics,
     evaluate_finished,
+    keep_transfer_references,
     previous_results,
+    restore_transfer_references,
     summarise_suite,
     write_report,
 )
@@ -141,7 +143,7 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
             metavar="REPORT",
             help="a committed report of the suite (the -o of `benchmark report`): the runs it holds at the suite's recipe "
             "version, with no folder under -f, count as done (trained on another machine, say): `run` does not train "
-            "them again, `status` lists them as reported",
+            "them again, `status` lists them as reported; `run` also restores the transfer references the report keeps",
         )
     status.add_argument("-v", "--verbose", action="store_true", help="list the finished and reported runs too")
     report.add_argument(
@@ -258,6 +260,14 @@ def run_command(args: argparse.Namespace) -> int:
         runs = [run for run in runs if run not in reported]
         many = len(reported) > 1
         print(f"not trained again: {len(reported)} run{'s' if many else ''} that {args.reported} holds", flush=True)
+    if args.reported is not None:
+        restored = restore_transfer_references(args.reported, args.log_folder, suite)
+        if restored:
+            print(
+                f"transfer references: {len(restored)} restored from {args.reported} (not trained again by the transfer "
+                "tests that read them)",
+                flush=True,
+            )
     start_until = None if args.start_within is None else time.time() + args.start_within
     if start_until is not None:
         print(f"no run starts after {time.strftime('%Y-%m-%d %H:%M:%S', time.localtime(start_until))}", flush=True)
@@ -443,6 +453,8 @@ def report_command(args: argparse.Namespace) -> int:
         runs, results, metrics = _with_earlier_report(suite, runs, results, metrics, output, args.log_folder, model, withdraw)
     summary = summarise_suite(suite, runs, results, metrics, model=model)
     written = write_report(summary, output)
+    if model == "final":
+        written += keep_transfer_references([run for run, _ in results], args.log_folder, output)
     if not args.no_figures:
         written += write_figures(summary, suite, args.log_folder, output)
     print(markdown_table(summary))

@@ -59,7 +59,7 @@ from sb3_icrl.common.utils import atomic_write_bytes, atomic_write_json
 from sb3_icrl.data import load_demonstrations
 from sb3_icrl.envs import heldout_env_kwargs
 from sb3_icrl.metrics.identification import headline, identification_cached, identify_run
-from sb3_icrl.metrics.transfer import read_transfers, transfer_file, transfer_times
+from sb3_icrl.metrics.transfer import REFERENCES_FOLDER, read_transfers, transfer_file, transfer_times
 from sb3_icrl.registry import ICRL_ALGOS, env_name
 from sb3_icrl.run_evaluation import (
     RunResult,
@@ -280,6 +280,62 @@ def constraint_metrics(
         if references:
             entry["transfer_reference_wall_time_s"] = references
     return metrics
+
+
+def keep_transfer_references(runs: Sequence[RunSpec], root: str, output: str) -> list[str]:
+    """
+    Copy the reference results the runs' transfer tests read (the oracle and unconstrained PPO learners, trained once
+    per env, seed and variant: most of a seed's transfer compute) into ``<output>/transfer_references/<variant>/``, so
+    that ``benchmark run --reported <output>`` on a machine without them restores them
+    (:func:`restore_transfer_references`) instead of training them again. A file already kept as it is, or kept
+    outside the suite's variant folders (``sb3-icrl transfer --references-dir``), is left alone.
+
+    :param runs: The reported runs (those with no folder under ``root`` are passed over)
+    :param root: The log root
+    :param output: The report folder
+    :return: The paths written
+    """
+    written = []
+    for run in runs:
+        variant_folder = pathlib.Path(run.log_folder(root)).resolve()
+        for transfer in read_transfers(run.run_folder(root)).values():
+            for path in transfer.get("settings", {}).get("reference_files", {}).values():
+                source = pathlib.Path(path)
+                if source.parent.resolve() != variant_folder / REFERENCES_FOLDER or not source.is_file():
+                    continue
+                target = pathlib.Path(output, REFERENCES_FOLDER, run.variant, source.name)
+                data = source.read_bytes()
+                if target.is_file() and target.read_bytes() == data:
+                    continue
+                target.parent.mkdir(parents=True, exist_ok=True)
+                atomic_write_bytes(str(target), data)
+                written.append(str(target))
+    return written
+
+
+def restore_transfer_references(reported: str, root: str, suite: Suite) -> list[str]:
+    """
+    The reference results a report keeps (:func:`keep_transfer_references`), copied into the log folder where the
+    suite's transfer tests look them up (``<root>/<suite>/<variant>/transfer_references/``) when it lacks them: a
+    transfer test reads a reference whose settings match, and trains the others. A file already there is never
+    replaced.
+
+    :param reported: The report folder (``--reported``)
+    :param root: The log root
+    :param suite: The suite
+    :return: The paths written
+    """
+    written = []
+    for source in sorted(pathlib.Path(reported, REFERENCES_FOLDER).glob("*/*.json")):
+        if source.parent.name not in suite.variants:
+            continue
+        target = pathlib.Path(root, suite.name, source.parent.name, REFERENCES_FOLDER, source.name)
+        if target.exists():
+            continue
+        target.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_bytes(str(target), source.read_bytes())
+        written.append(str(target))
+    return written
 
 
 def run_facts(results: Sequence[tuple[RunSpec, RunResult]], root: str) -> dict[str, dict[str, Any]]:

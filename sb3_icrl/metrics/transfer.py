@@ -62,6 +62,8 @@ REFERENCE_LEARNERS = ("oracle", "ppo")
 LEARNERS = ("learned", *REFERENCE_LEARNERS)
 #: Bumped when the results change meaning
 TRANSFER_VERSION = 1
+#: The folder of shared references beside a log folder's algorithm folders (``<folder>/transfer_references``)
+REFERENCES_FOLDER = "transfer_references"
 #: Exit status of ``sb3-icrl transfer --no-wait`` when the references it lacks are all being trained by other runs
 #: (EX_TEMPFAIL: try again later; the learned-cost result is kept in the partial file)
 DEFERRED_EXIT = 75
@@ -422,7 +424,7 @@ def run_transfer(
     params = preprocess_hyperparams(entry)
     steps = int(n_timesteps) if n_timesteps is not None else params["n_timesteps"]
     shared_dir = (
-        pathlib.Path(references_dir) if references_dir is not None else run.resolve().parent.parent / "transfer_references"
+        pathlib.Path(references_dir) if references_dir is not None else run.resolve().parent.parent / REFERENCES_FOLDER
     )
     settings: dict[str, Any] = _as_json(
         {
