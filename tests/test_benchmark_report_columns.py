@@ -909,3 +909,28 @@ def test_the_report_keeps_the_transfer_references_its_runs_read(finished_suite, 
     assert cli.main(["report", suite.path, "-f", root, "-o", output, "--no-figures"]) == 0
     kept = pathlib.Path(output, "transfer_references", run.variant, oracle.name)
     assert kept.read_text() == oracle.read_text()
+
+
+def test_the_report_says_when_a_run_s_probes_lack_its_own_seed_s_ppo_episodes(finished_suite, monkeypatch):
+    _, root, results = finished_suite
+    icrl = [(run, result) for run, result in results if run.algo in ("bc2l", "vicrl")][:3]
+    found = {
+        icrl[0][1].run: None,  # no PPO run finished
+        icrl[1][1].run: "../../ppo/GridWorldWall-v0_7",  # another seed's
+        icrl[2][1].run: f"../../ppo/{os.path.basename(icrl[2][1].run)}",  # its own seed's: nothing to say
+    }
+
+    def identified(folder, model="final"):
+        name = os.path.relpath(folder, root)
+        return {"settings": {"unconstrained_run": found[name]}, "scores": {"auroc": 0.5, "sources": {"learner": {}}}}
+
+    monkeypatch.setattr(report, "identify_run", identified)
+    monkeypatch.setattr(report, "identification_cached", lambda *args: True)
+    monkeypatch.setattr(report, "headline", lambda scores: {"identification_auroc": scores["auroc"]})
+    lines: list[str] = []
+    metrics = report.constraint_metrics(icrl, root, log=lines.append)
+    assert [metrics[result.run]["identification_unconstrained_run"] for _, result in icrl] == list(found.values())
+    assert [line.split(":")[0] for line in lines] == [icrl[0][0].name, icrl[1][0].name]
+    assert "its probes hold no unconstrained PPO episodes" in lines[0]
+    assert "another seed's (../../ppo/GridWorldWall-v0_7)" in lines[1]
+    assert f"no finished ppo run of seed {icrl[1][0].seed} being beside it" in lines[1]

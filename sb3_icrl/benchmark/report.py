@@ -259,7 +259,17 @@ def constraint_metrics(
                 identified = identify_run(folder, model=model)
                 entry.update(headline(identified["scores"]))
                 # Whose unconstrained episodes were among the probes (none until a PPO run of the env has finished)
-                entry["identification_unconstrained_run"] = identified["settings"].get("unconstrained_run")
+                unconstrained = identified["settings"].get("unconstrained_run")
+                entry["identification_unconstrained_run"] = unconstrained
+                # (grid worlds have no probe episodes, the others the learner's and, when a PPO run is found, its)
+                episodes = "learner" in (identified["scores"].get("sources") or {})
+                if episodes and (unconstrained is None or os.path.basename(unconstrained) != os.path.basename(folder)):
+                    whose = "no" if unconstrained is None else f"another seed's ({unconstrained})"
+                    log(
+                        f"{run.name}: its probes hold {whose} unconstrained PPO episodes, no finished ppo run of seed "
+                        f"{run.seed} being beside it: to score it on its own seed's, train that run (without --reported "
+                        "when a report holds it) and report again"
+                    )
             except Exception as error:  # a run that cannot be scored leaves its columns empty, not the report unwritten
                 log(f"no identification scores for {run.name}: {type(error).__name__}: {error}")
         current = []
