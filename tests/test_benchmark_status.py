@@ -5,6 +5,8 @@ import fcntl
 import io
 import json
 import os
+import pathlib
+import shutil
 import textwrap
 import time
 import zipfile
@@ -412,46 +414,67 @@ def test_a_running_transfer_test_shows_its_learner_s_steps_from_the_run_s_log(tm
     assert status.note == "1 transfer test to come"
 
 
-def _transfer_with_references(run, root: str, outside: str) -> dict[str, str]:
-    """A transfer result in the run's folder that read an oracle kept beside the suite's runs and a PPO kept elsewhere."""
+def _transfer_with_references(run, root: str, outside: str) -> tuple[dict[str, str], dict]:
+    """A transfer result in the run's folder that read an oracle kept beside the suite's runs and a PPO kept elsewhere,
+    each saved as ``sb3-icrl transfer`` saves a reference (its file named by its settings)."""
+    from sb3_icrl import __version__
+    from sb3_icrl.metrics.transfer import reference_file
+
     shared = os.path.join(run.log_folder(root), "transfer_references")
     os.makedirs(shared, exist_ok=True)
     os.makedirs(outside, exist_ok=True)
+    settings = {learner: {"env": "sb3_icrl/GridWorldWall-v0", "seed": 0, "learner": learner} for learner in ("oracle", "ppo")}
     files = {
-        "oracle": os.path.join(shared, "oracle_GridWorldWall-v0_0123456789abcdef.json"),
-        "ppo": os.path.join(outside, "ppo_GridWorldWall-v0_fedcba9876543210.json"),
+        "oracle": str(reference_file(shared, "oracle", settings["oracle"])),
+        "ppo": str(reference_file(outside, "ppo", settings["ppo"])),
     }
     for learner, path in files.items():
         with open(path, "w") as file:
-            json.dump({"settings": {"learner": learner}, "result": {"feasible_reward": 1.0}}, file)
+            json.dump(
+                {"settings": settings[learner], "result": {"feasible_reward": 1.0}, "sb3_icrl_version": __version__}, file
+            )
     with open(os.path.join(run.run_folder(root), "transfer_same.json"), "w") as file:
         json.dump({"settings": {"reference_files": files}, "results": {}, "violation_rate": 0.0}, file)
-    return files
+    return files, settings
 
 
 def test_a_report_keeps_the_transfer_references_and_run_reported_restores_them(suite_in_five_states, tmp_path, capsys):
     from sb3_icrl.benchmark.report import keep_transfer_references, restore_transfer_references
+    from sb3_icrl.metrics.transfer import _cached_reference
 
     suite, root, runs = suite_in_five_states
-    files = _transfer_with_references(runs[0], root, str(tmp_path / "elsewhere"))
+    files, settings = _transfer_with_references(runs[0], root, str(tmp_path / "elsewhere"))
     report = _committed_report(tmp_path / "report", suite.name, {4: 300.0})
-    kept = os.path.join(report, "transfer_references", "base", os.path.basename(files["oracle"]))
+    name = os.path.basename(files["oracle"])
+    kept = os.path.join(report, "transfer_references", "base", name)
     # Only the reference kept beside the suite's runs; a run with no folder here (seed 4) is passed over
     assert keep_transfer_references([runs[0], runs[4]], root, report) == [kept]
     with open(kept) as file, open(files["oracle"]) as original:
         assert file.read() == original.read()
     assert keep_transfer_references([runs[0]], root, report) == []  # kept as it is: not written again
+    # A log root moved since its transfer tests ran (their results name the old folder): found by name all the same
+    moved_root = str(tmp_path / "moved")
+    shutil.move(root, moved_root)
+    os.remove(kept)
+    assert keep_transfer_references([runs[0]], moved_root, report) == [kept]
 
-    # On a machine without the log folder: restored where the transfer tests look them up, never over a file there
+    # On a machine without the log folder: restored where the transfer tests look them up, never over a file there,
+    # and read by a transfer test with the same settings
     other_root = str(tmp_path / "other")
-    restored = os.path.join(other_root, suite.name, "base", "transfer_references", os.path.basename(files["oracle"]))
+    restored = os.path.join(other_root, suite.name, "base", "transfer_references", name)
     os.makedirs(os.path.join(report, "transfer_references", "no-such-variant"))
-    with open(os.path.join(report, "transfer_references", "no-such-variant", "oracle_x.json"), "w") as file:
+    with open(os.path.join(report, "transfer_references", "no-such-variant", name), "w") as file:
         file.write("{}")
-    assert restore_transfer_references(report, other_root, suite) == [restored]
+    damaged = os.path.join(report, "transfer_references", "base", "ppo_GridWorldWall-v0_0000000000000000.json")
+    with open(damaged, "w") as file:
+        file.write('{"settings": {"env": ')
+    lines: list[str] = []
+    assert restore_transfer_references(report, other_root, suite, log=lines.append) == [restored]
+    assert lines == [f"transfer references: {damaged} is not a reference's result (no settings and result): not restored"]
+    assert _cached_reference(pathlib.Path(restored), settings["oracle"], log=lines.append) == {"feasible_reward": 1.0}
     with open(restored, "w") as file:
         file.write('{"made": "here"}')
-    assert restore_transfer_references(report, other_root, suite) == []
+    assert restore_transfer_references(report, other_root, suite, log=lines.append) == []
     with open(restored) as file:
         assert json.load(file) == {"made": "here"}
 
@@ -459,5 +482,6 @@ def test_a_report_keeps_the_transfer_references_and_run_reported_restores_them(s
     fresh_root = str(tmp_path / "fresh")
     args = ["run", suite.path, "-f", fresh_root, "--only", "seed=4", "--reported", report, "--no-report"]
     assert benchmark_main(args) == 0
-    assert "transfer references: 1 restored from" in capsys.readouterr().out
-    assert os.path.isfile(os.path.join(fresh_root, suite.name, "base", "transfer_references", os.path.basename(kept)))
+    out = capsys.readouterr().out
+    assert "transfer references: 1 restored from" in out and "not restored" in out
+    assert os.path.isfile(os.path.join(fresh_root, suite.name, "base", "transfer_references", name))

@@ -297,8 +297,10 @@ def keep_transfer_references(runs: Sequence[RunSpec], root: str, output: str) ->
     Copy the reference results the runs' transfer tests read (the oracle and unconstrained PPO learners, trained once
     per env, seed and variant: most of a seed's transfer compute) into ``<output>/transfer_references/<variant>/``, so
     that ``benchmark run --reported <output>`` on a machine without them restores them
-    (:func:`restore_transfer_references`) instead of training them again. A file already kept as it is, or kept
-    outside the suite's variant folders (``sb3-icrl transfer --references-dir``), is left alone.
+    (:func:`restore_transfer_references`) instead of training them again. Each is looked up by its file name in the
+    run's variant folder (``<root>/<suite>/<variant>/transfer_references/``, where the transfer tests of a suite keep
+    them, so a log root moved since is no matter); a file already kept as it is, or one a test read from a folder of
+    another name (``sb3-icrl transfer --references-dir``), is left alone.
 
     :param runs: The reported runs (those with no folder under ``root`` are passed over)
     :param root: The log root
@@ -307,11 +309,12 @@ def keep_transfer_references(runs: Sequence[RunSpec], root: str, output: str) ->
     """
     written = []
     for run in runs:
-        variant_folder = pathlib.Path(run.log_folder(root)).resolve()
+        shared = pathlib.Path(run.log_folder(root), REFERENCES_FOLDER)
         for transfer in read_transfers(run.run_folder(root)).values():
             for path in transfer.get("settings", {}).get("reference_files", {}).values():
-                source = pathlib.Path(path)
-                if source.parent.resolve() != variant_folder / REFERENCES_FOLDER or not source.is_file():
+                recorded = pathlib.Path(path)
+                source = shared / recorded.name
+                if recorded.parent.name != REFERENCES_FOLDER or not source.is_file():
                     continue
                 target = pathlib.Path(output, REFERENCES_FOLDER, run.variant, source.name)
                 data = source.read_bytes()
@@ -323,16 +326,18 @@ def keep_transfer_references(runs: Sequence[RunSpec], root: str, output: str) ->
     return written
 
 
-def restore_transfer_references(reported: str, root: str, suite: Suite) -> list[str]:
+def restore_transfer_references(reported: str, root: str, suite: Suite, log: Callable[[str], None] = print) -> list[str]:
     """
     The reference results a report keeps (:func:`keep_transfer_references`), copied into the log folder where the
     suite's transfer tests look them up (``<root>/<suite>/<variant>/transfer_references/``) when it lacks them: a
     transfer test reads a reference whose settings match, and trains the others. A file already there is never
-    replaced.
+    replaced; one that is not a reference's result (cut short, say) is left in the report, with a line in ``log``, and
+    its reference trained again.
 
     :param reported: The report folder (``--reported``)
     :param root: The log root
     :param suite: The suite
+    :param log: Where the files passed over are named
     :return: The paths written
     """
     written = []
@@ -342,8 +347,16 @@ def restore_transfer_references(reported: str, root: str, suite: Suite) -> list[
         target = pathlib.Path(root, suite.name, source.parent.name, REFERENCES_FOLDER, source.name)
         if target.exists():
             continue
+        data = source.read_bytes()
+        try:
+            saved = json.loads(data)
+        except ValueError:
+            saved = None
+        if not (isinstance(saved, dict) and isinstance(saved.get("settings"), dict) and isinstance(saved.get("result"), dict)):
+            log(f"transfer references: {source} is not a reference's result (no settings and result): not restored")
+            continue
         target.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_bytes(str(target), source.read_bytes())
+        atomic_write_bytes(str(target), data)
         written.append(str(target))
     return written
 
