@@ -59,7 +59,13 @@ from sb3_icrl.common.utils import atomic_write_bytes, atomic_write_json
 from sb3_icrl.data import load_demonstrations
 from sb3_icrl.envs import heldout_env_kwargs
 from sb3_icrl.metrics.identification import headline, identification_cached, identify_run
-from sb3_icrl.metrics.transfer import REFERENCES_FOLDER, read_transfers, transfer_file, transfer_times
+from sb3_icrl.metrics.transfer import (
+    REFERENCES_FOLDER,
+    default_references_dir,
+    read_transfers,
+    transfer_file,
+    transfer_times,
+)
 from sb3_icrl.registry import ICRL_ALGOS, env_name
 from sb3_icrl.run_evaluation import (
     RunResult,
@@ -309,7 +315,7 @@ def keep_transfer_references(runs: Sequence[RunSpec], root: str, output: str) ->
     """
     written = []
     for run in runs:
-        shared = pathlib.Path(run.log_folder(root), REFERENCES_FOLDER)
+        shared = default_references_dir(run.run_folder(root))
         for transfer in read_transfers(run.run_folder(root)).values():
             for path in transfer.get("settings", {}).get("reference_files", {}).values():
                 recorded = pathlib.Path(path)

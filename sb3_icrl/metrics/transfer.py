@@ -297,6 +297,16 @@ def feasible_reward_ratio(learned: float, oracle: float) -> float:
     return float(learned / oracle) if oracle > 0 else float("nan")
 
 
+def default_references_dir(run_folder: str | os.PathLike) -> pathlib.Path:
+    """
+    Where a run's transfer tests keep the shared references unless told otherwise (``--references-dir``).
+
+    :param run_folder: The run folder ``<folder>/<algo>/<EnvName>_<N>``
+    :return: ``<folder>/transfer_references``, shared by every run of the log folder
+    """
+    return pathlib.Path(run_folder).resolve().parent.parent / REFERENCES_FOLDER
+
+
 def reference_file(references_dir: str | os.PathLike, learner: str, settings: dict[str, Any]) -> pathlib.Path:
     """
     Where a reference learner's result is kept: one file per learner and settings.
@@ -423,9 +433,7 @@ def run_transfer(
     entry, key = load_hyperparams("ppolag", source_env)  # the source robot's recipe, for all three learners
     params = preprocess_hyperparams(entry)
     steps = int(n_timesteps) if n_timesteps is not None else params["n_timesteps"]
-    shared_dir = (
-        pathlib.Path(references_dir) if references_dir is not None else run.resolve().parent.parent / REFERENCES_FOLDER
-    )
+    shared_dir = pathlib.Path(references_dir) if references_dir is not None else default_references_dir(run)
     settings: dict[str, Any] = _as_json(
         {
             "version": TRANSFER_VERSION,
