@@ -317,6 +317,58 @@ def test_cli_leaves_the_reported_runs_untrained(suite_in_five_states, tmp_path, 
     assert "no summary.json there" in capsys.readouterr().err
 
 
+def test_a_reported_ppo_row_is_trained_again_before_its_seeds_icrl_runs(tmp_path, monkeypatch, capsys):
+    """The identification of an ICRL run reads its seed's PPO episodes: a reported PPO run with no folder here is
+    trained again, before that seed's ICRL runs, when they are to train (grid worlds read no such episodes)."""
+    import sb3_icrl.benchmark.cli as cli
+
+    path = tmp_path / "probes.yml"
+    path.write_text(
+        "description: two methods and PPO, two seeds\nenvs: [BiasedPendulum-v0, GridWorldWall-v0]\n"
+        "algos: [bc2l, mecl, ppo]\nseeds: [0, 1]\n"
+    )
+    suite = load_suite(str(path))
+    pendulum = [run for run in suite.runs() if run.env_id.endswith("BiasedPendulum-v0")]
+    assert suite.probe_run(pendulum[0]) == pendulum[4]  # bc2l seed 0 -> ppo seed 0
+    assert suite.probe_run(pendulum[4]) is None  # PPO's own run reads none
+    assert all(suite.probe_run(run) is None for run in suite.runs() if run.env_id.endswith("GridWorldWall-v0"))
+    assert dataclasses.replace(suite, algos=["bc2l", "mecl"]).probe_run(pendulum[0]) is None
+
+    # The report holds PPO on both envs and seeds, and bc2l seed 0 on the pendulum
+    report = tmp_path / "report"
+    report.mkdir()
+    cells = [
+        {"env": env, "variant": "base", "algo": "ppo", "per_seed": [{"seed": 0}, {"seed": 1}]}
+        for env in ("BiasedPendulum-v0", "GridWorldWall-v0")
+    ]
+    cells.append({"env": "BiasedPendulum-v0", "variant": "base", "algo": "bc2l", "per_seed": [{"seed": 0}]})
+    (report / "summary.json").write_text(json.dumps({"suite": suite.name, "cells": cells}))
+    started: list[list[str]] = []
+    monkeypatch.setattr(cli, "run_all", lambda runs, *args, **kwargs: started.append([r.name for r in runs]) or [])
+    root = str(tmp_path / "logs")
+    base = ["run", str(path), "-f", root, "--no-report", "--reported", str(report), "--order", "seed"]
+    assert benchmark_main([*base, "--only", "env=BiasedPendulum-v0"]) == 0
+    assert started[-1] == [
+        "base/ppo/BiasedPendulum-v0/seed 0",  # bc2l seed 0 is reported, mecl seed 0 is not
+        "base/mecl/BiasedPendulum-v0/seed 0",
+        "base/ppo/BiasedPendulum-v0/seed 1",
+        "base/bc2l/BiasedPendulum-v0/seed 1",
+        "base/mecl/BiasedPendulum-v0/seed 1",
+    ]
+    out = capsys.readouterr().out
+    assert "trained again: 2 reported PPO runs with no folder here" in out
+    # Selected alone, an ICRL run brings its PPO row; a PPO folder here, or a grid world, brings none
+    assert benchmark_main([*base, "--only", "env=BiasedPendulum-v0", "seed=1", "algo=mecl"]) == 0
+    assert started[-1] == ["base/ppo/BiasedPendulum-v0/seed 1", "base/mecl/BiasedPendulum-v0/seed 1"]
+    capsys.readouterr()
+    os.makedirs(pendulum[5].run_folder(root))
+    assert benchmark_main([*base, "--only", "env=BiasedPendulum-v0", "seed=1", "algo=mecl"]) == 0
+    assert started[-1] == ["base/mecl/BiasedPendulum-v0/seed 1"]
+    assert benchmark_main([*base, "--only", "env=GridWorldWall-v0", "seed=1", "algo=mecl"]) == 0
+    assert started[-1] == ["base/mecl/GridWorldWall-v0/seed 1"]
+    assert "trained again" not in capsys.readouterr().out
+
+
 def test_runs_start_seed_by_seed_when_asked(tmp_path, monkeypatch):
     import sb3_icrl.benchmark.cli as cli
 

@@ -261,6 +261,17 @@ def run_command(args: argparse.Namespace) -> int:
         many = len(reported) > 1
         print(f"not trained again: {len(reported)} run{'s' if many else ''} that {args.reported} holds", flush=True)
     if args.reported is not None:
+        probe_runs = _reported_probe_runs(args, suite, runs)
+        if probe_runs:
+            runs = _before_their_seed(probe_runs, runs)
+            many = len(probe_runs) > 1
+            print(
+                f"trained again: {len(probe_runs)} reported PPO run{'s' if many else ''} with no folder here, whose "
+                f"episodes the identification probes of {'their' if many else 'its'} seed's ICRL runs read ("
+                + ", ".join(run.name for run in probe_runs)
+                + ")",
+                flush=True,
+            )
         restored = restore_transfer_references(args.reported, args.log_folder, suite)
         if restored:
             print(
@@ -299,6 +310,28 @@ def run_command(args: argparse.Namespace) -> int:
     if not args.no_report:
         report_command(argparse.Namespace(**{**vars(args), "output": None, "no_figures": False}))
     return 1 if failed else 0
+
+
+def _reported_probe_runs(args: argparse.Namespace, suite: Suite, runs: list[RunSpec]) -> list[RunSpec]:
+    """
+    The PPO runs a report holds, with no folder here, whose episodes the identification of ``runs``' ICRL runs reads
+    (:meth:`~sb3_icrl.benchmark.suite.Suite.probe_run`): without them here, the report would score those runs on
+    another seed's episodes or none.
+    """
+    wanted = list(dict.fromkeys(probe for run in runs if (probe := suite.probe_run(run)) is not None and probe not in runs))
+    if not wanted:
+        return []
+    return [status.run for status in _statuses(args, suite, wanted) if status.state == "reported"]
+
+
+def _before_their_seed(first: list[RunSpec], runs: list[RunSpec]) -> list[RunSpec]:
+    """``runs`` with each of ``first`` put before the first run of its variant, env and seed."""
+    ordered = list(runs)
+    for run in first:
+        key = (run.variant, run.env_id, run.seed)
+        at = next(index for index, other in enumerate(ordered) if (other.variant, other.env_id, other.seed) == key)
+        ordered.insert(at, run)
+    return ordered
 
 
 def status_command(args: argparse.Namespace) -> int:

@@ -273,8 +273,8 @@ def constraint_metrics(
                     whose = "no" if unconstrained is None else f"another seed's ({unconstrained})"
                     log(
                         f"{run.name}: its probes hold {whose} unconstrained PPO episodes, no finished ppo run of seed "
-                        f"{run.seed} being beside it: to score it on its own seed's, train that run (without --reported "
-                        "when a report holds it) and report again"
+                        f"{run.seed} being beside it: to score it on its own seed's, train that run (`benchmark run "
+                        "--reported` trains it again with the seed's ICRL runs) and report again"
                     )
             except Exception as error:  # a run that cannot be scored leaves its columns empty, not the report unwritten
                 log(f"no identification scores for {run.name}: {type(error).__name__}: {error}")

@@ -361,6 +361,23 @@ class Suite:
             for seed in self.env_seeds.get(env_id, self.seeds)
         ]
 
+    def probe_run(self, run: RunSpec) -> RunSpec | None:
+        """
+        The run whose episodes join the identification probes of an ICRL run: the suite's unconstrained ``ppo`` row of
+        the same variant, env and seed, the run
+        :func:`~sb3_icrl.metrics.identification.find_unconstrained_run` looks for first. Grid worlds take no such
+        episodes.
+
+        :param run: A run of this suite
+        :return: That ``ppo`` run; ``None`` for a run that is not an ICRL one, an env without probe episodes, or a
+            suite without that row
+        """
+        if run.algo not in ICRL_ALGOS:
+            return None
+        wanted = dataclasses.replace(run, algo="ppo")
+        found = next((candidate for candidate in self.runs() if candidate == wanted), None)
+        return None if found is None or _discrete_observations(run.env_id) else found
+
     def variant_algos(self, variant: str) -> list[str]:
         """The suite's algorithms that run ``variant`` (its ``algos``, default all), in the suite's order."""
         return variant_algos(self.algos, self.variants[variant])
@@ -977,6 +994,20 @@ class _SuiteReader:
                 raise self.error(("others", source), "'paper' is the `paper` key's own column: give this source another name.")
             others[source] = self.numbers(numbers, ("others", source), f"source {source!r}")
         return others
+
+
+@functools.cache
+def _discrete_observations(env_id: str) -> bool:
+    """Whether ``env_id`` observes a discrete state (the grid worlds); ``False`` where it cannot be made here."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            env = gym.make(env_id)
+    except Exception:  # a dependency missing here: its runs say why
+        return False
+    discrete = isinstance(env.observation_space, gym.spaces.Discrete)
+    env.close()
+    return discrete
 
 
 @functools.cache
