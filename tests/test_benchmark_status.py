@@ -355,8 +355,12 @@ def test_a_reported_ppo_row_is_trained_again_before_its_seeds_icrl_runs(tmp_path
         "base/bc2l/BiasedPendulum-v0/seed 1",
         "base/mecl/BiasedPendulum-v0/seed 1",
     ]
-    out = capsys.readouterr().out
-    assert "trained again: 2 reported PPO runs with no folder here" in out
+    assert "trained again: 2 reported PPO runs with no folder here" in capsys.readouterr().out
+    assert benchmark_main(["status", str(path), "-f", root, "--reported", str(report), "--only", "env=BiasedPendulum-v0"]) == 0
+    assert capsys.readouterr().out.strip().splitlines()[-2] == (
+        "`run --reported` also trains again 2 reported PPO runs with no folder here, whose episodes the identification "
+        "probes of their seed's ICRL runs read (base/ppo/BiasedPendulum-v0/seed 0, base/ppo/BiasedPendulum-v0/seed 1)"
+    )
     # Selected alone, an ICRL run brings its PPO row; a PPO folder here, or a grid world, brings none
     assert benchmark_main([*base, "--only", "env=BiasedPendulum-v0", "seed=1", "algo=mecl"]) == 0
     assert started[-1] == ["base/ppo/BiasedPendulum-v0/seed 1", "base/mecl/BiasedPendulum-v0/seed 1"]

@@ -264,14 +264,7 @@ def run_command(args: argparse.Namespace) -> int:
         probe_runs = _reported_probe_runs(args, suite, runs)
         if probe_runs:
             runs = _before_their_seed(probe_runs, runs)
-            many = len(probe_runs) > 1
-            print(
-                f"trained again: {len(probe_runs)} reported PPO run{'s' if many else ''} with no folder here, whose "
-                f"episodes the identification probes of {'their' if many else 'its'} seed's ICRL runs read ("
-                + ", ".join(run.name for run in probe_runs)
-                + ")",
-                flush=True,
-            )
+            print(f"trained again: {_probe_runs_text(probe_runs)}", flush=True)
         restored = restore_transfer_references(args.reported, args.log_folder, suite)
         if restored:
             print(
@@ -318,10 +311,20 @@ def _reported_probe_runs(args: argparse.Namespace, suite: Suite, runs: list[RunS
     (:meth:`~sb3_icrl.benchmark.suite.Suite.probe_run`): without them here, the report would score those runs on
     another seed's episodes or none.
     """
-    wanted = list(dict.fromkeys(probe for run in runs if (probe := suite.probe_run(run)) is not None and probe not in runs))
-    if not wanted:
+    probes = {probe for run in runs if (probe := suite.probe_run(run)) is not None and probe not in runs}
+    if not probes:
         return []
-    return [status.run for status in _statuses(args, suite, wanted) if status.state == "reported"]
+    in_order = [run for run in suite.runs() if run in probes]
+    return [status.run for status in _statuses(args, suite, in_order) if status.state == "reported"]
+
+
+def _probe_runs_text(probe_runs: list[RunSpec]) -> str:
+    many = len(probe_runs) > 1
+    names = ", ".join(run.name for run in probe_runs[:5]) + (f" and {len(probe_runs) - 5} more" if len(probe_runs) > 5 else "")
+    return (
+        f"{len(probe_runs)} reported PPO run{'s' if many else ''} with no folder here, whose episodes the identification "
+        f"probes of {'their' if many else 'its'} seed's ICRL runs read ({names})"
+    )
 
 
 def _before_their_seed(first: list[RunSpec], runs: list[RunSpec]) -> list[RunSpec]:
@@ -340,7 +343,12 @@ def status_command(args: argparse.Namespace) -> int:
     runs = suite.select(_only(args.only))
     folder = os.path.join(args.log_folder, suite.name)
     print(f"suite {suite.name}: {len(runs)} runs in {folder}")
-    print("\n".join(status_lines(_statuses(args, suite, runs), verbose=args.verbose)))
+    statuses = _statuses(args, suite, runs)
+    print("\n".join(status_lines(statuses, verbose=args.verbose)))
+    if args.reported is not None:
+        probe_runs = _reported_probe_runs(args, suite, [status.run for status in statuses if status.state != "reported"])
+        if probe_runs:
+            print(f"`run --reported` also trains again {_probe_runs_text(probe_runs)}")
     if not os.path.isdir(folder):  # last, where it is read: every run above is "not started"
         print(f"note: {_no_suite_folder(args.log_folder, suite.name)}: no run has started there; check -f")
     return 0
