@@ -333,6 +333,8 @@ def test_a_reported_ppo_row_is_trained_again_before_its_seeds_icrl_runs(tmp_path
     assert suite.probe_run(pendulum[4]) is None  # PPO's own run reads none
     assert all(suite.probe_run(run) is None for run in suite.runs() if run.env_id.endswith("GridWorldWall-v0"))
     assert dataclasses.replace(suite, algos=["bc2l", "mecl"]).probe_run(pendulum[0]) is None
+    # All at once: each pendulum ICRL run to its seed's PPO run, nothing for PPO or the grid world
+    assert suite.probe_runs(suite.runs()) == {run: pendulum[4 + run.seed] for run in pendulum[:4]}
 
     # The report holds PPO on both envs and seeds, and bc2l seed 0 on the pendulum
     report = tmp_path / "report"

@@ -308,10 +308,11 @@ def run_command(args: argparse.Namespace) -> int:
 def _reported_probe_runs(args: argparse.Namespace, suite: Suite, runs: list[RunSpec]) -> list[RunSpec]:
     """
     The PPO runs a report holds, with no folder here, whose episodes the identification of ``runs``' ICRL runs reads
-    (:meth:`~sb3_icrl.benchmark.suite.Suite.probe_run`): without them here, the report would score those runs on
+    (:meth:`~sb3_icrl.benchmark.suite.Suite.probe_runs`): without them here, the report would score those runs on
     another seed's episodes or none.
     """
-    probes = {probe for run in runs if (probe := suite.probe_run(run)) is not None and probe not in runs}
+    selected = set(runs)
+    probes = {probe for probe in suite.probe_runs(runs).values() if probe not in selected}
     if not probes:
         return []
     in_order = [run for run in suite.runs() if run in probes]

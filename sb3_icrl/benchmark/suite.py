@@ -12,7 +12,7 @@ import math
 import os
 import pathlib
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -372,11 +372,24 @@ class Suite:
         :return: That ``ppo`` run; ``None`` for a run that is not an ICRL one, an env without probe episodes, or a
             suite without that row
         """
-        if run.algo not in ICRL_ALGOS:
-            return None
-        wanted = dataclasses.replace(run, algo="ppo")
-        found = next((candidate for candidate in self.runs() if candidate == wanted), None)
-        return None if found is None or _discrete_observations(run.env_id) else found
+        return self.probe_runs([run]).get(run)
+
+    def probe_runs(self, runs: Iterable[RunSpec]) -> dict[RunSpec, RunSpec]:
+        """
+        :meth:`probe_run` for many runs at once, reading the suite's run list once.
+
+        :param runs: Runs of this suite
+        :return: ``{run: its probe run}`` for those of ``runs`` that have one
+        """
+        suite_runs = set(self.runs())
+        probes: dict[RunSpec, RunSpec] = {}
+        for run in runs:
+            if run.algo not in ICRL_ALGOS or _discrete_observations(run.env_id):
+                continue
+            wanted = dataclasses.replace(run, algo="ppo")
+            if wanted in suite_runs:
+                probes[run] = wanted
+        return probes
 
     def variant_algos(self, variant: str) -> list[str]:
         """The suite's algorithms that run ``variant`` (its ``algos``, default all), in the suite's order."""
