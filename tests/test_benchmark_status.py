@@ -374,6 +374,26 @@ def test_a_reported_ppo_row_is_trained_again_before_its_seeds_icrl_runs(tmp_path
     assert started[-1] == ["base/mecl/GridWorldWall-v0/seed 1"]
     assert "trained again" not in capsys.readouterr().out
 
+    # Without --reported, a PPO row neither selected nor finished here is named, with the way to bring it
+    no_report = ["run", str(path), "-f", root, "--no-report"]
+    assert benchmark_main([*no_report, "--only", "env=BiasedPendulum-v0", "seed=0", "algo=mecl"]) == 0
+    assert started[-1] == ["base/mecl/BiasedPendulum-v0/seed 0"]
+    assert (
+        "1 of those PPO runs is neither selected nor finished here (base/ppo/BiasedPendulum-v0/seed 0): add algo=ppo to "
+        "--only" in capsys.readouterr().out
+    )
+    assert benchmark_main([*no_report, "--only", "env=BiasedPendulum-v0", "seed=0", "algo=mecl,ppo"]) == 0
+    assert "note: the identification" not in capsys.readouterr().out
+    ppo_folder = pendulum[4].run_folder(root)
+    os.makedirs(ppo_folder)
+    with open(os.path.join(ppo_folder, FINISHED_FILE), "w") as file:
+        json.dump({"num_timesteps": 1000, "wall_time_total_s": 500.0}, file)
+    _whole_zip(os.path.join(ppo_folder, "BiasedPendulum-v0.zip"))
+    assert benchmark_main([*no_report, "--only", "env=BiasedPendulum-v0", "seed=0", "algo=mecl"]) == 0
+    assert "note: the identification" not in capsys.readouterr().out
+    assert benchmark_main([*no_report, "--only", "env=GridWorldWall-v0", "seed=0", "algo=mecl"]) == 0
+    assert "note: the identification" not in capsys.readouterr().out
+
 
 def test_runs_start_seed_by_seed_when_asked(tmp_path, monkeypatch):
     import sb3_icrl.benchmark.cli as cli

@@ -272,6 +272,15 @@ def run_command(args: argparse.Namespace) -> int:
                 "tests that read them)",
                 flush=True,
             )
+    missing = _missing_probe_runs(args, suite, runs)
+    if missing:
+        names = ", ".join(run.name for run in missing[:5]) + (f" and {len(missing) - 5} more" if len(missing) > 5 else "")
+        print(
+            f"note: the identification of the selected ICRL runs reads their seed's PPO episodes, and {len(missing)} of "
+            f"those PPO runs {'are' if len(missing) > 1 else 'is'} neither selected nor finished here ({names}): add "
+            "algo=ppo to --only, or the report scores those ICRL runs on another seed's episodes or none.",
+            flush=True,
+        )
     start_until = None if args.start_within is None else time.time() + args.start_within
     if start_until is not None:
         print(f"no run starts after {time.strftime('%Y-%m-%d %H:%M:%S', time.localtime(start_until))}", flush=True)
@@ -305,18 +314,31 @@ def run_command(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
-def _reported_probe_runs(args: argparse.Namespace, suite: Suite, runs: list[RunSpec]) -> list[RunSpec]:
+def _probe_statuses(args: argparse.Namespace, suite: Suite, runs: list[RunSpec]) -> list[RunStatus]:
     """
-    The PPO runs a report holds, with no folder here, whose episodes the identification of ``runs``' ICRL runs reads
-    (:meth:`~sb3_icrl.benchmark.suite.Suite.probe_runs`): without them here, the report would score those runs on
-    another seed's episodes or none.
+    Where the PPO runs stand whose episodes the identification of ``runs``' ICRL runs reads
+    (:meth:`~sb3_icrl.benchmark.suite.Suite.probe_runs`), those among ``runs`` left out, in the suite's order.
     """
     selected = set(runs)
     probes = {probe for probe in suite.probe_runs(runs).values() if probe not in selected}
     if not probes:
         return []
-    in_order = [run for run in suite.runs() if run in probes]
-    return [status.run for status in _statuses(args, suite, in_order) if status.state == "reported"]
+    return _statuses(args, suite, [run for run in suite.runs() if run in probes])
+
+
+def _reported_probe_runs(args: argparse.Namespace, suite: Suite, runs: list[RunSpec]) -> list[RunSpec]:
+    """
+    The probe runs (:func:`_probe_statuses`) a report holds with no folder here: without them here, the report would
+    score ``runs``' ICRL runs on another seed's episodes or none.
+    """
+    return [status.run for status in _probe_statuses(args, suite, runs) if status.state == "reported"]
+
+
+def _missing_probe_runs(args: argparse.Namespace, suite: Suite, runs: list[RunSpec]) -> list[RunSpec]:
+    """The probe runs (:func:`_probe_statuses`) neither selected, finished, running nor reported: nothing brings them."""
+    return [
+        status.run for status in _probe_statuses(args, suite, runs) if status.state in ("not started", "interrupted", "failed")
+    ]
 
 
 def _probe_runs_text(probe_runs: list[RunSpec]) -> str:
