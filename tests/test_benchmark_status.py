@@ -393,6 +393,11 @@ def test_a_reported_ppo_row_is_trained_again_before_its_seeds_icrl_runs(tmp_path
     assert "note: the identification" not in capsys.readouterr().out
     assert benchmark_main([*no_report, "--only", "env=GridWorldWall-v0", "seed=0", "algo=mecl"]) == 0
     assert "note: the identification" not in capsys.readouterr().out
+    # status names the same rows: seed 0's PPO is finished now, seed 1's folder holds no model
+    assert benchmark_main(["status", str(path), "-f", root, "--only", "env=BiasedPendulum-v0", "algo=mecl"]) == 0
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    assert last.startswith("note: the identification") and "1 of those PPO runs" in last
+    assert "(base/ppo/BiasedPendulum-v0/seed 1)" in last
 
 
 def test_runs_start_seed_by_seed_when_asked(tmp_path, monkeypatch):

@@ -274,13 +274,7 @@ def run_command(args: argparse.Namespace) -> int:
             )
     missing = _missing_probe_runs(args, suite, runs)
     if missing:
-        names = ", ".join(run.name for run in missing[:5]) + (f" and {len(missing) - 5} more" if len(missing) > 5 else "")
-        print(
-            f"note: the identification of the selected ICRL runs reads their seed's PPO episodes, and {len(missing)} of "
-            f"those PPO runs {'are' if len(missing) > 1 else 'is'} neither selected nor finished here ({names}): add "
-            "algo=ppo to --only, or the report scores those ICRL runs on another seed's episodes or none.",
-            flush=True,
-        )
+        print(_missing_probe_runs_text(missing), flush=True)
     start_until = None if args.start_within is None else time.time() + args.start_within
     if start_until is not None:
         print(f"no run starts after {time.strftime('%Y-%m-%d %H:%M:%S', time.localtime(start_until))}", flush=True)
@@ -341,6 +335,15 @@ def _missing_probe_runs(args: argparse.Namespace, suite: Suite, runs: list[RunSp
     ]
 
 
+def _missing_probe_runs_text(missing: list[RunSpec]) -> str:
+    names = ", ".join(run.name for run in missing[:5]) + (f" and {len(missing) - 5} more" if len(missing) > 5 else "")
+    return (
+        f"note: the identification of the selected ICRL runs reads their seed's PPO episodes, and {len(missing)} of "
+        f"those PPO runs {'are' if len(missing) > 1 else 'is'} neither selected nor finished here ({names}): add "
+        "algo=ppo to --only, or the report scores those ICRL runs on another seed's episodes or none."
+    )
+
+
 def _probe_runs_text(probe_runs: list[RunSpec]) -> str:
     many = len(probe_runs) > 1
     names = ", ".join(run.name for run in probe_runs[:5]) + (f" and {len(probe_runs) - 5} more" if len(probe_runs) > 5 else "")
@@ -372,6 +375,9 @@ def status_command(args: argparse.Namespace) -> int:
         probe_runs = _reported_probe_runs(args, suite, [status.run for status in statuses if status.state != "reported"])
         if probe_runs:
             print(f"`run --reported` also trains again {_probe_runs_text(probe_runs)}")
+    missing = _missing_probe_runs(args, suite, [status.run for status in statuses if status.state != "reported"])
+    if missing:
+        print(_missing_probe_runs_text(missing))
     if not os.path.isdir(folder):  # last, where it is read: every run above is "not started"
         print(f"note: {_no_suite_folder(args.log_folder, suite.name)}: no run has started there; check -f")
     return 0
