@@ -260,8 +260,9 @@ def run_command(args: argparse.Namespace) -> int:
         runs = [run for run in runs if run not in reported]
         many = len(reported) > 1
         print(f"not trained again: {len(reported)} run{'s' if many else ''} that {args.reported} holds", flush=True)
+    probe_statuses = _probe_statuses(args, suite, runs)
     if args.reported is not None:
-        probe_runs = _reported_probe_runs(args, suite, runs)
+        probe_runs = [status.run for status in probe_statuses if status.state == "reported"]
         if probe_runs:
             runs = _before_their_seed(probe_runs, runs)
             print(f"trained again: {_probe_runs_text(probe_runs)}", flush=True)
@@ -272,7 +273,7 @@ def run_command(args: argparse.Namespace) -> int:
                 "tests that read them)",
                 flush=True,
             )
-    missing = _missing_probe_runs(args, suite, runs)
+    missing = [status.run for status in probe_statuses if status.state in UNBROUGHT_STATES]
     if missing:
         print(_missing_probe_runs_text(missing), flush=True)
     start_until = None if args.start_within is None else time.time() + args.start_within
@@ -300,18 +301,23 @@ def run_command(args: argparse.Namespace) -> int:
         print(
             f"\nNOT STARTED: {len(left)} run{'s' if len(left) > 1 else ''}, the --start-within time having passed "
             f"(the same command starts {'them' if len(left) > 1 else 'it'}): "
-            + ", ".join(outcome.run.name for outcome in left[:5])
-            + (f" and {len(left) - 5} more" if len(left) > 5 else "")
+            + _run_names([outcome.run for outcome in left])
         )
     if not args.no_report:
         report_command(argparse.Namespace(**{**vars(args), "output": None, "no_figures": False}))
     return 1 if failed else 0
 
 
+#: States of a probe run that nothing brings: neither finished, running elsewhere nor reported (and not selected)
+UNBROUGHT_STATES = ("not started", "interrupted", "failed")
+
+
 def _probe_statuses(args: argparse.Namespace, suite: Suite, runs: list[RunSpec]) -> list[RunStatus]:
     """
     Where the PPO runs stand whose episodes the identification of ``runs``' ICRL runs reads
-    (:meth:`~sb3_icrl.benchmark.suite.Suite.probe_runs`), those among ``runs`` left out, in the suite's order.
+    (:meth:`~sb3_icrl.benchmark.suite.Suite.probe_runs`), those among ``runs`` left out, in the suite's order. Those a
+    report holds with no folder here (``"reported"``) are trained again by ``run --reported``: without them here, the
+    report would score the ICRL runs on another seed's episodes or none.
     """
     selected = set(runs)
     probes = {probe for probe in suite.probe_runs(runs).values() if probe not in selected}
@@ -320,36 +326,24 @@ def _probe_statuses(args: argparse.Namespace, suite: Suite, runs: list[RunSpec])
     return _statuses(args, suite, [run for run in suite.runs() if run in probes])
 
 
-def _reported_probe_runs(args: argparse.Namespace, suite: Suite, runs: list[RunSpec]) -> list[RunSpec]:
-    """
-    The probe runs (:func:`_probe_statuses`) a report holds with no folder here: without them here, the report would
-    score ``runs``' ICRL runs on another seed's episodes or none.
-    """
-    return [status.run for status in _probe_statuses(args, suite, runs) if status.state == "reported"]
-
-
-def _missing_probe_runs(args: argparse.Namespace, suite: Suite, runs: list[RunSpec]) -> list[RunSpec]:
-    """The probe runs (:func:`_probe_statuses`) neither selected, finished, running nor reported: nothing brings them."""
-    return [
-        status.run for status in _probe_statuses(args, suite, runs) if status.state in ("not started", "interrupted", "failed")
-    ]
+def _run_names(runs: list[RunSpec], shown: int = 5) -> str:
+    """The first ``shown`` runs' names, and how many more there are."""
+    return ", ".join(run.name for run in runs[:shown]) + (f" and {len(runs) - shown} more" if len(runs) > shown else "")
 
 
 def _missing_probe_runs_text(missing: list[RunSpec]) -> str:
-    names = ", ".join(run.name for run in missing[:5]) + (f" and {len(missing) - 5} more" if len(missing) > 5 else "")
     return (
         f"note: the identification of the selected ICRL runs reads their seed's PPO episodes, and {len(missing)} of "
-        f"those PPO runs {'are' if len(missing) > 1 else 'is'} neither selected nor finished here ({names}): add "
-        "algo=ppo to --only, or the report scores those ICRL runs on another seed's episodes or none."
+        f"those PPO runs {'are' if len(missing) > 1 else 'is'} neither selected nor finished here ({_run_names(missing)}): "
+        "add algo=ppo to --only, or the report scores those ICRL runs on another seed's episodes or none."
     )
 
 
 def _probe_runs_text(probe_runs: list[RunSpec]) -> str:
     many = len(probe_runs) > 1
-    names = ", ".join(run.name for run in probe_runs[:5]) + (f" and {len(probe_runs) - 5} more" if len(probe_runs) > 5 else "")
     return (
         f"{len(probe_runs)} reported PPO run{'s' if many else ''} with no folder here, whose episodes the identification "
-        f"probes of {'their' if many else 'its'} seed's ICRL runs read ({names})"
+        f"probes of {'their' if many else 'its'} seed's ICRL runs read ({_run_names(probe_runs)})"
     )
 
 
@@ -371,11 +365,11 @@ def status_command(args: argparse.Namespace) -> int:
     print(f"suite {suite.name}: {len(runs)} runs in {folder}")
     statuses = _statuses(args, suite, runs)
     print("\n".join(status_lines(statuses, verbose=args.verbose)))
-    if args.reported is not None:
-        probe_runs = _reported_probe_runs(args, suite, [status.run for status in statuses if status.state != "reported"])
-        if probe_runs:
-            print(f"`run --reported` also trains again {_probe_runs_text(probe_runs)}")
-    missing = _missing_probe_runs(args, suite, [status.run for status in statuses if status.state != "reported"])
+    probe_statuses = _probe_statuses(args, suite, [status.run for status in statuses if status.state != "reported"])
+    probe_runs = [status.run for status in probe_statuses if status.state == "reported"]
+    if probe_runs:
+        print(f"`run --reported` also trains again {_probe_runs_text(probe_runs)}")
+    missing = [status.run for status in probe_statuses if status.state in UNBROUGHT_STATES]
     if missing:
         print(_missing_probe_runs_text(missing))
     if not os.path.isdir(folder):  # last, where it is read: every run above is "not started"
