@@ -300,8 +300,7 @@ def run_command(args: argparse.Namespace) -> int:
     if left:
         print(
             f"\nNOT STARTED: {len(left)} run{'s' if len(left) > 1 else ''}, the --start-within time having passed "
-            f"(the same command starts {'them' if len(left) > 1 else 'it'}): "
-            + _run_names([outcome.run for outcome in left])
+            f"(the same command starts {'them' if len(left) > 1 else 'it'}): " + _run_names([outcome.run for outcome in left])
         )
     if not args.no_report:
         report_command(argparse.Namespace(**{**vars(args), "output": None, "no_figures": False}))
