@@ -125,6 +125,13 @@ def test_a_run_trained_in_process_closes_its_envs(tmp_path: pathlib.Path) -> Non
     assert not [message for message in unclosed if "monitor.csv" in message], unclosed
 
 
+def test_a_drawn_seed_is_printed_and_saved(tmp_path: pathlib.Path, capsys) -> None:
+    """Without --seed the run draws one: the closing line names it, as args.yml records it, so the run can be repeated."""
+    assert main(["--algo", "bc2l", "--env", "GridWorldWall-v0", *FAST, "-f", str(tmp_path), "--verbose", "0"]) == 0
+    saved = yaml.safe_load((tmp_path / "bc2l" / "GridWorldWall-v0_1" / "GridWorldWall-v0" / "args.yml").read_text())
+    assert f" s, seed {saved['seed']})" in capsys.readouterr().out
+
+
 def test_violating_fraction_picks_the_shipped_variant(tmp_path: pathlib.Path) -> None:
     args = ["--algo", "bc2l", "--env", "GridWorldWall-v0", *FAST, "--violating-fraction", "0.2", "-f", str(tmp_path)]
     assert main([*args, "--verbose", "0"]) == 0

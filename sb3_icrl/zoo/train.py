@@ -927,7 +927,8 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
                 },
             )
         print_recovered_constraint(model, env_id, args.env_kwargs)
-        print(f"Saved {save_path} ({clock.segment_elapsed():.1f} s)")
+        # The seed is drawn at random when not given: printed, a run that surprises can be trained again
+        print(f"Saved {save_path} ({clock.segment_elapsed():.1f} s, seed {args.seed})")
         return save_path
     finally:
         _close_envs(model, callbacks)  # a run trained inside a longer process leaves no file or simulator open
