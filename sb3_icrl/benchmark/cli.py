@@ -260,9 +260,8 @@ def run_command(args: argparse.Namespace) -> int:
         runs = [run for run in runs if run not in reported]
         many = len(reported) > 1
         print(f"not trained again: {len(reported)} run{'s' if many else ''} that {args.reported} holds", flush=True)
-    probe_statuses = _probe_statuses(args, suite, runs)
+    probe_runs, missing = _probe_runs_by_state(args, suite, runs)
     if args.reported is not None:
-        probe_runs = [status.run for status in probe_statuses if status.state == "reported"]
         if probe_runs:
             runs = _before_their_seed(probe_runs, runs)
             print(f"trained again: {_probe_runs_text(probe_runs)}", flush=True)
@@ -273,7 +272,6 @@ def run_command(args: argparse.Namespace) -> int:
                 "tests that read them)",
                 flush=True,
             )
-    missing = [status.run for status in probe_statuses if status.state in UNBROUGHT_STATES]
     if missing:
         print(_missing_probe_runs_text(missing), flush=True)
     start_until = None if args.start_within is None else time.time() + args.start_within
@@ -311,18 +309,19 @@ def run_command(args: argparse.Namespace) -> int:
 UNBROUGHT_STATES = ("not started", "interrupted", "failed")
 
 
-def _probe_statuses(args: argparse.Namespace, suite: Suite, runs: list[RunSpec]) -> list[RunStatus]:
+def _probe_runs_by_state(args: argparse.Namespace, suite: Suite, runs: list[RunSpec]) -> tuple[list[RunSpec], list[RunSpec]]:
     """
-    Where the PPO runs stand whose episodes the identification of ``runs``' ICRL runs reads
-    (:meth:`~sb3_icrl.benchmark.suite.Suite.probe_runs`), those among ``runs`` left out, in the suite's order. Those a
-    report holds with no folder here (``"reported"``) are trained again by ``run --reported``: without them here, the
-    report would score the ICRL runs on another seed's episodes or none.
+    The PPO runs whose episodes the identification of ``runs``' ICRL runs reads
+    (:meth:`~sb3_icrl.benchmark.suite.Suite.probe_runs`), those among ``runs`` left out, in the suite's order, from one
+    read of where they stand: those a report holds with no folder here (trained again by ``run --reported``: without
+    them here, the report would score the ICRL runs on another seed's episodes or none), and those nothing brings
+    (:data:`UNBROUGHT_STATES`).
     """
     selected = set(runs)
     probes = {probe for probe in suite.probe_runs(runs).values() if probe not in selected}
-    if not probes:
-        return []
-    return _statuses(args, suite, [run for run in suite.runs() if run in probes])
+    statuses = _statuses(args, suite, [run for run in suite.runs() if run in probes]) if probes else []
+    reported = [status.run for status in statuses if status.state == "reported"]
+    return reported, [status.run for status in statuses if status.state in UNBROUGHT_STATES]
 
 
 def _run_names(runs: list[RunSpec], shown: int = 5) -> str:
@@ -364,11 +363,9 @@ def status_command(args: argparse.Namespace) -> int:
     print(f"suite {suite.name}: {len(runs)} runs in {folder}")
     statuses = _statuses(args, suite, runs)
     print("\n".join(status_lines(statuses, verbose=args.verbose)))
-    probe_statuses = _probe_statuses(args, suite, [status.run for status in statuses if status.state != "reported"])
-    probe_runs = [status.run for status in probe_statuses if status.state == "reported"]
+    probe_runs, missing = _probe_runs_by_state(args, suite, [status.run for status in statuses if status.state != "reported"])
     if probe_runs:
         print(f"`run --reported` also trains again {_probe_runs_text(probe_runs)}")
-    missing = [status.run for status in probe_statuses if status.state in UNBROUGHT_STATES]
     if missing:
         print(_missing_probe_runs_text(missing))
     if not os.path.isdir(folder):  # last, where it is read: every run above is "not started"
