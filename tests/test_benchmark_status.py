@@ -416,6 +416,30 @@ def test_runs_start_seed_by_seed_when_asked(tmp_path, monkeypatch):
     ]
 
 
+def test_seed_by_seed_starts_each_seeds_ppo_row_first(tmp_path, monkeypatch):
+    """Within a seed, the PPO row whose episodes the seed's ICRL runs are scored on comes before them."""
+    import sb3_icrl.benchmark.cli as cli
+
+    path = tmp_path / "mixed.yml"
+    path.write_text(
+        "description: ICRL and reference rows\nenvs: [BiasedPendulum-v0]\nalgos: [mecl, ppo, ppolag]\nseeds: [0, 1]\n"
+    )
+    started: list[list[tuple[str, int]]] = []
+    monkeypatch.setattr(cli, "run_all", lambda runs, *args, **kwargs: started.append([(r.algo, r.seed) for r in runs]) or [])
+    root = str(tmp_path / "logs")
+    assert benchmark_main(["run", str(path), "-f", root, "--no-report", "--jobs", "1", "--order", "seed"]) == 0
+    assert (
+        benchmark_main(
+            ["run", str(path), "-f", root, "--no-report", "--jobs", "1", "--order", "seed", "--only", "algo=mecl,ppolag"]
+        )
+        == 0
+    )
+    assert started == [
+        [("ppo", 0), ("mecl", 0), ("ppolag", 0), ("ppo", 1), ("mecl", 1), ("ppolag", 1)],
+        [("mecl", 0), ("ppolag", 0), ("mecl", 1), ("ppolag", 1)],  # an unselected PPO row is not brought
+    ]
+
+
 def test_transfer_tests_to_come_and_their_time(tmp_path):
     """A suite with transfer tests: those done are timed (each reference learner once), those to come estimated."""
     path = tmp_path / "transfer.yml"

@@ -132,8 +132,8 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
         choices=RUN_ORDERS,
         default="suite",
         help="the order runs start in: the suite's (env by env, then variant, algorithm, seed), or seed by seed, the "
-        "lowest first (each seed's runs in the suite's order), so that every selected cell gains its next seed before "
-        "any gains the one after",
+        "lowest first (each seed's PPO rows, whose episodes its ICRL runs' identification reads, then its other runs in "
+        "the suite's order), so that every selected cell gains its next seed before any gains the one after",
     )
     run.add_argument("--no-report", action="store_true", help="do not write the report once the runs are done")
     for sub in (run, status):
@@ -253,8 +253,8 @@ def run_command(args: argparse.Namespace) -> int:
     print(f"suite {suite.name}: {len(runs)} runs in {os.path.join(args.log_folder, suite.name)} ({where})", flush=True)
     statuses = _statuses(args, suite, runs)
     print(f"before this run: {status_lines(statuses)[-1]}", flush=True)
-    if args.order == "seed":  # a stable sort: within a seed, the suite's order
-        runs = sorted(runs, key=lambda run: run.seed)
+    if args.order == "seed":
+        runs = _seed_by_seed(suite, runs)
     reported = {status.run for status in statuses if status.state == "reported"}
     if reported:
         runs = [run for run in runs if run not in reported]
@@ -343,6 +343,16 @@ def _probe_runs_text(probe_runs: list[RunSpec]) -> str:
         f"{len(probe_runs)} reported PPO run{'s' if many else ''} with no folder here, whose episodes the identification "
         f"probes of {'their' if many else 'its'} seed's ICRL runs read ({_run_names(probe_runs)})"
     )
+
+
+def _seed_by_seed(suite: Suite, runs: list[RunSpec]) -> list[RunSpec]:
+    """
+    ``runs`` seed by seed, the lowest first; within a seed the selected PPO rows whose episodes that seed's ICRL runs'
+    identification reads (:meth:`~sb3_icrl.benchmark.suite.Suite.probe_runs`) first, then the suite's order, so that a
+    seed reported run by run scores each ICRL run on its own seed's episodes.
+    """
+    probes = set(suite.probe_runs(runs).values()).intersection(runs)
+    return sorted(runs, key=lambda run: (run.seed, run not in probes))  # a stable sort: otherwise the suite's order
 
 
 def _before_their_seed(first: list[RunSpec], runs: list[RunSpec]) -> list[RunSpec]:
