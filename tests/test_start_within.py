@@ -146,12 +146,13 @@ def test_with_nothing_else_to_start_a_deferred_transfer_waits_for_its_references
     assert [outcome.status for outcome in outcomes] == ["done", "done"]
 
 
-def test_a_deferred_transfer_left_by_the_start_time_says_so(clock, finished):
-    # The second run holds the core from 1 to 21: the start time passes meanwhile
+def test_a_deferred_transfer_past_the_start_time_waits_for_its_references_in_the_same_queue(clock, finished):
+    # The second run holds the core from 1 to 21: the start time passes meanwhile; the references come at 1000
     backend = _Timeline(clock, finished, 1, {RUNS[1]: 20}, waiting={RUNS[0]}, saved_at=1000)
-    outcomes = run_all(RUNS[:2], "logs", backend, start_until=15)
-    assert backend.deferrable == [(RUNS[0], True), (RUNS[1], False)]
-    assert [(outcome.status, outcome.attempts) for outcome in outcomes] == [("deferred", 0), ("done", 1)]
+    outcomes = run_all(RUNS[:3], "logs", backend, start_until=15)
+    # Back at 21 without deferring (nothing else may start): it waits; the third run stays left
+    assert backend.submitted == [(RUNS[0], True, 0), (RUNS[1], True, 1), (RUNS[0], False, 21)]
+    assert [(outcome.status, outcome.attempts) for outcome in outcomes] == [("done", 1), ("done", 1), ("left", 0)]
 
 
 def test_a_run_busy_elsewhere_does_not_call_a_deferred_run_back(clock, finished):

@@ -287,13 +287,6 @@ def run_command(args: argparse.Namespace) -> int:
         print(f"\n{outcome.status.upper()}: {outcome.run.name} ({outcome.run.log_file(args.log_folder)})")
         for line in outcome.log_tail:
             print(f"    {line}")
-    deferred = [outcome for outcome in outcomes if outcome.status == "deferred"]
-    if deferred:
-        print(
-            f"\nTRANSFER TESTS DEFERRED: {len(deferred)} run{'s' if len(deferred) > 1 else ''} trained, whose transfer "
-            "tests wait for references other runs are training (the same command finishes them, reading those "
-            "references): " + ", ".join(outcome.run.name for outcome in deferred)
-        )
     left = [outcome for outcome in outcomes if outcome.status == "left"]
     if left:
         print(

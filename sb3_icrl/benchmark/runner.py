@@ -53,8 +53,8 @@ class RunOutcome:
 
     :param run: The run
     :param status: ``"done"`` (trained now), ``"skipped"`` (had finished before), ``"busy"`` (another process holds
-        it), ``"failed"``, ``"left"`` (not started: the time to start runs had passed), or ``"deferred"`` (trained, its
-        transfer test waiting for references other runs train, see :func:`run_all`)
+        it), ``"failed"``, ``"left"`` (not started: the time to start runs had passed), or, while the queue runs,
+        ``"deferred"`` (trained, its transfer test waiting for references other runs train, see :func:`run_all`)
     :param attempts: How many times it was started
     :param seconds: Wall time of its last attempt
     :param log_tail: The end of its log, when it failed
@@ -484,16 +484,16 @@ def run_all(
     the references it lacks all being trained by other runs (two queues on one seed) steps aside, its learned-cost
     result kept, and gives its core to the next run; it comes back first once another run has run and ended (not one
     busy elsewhere: by then the references are most likely saved), or when nothing else is left to start (then it
-    waits for them); after ``start_until``, on a core the runs under way leave free. Stepping aside does not count as an
-    attempt.
+    waits for them); after ``start_until``, on a core the runs under way leave free, waiting for its references if need be
+    (it was started in time). Stepping aside does not count as an attempt.
 
     :param runs: The runs
     :param root: The log root (``-f``)
     :param backend: Where the runs go
     :param on_event: Called with ``("start" | "end", outcome, counts)`` as runs start and end (for the display)
     :param start_until: A time (``time.time()``) after which no run starts, nor starts again after a failure: the runs
-        under way go on to their end, the others stay ``"left"``, a run that failed once is ``"failed"``, one whose
-        transfer test was deferred ``"deferred"`` (``None``: no such time)
+        under way go on to their end, the others stay ``"left"``, a run that failed once is ``"failed"``; a run whose
+        transfer test was deferred still ends (``None``: no such time)
     :return: One outcome per run, in the order of ``runs``
     """
     outcomes = {run: RunOutcome(run, "left") for run in runs}
@@ -517,13 +517,14 @@ def run_all(
             if stepped_aside and not queue and len(pending) < backend.capacity:
                 queue, stepped_aside = stepped_aside, []  # nothing else to start: they wait for their references
             if start_until is not None and time.time() >= start_until:
-                for run in queue:  # (the others stay "left", or "deferred")
+                for run in queue:  # (the others stay "left"; deferred ones come back below)
                     if run.complete(root):
                         outcomes[run].status = "skipped"
-                # Deferred runs were started in time: they may end on the cores the runs under way leave free
-                queue = [run for run in (*queue, *stepped_aside) if outcomes[run].status == "deferred"] if pending else []
+                # Deferred runs were started in time: they end in this queue, on the cores the runs under way leave
+                # free, waiting for their references once nothing else is under way
+                queue = [run for run in (*queue, *stepped_aside) if outcomes[run].status == "deferred"]
                 stepped_aside = []
-                if not pending:
+                if not pending and not queue:
                     break
             while queue and len(pending) < backend.capacity:
                 run = queue.pop(0)
