@@ -177,6 +177,17 @@ def test_a_run_another_queue_trains_is_busy_without_a_start(clock, finished, tmp
     assert events[0] == ("end", RUNS[0]) and ("start", RUNS[0]) not in events
 
 
+@pytest.mark.skipif(held_lock_inodes() is None, reason="no readable /proc/locks")
+def test_a_run_another_queue_holds_when_the_start_time_passes_is_busy_not_left(clock, finished, tmp_path):
+    root = str(tmp_path)
+    backend = _Timeline(clock, finished, 1, {RUNS[0]: 20})
+    with run_lock(RUNS[1].run_folder(root)) as taken:  # another queue takes the second run while the first trains
+        assert taken
+        outcomes = run_all(RUNS[:3], root, backend, start_until=15)
+    assert [run for run, _, _ in backend.submitted] == [RUNS[0]]
+    assert [outcome.status for outcome in outcomes] == ["done", "busy", "left"]
+
+
 def test_a_free_run_whose_inode_the_lock_table_shows_is_not_busy(tmp_path, monkeypatch):
     # The lock table names inodes only: a lock on a file of another file system may share this lock file's number
     folder = RUNS[0].run_folder(str(tmp_path))

@@ -518,8 +518,9 @@ def run_all(
                 queue, stepped_aside = stepped_aside, []  # nothing else to start: they wait for their references
             if start_until is not None and time.time() >= start_until:
                 for run in queue:  # (the others stay "left"; deferred ones come back below)
-                    if run.complete(root):
-                        outcomes[run].status = "skipped"
+                    if outcomes[run].status != "deferred":
+                        # Finished meanwhile, or held by another queue: not a run this command could still start
+                        outcomes[run].status = _reason_not_to_start(run, root, backend) or "left"
                 # Deferred runs were started in time: they end in this queue, on the cores the runs under way leave
                 # free, waiting for their references once nothing else is under way
                 queue = [run for run in (*queue, *stepped_aside) if outcomes[run].status == "deferred"]
