@@ -492,8 +492,8 @@ def run_all(
     :param backend: Where the runs go
     :param on_event: Called with ``("start" | "end", outcome, counts)`` as runs start and end (for the display)
     :param start_until: A time (``time.time()``) after which no run starts, nor starts again after a failure: the runs
-        under way go on to their end, the others stay ``"left"``, a run that failed once is ``"failed"``; a run whose
-        transfer test was deferred still ends (``None``: no such time)
+        under way go on to their end, the others stay ``"left"`` (``"busy"`` where another queue holds them by then), a
+        run that failed once is ``"failed"``; a run whose transfer test was deferred still ends (``None``: no such time)
     :return: One outcome per run, in the order of ``runs``
     """
     outcomes = {run: RunOutcome(run, "left") for run in runs}
