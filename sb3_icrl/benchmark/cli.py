@@ -10,6 +10,8 @@
     sb3-icrl benchmark run table3 -f logs/ --reported benchmarks/results/table3 --order seed --start-within 2h
     sb3-icrl benchmark report table3 -f logs/ -o results/table3
     sb3-icrl benchmark report table3 -f logs/ --only env=BlockedHalfCheetah-v0 -o results/table3 --update
+    sb3-icrl benchmark pack table3 -f logs/ --only env=BlockedHalfCheetah-v0 -o pack/ --max-mib 15
+    sb3-icrl benchmark unpack pack/ -f logs/
     sb3-icrl benchmark list
 
 Every run is a ``train.py`` run in ``<folder>/<suite>/<variant>/<algo>/<EnvName>_<seed>/`` (an rl-zoo run folder, so
@@ -42,6 +44,7 @@ from sb3_icrl.benchmark.report_text import markdown_table
 from sb3_icrl.benchmark.runner import BACKENDS, RunOutcome, load_runtime_env, make_backend, run_all
 from sb3_icrl.benchmark.status import RunStatus, mark_reported, reported_runs, status_lines, suite_status
 from sb3_icrl.benchmark.suite import SUITES_DIR, RunSpec, Suite, SuiteError, load_suite
+from sb3_icrl.benchmark.transport import pack_runs, pack_summary, unpack_bundles
 from sb3_icrl.common.utils import check_writable_folder, plain_docstring, sigterm_interrupts, write_error_message
 from sb3_icrl.registry import import_gym_packages
 from sb3_icrl.run_evaluation import RunResult
@@ -89,7 +92,10 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
         "status", help="which runs finished, run now, stopped part-way, failed or never started; core-hours left"
     )
     report = commands.add_parser("report", help="evaluate the finished runs and write the tables and figures")
-    for sub in (run, status, report):
+    pack = commands.add_parser(
+        "pack", help="write the selected runs' folders into size-capped tarballs, to resume or report them elsewhere"
+    )
+    for sub in (run, status, report, pack):
         sub.add_argument(
             "suite", help="a shipped suite (table3, table3_dev, noise, imperfect, multi, experts, smoke) or a .yml path"
         )
@@ -169,6 +175,22 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
         help="with --update: take the runs --only selects out of the report (trained by code since fixed, say) and list "
         "them as not finished, so that `run --reported` trains them again; their folders must not be under -f",
     )
+    pack.add_argument("-o", "--output", required=True, help="folder for the bundles and manifest.json (new or empty)")
+    pack.add_argument(
+        "--max-mib",
+        type=float,
+        default=15.0,
+        help="largest bundle in MiB (a run larger than this is split into parts); default 15",
+    )
+    pack.add_argument(
+        "--all-checkpoints",
+        action="store_true",
+        help="carry every checkpoint (default: none of a finished run, the one an interrupted run resumes from)",
+    )
+    unpack = commands.add_parser("unpack", help="put packed runs under this machine's log root (run resumes them)")
+    unpack.add_argument("paths", nargs="+", help="the pack's manifest.json and bundles, or the folders they came in")
+    unpack.add_argument("-f", "--log-folder", default="logs", help="log root here (the runs go to <root>/<suite>/...)")
+    unpack.add_argument("--replace", action="store_true", help="replace run folders that are already here")
     commands.add_parser("list", help="the shipped suites")
     return parser
 
@@ -545,6 +567,16 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
                 return run_command(args)
         if args.command == "status":
             return status_command(args)
+        if args.command == "pack":
+            suite = _load_suite(args)
+            manifest = pack_runs(
+                suite.select(_only(args.only)), args.log_folder, args.output, int(args.max_mib * 2**20), args.all_checkpoints
+            )
+            print(pack_summary(manifest))
+            return 0
+        if args.command == "unpack":
+            unpack_bundles(args.paths, args.log_folder, replace=args.replace)
+            return 0
         return report_command(args)
     except (SuiteError, ValueError, RuntimeError) as error:
         print(f"error: {error}", file=sys.stderr)
