@@ -181,11 +181,21 @@ def test_a_run_another_queue_trains_is_busy_without_a_start(clock, finished, tmp
 def test_a_run_another_queue_holds_when_the_start_time_passes_is_busy_not_left(clock, finished, tmp_path):
     root = str(tmp_path)
     backend = _Timeline(clock, finished, 1, {RUNS[0]: 20})
+    events: list[tuple[str, RunSpec, str]] = []
     with run_lock(RUNS[1].run_folder(root)) as taken:  # another queue takes the second run while the first trains
         assert taken
-        outcomes = run_all(RUNS[:3], root, backend, start_until=15)
+        outcomes = run_all(
+            RUNS[:3],
+            root,
+            backend,
+            start_until=15,
+            on_event=lambda event, outcome, _: events.append((event, outcome.run, outcome.status)),
+        )
     assert [run for run, _, _ in backend.submitted] == [RUNS[0]]
     assert [outcome.status for outcome in outcomes] == ["done", "busy", "left"]
+    # The busy run's end is told as it is decided, as one found busy before a start is; the left one's is not
+    assert ("end", RUNS[1], "busy") in events
+    assert not [event for event in events if event[1] == RUNS[2] and event[0] == "end"]
 
 
 def test_a_free_run_whose_inode_the_lock_table_shows_is_not_busy(tmp_path, monkeypatch):

@@ -455,6 +455,31 @@ def _ended_run(backend: Backend, handle: Any, outcome: RunOutcome, root: str) ->
     return status, try_again
 
 
+def _after_the_start_window(
+    queue: list[RunSpec],
+    stepped_aside: list[RunSpec],
+    outcomes: dict[RunSpec, RunOutcome],
+    root: str,
+    backend: Backend,
+    notify: Callable[[str, RunOutcome], None],
+) -> list[RunSpec]:
+    """
+    What a queue still runs once its start window has closed: its deferred runs, which were started in time and end in
+    this queue, on the cores the runs under way leave free (waiting for their references once nothing else is under
+    way). Each other queued run gets its status: ``"skipped"`` (finished meanwhile) or ``"busy"`` (held by another
+    queue), told as its end as before a start, else ``"left"`` (listed when the command ends).
+
+    :return: The deferred runs, queued and stepped aside
+    """
+    for run in queue:
+        if outcomes[run].status != "deferred":
+            reason = _reason_not_to_start(run, root, backend)
+            outcomes[run].status = reason or "left"
+            if reason:
+                notify("end", outcomes[run])
+    return [run for run in (*queue, *stepped_aside) if outcomes[run].status == "deferred"]
+
+
 def _reason_not_to_start(run: RunSpec, root: str, backend: Backend) -> str | None:
     """
     Why a run the queue reaches is not started, looked at before its start line would be printed.
@@ -517,14 +542,7 @@ def run_all(
             if stepped_aside and not queue and len(pending) < backend.capacity:
                 queue, stepped_aside = stepped_aside, []  # nothing else to start: they wait for their references
             if start_until is not None and time.time() >= start_until:
-                for run in queue:  # (the others stay "left"; deferred ones come back below)
-                    if outcomes[run].status != "deferred":
-                        # Finished meanwhile, or held by another queue: not a run this command could still start
-                        outcomes[run].status = _reason_not_to_start(run, root, backend) or "left"
-                # Deferred runs were started in time: they end in this queue, on the cores the runs under way leave
-                # free, waiting for their references once nothing else is under way
-                queue = [run for run in (*queue, *stepped_aside) if outcomes[run].status == "deferred"]
-                stepped_aside = []
+                queue, stepped_aside = _after_the_start_window(queue, stepped_aside, outcomes, root, backend, notify), []
                 if not pending and not queue:
                     break
             while queue and len(pending) < backend.capacity:
