@@ -27,7 +27,8 @@ from typing import Any
 from sb3_icrl.benchmark.runner import run_lock_held
 from sb3_icrl.benchmark.suite import RunSpec
 from sb3_icrl.common.utils import atomic_write_bytes, atomic_write_json
-from sb3_icrl.run_folder import latest_checkpoint
+from sb3_icrl.metrics.transfer import REFERENCES_FOLDER
+from sb3_icrl.run_folder import FINISHED_FILE, latest_checkpoint
 
 #: The manifest ``pack`` writes beside its bundles
 MANIFEST = "manifest.json"
@@ -35,8 +36,6 @@ MANIFEST = "manifest.json"
 PACK_FORMAT = 1
 #: A checkpoint file of a run folder: the model, its normalisation statistics, its training state, a replay buffer
 CHECKPOINT_FILE = re.compile(r"^rl_model_(?:[a-z_]+_)?(?P<steps>\d+)_steps\.(?:zip|pkl)$")
-#: Folder of the shared transfer references beside a variant's algorithm folders
-REFERENCES_FOLDER = "transfer_references"
 #: Bytes a tar file adds: per member a header block and the padding of its data to a block; per file the end blocks
 #: and the padding of the whole to a record (tarfile's 10 KiB)
 _MEMBER_OVERHEAD = 2 * tarfile.BLOCKSIZE
@@ -74,7 +73,7 @@ def packed_files(run_folder: str, all_checkpoints: bool = False) -> tuple[str, i
         resumes from, whose steps are ``steps``) or ``"empty"`` (nothing to carry); the files relative to the folder
     """
     resume_steps = None
-    if os.path.isfile(os.path.join(run_folder, "finished.json")):
+    if os.path.isfile(os.path.join(run_folder, FINISHED_FILE)):
         state = "finished"
     else:
         checkpoint = latest_checkpoint(run_folder, warn=False)
@@ -99,15 +98,17 @@ def packed_files(run_folder: str, all_checkpoints: bool = False) -> tuple[str, i
 
 def _run_archive(run: RunSpec, root: str, files: list[str]) -> bytes:
     """The run's files and its output log as a ``.tgz``, their names relative to the log root."""
+    paths = [os.path.join(run.run_folder(root), relative) for relative in files]
+    log_file = run.log_file(root)
+    return _tgz([*paths, log_file] if os.path.isfile(log_file) else paths, root)
+
+
+def _tgz(paths: list[str], root: str) -> bytes:
+    """The files ``paths`` as a ``.tgz``, each named by its path relative to ``root``."""
     buffer = io.BytesIO()
-    run_folder = run.run_folder(root)
     with tarfile.open(fileobj=buffer, mode="w:gz") as archive:
-        for relative in files:
-            path = os.path.join(run_folder, relative)
+        for path in paths:
             archive.add(path, arcname=os.path.relpath(path, root), recursive=False)
-        log_file = run.log_file(root)
-        if os.path.isfile(log_file):
-            archive.add(log_file, arcname=os.path.relpath(log_file, root), recursive=False)
     return buffer.getvalue()
 
 
@@ -117,13 +118,7 @@ def _references_archive(runs: Sequence[RunSpec], root: str) -> bytes | None:
     for folder in sorted({os.path.join(run.log_folder(root), REFERENCES_FOLDER) for run in runs}):
         if os.path.isdir(folder):
             found += [os.path.join(folder, name) for name in sorted(os.listdir(folder)) if name.endswith(".json")]
-    if not found:
-        return None
-    buffer = io.BytesIO()
-    with tarfile.open(fileobj=buffer, mode="w:gz") as archive:
-        for path in found:
-            archive.add(path, arcname=os.path.relpath(path, root), recursive=False)
-    return buffer.getvalue()
+    return _tgz(found, root) if found else None
 
 
 def pack_runs(
