@@ -155,13 +155,50 @@ def test_a_deferred_transfer_past_the_start_time_waits_for_its_references_in_the
     assert [(outcome.status, outcome.attempts) for outcome in outcomes] == [("done", 1), ("done", 1), ("left", 0)]
 
 
-def test_a_run_busy_elsewhere_does_not_call_a_deferred_run_back(clock, finished):
+def test_a_run_busy_elsewhere_does_not_call_a_deferred_run_back(clock, finished, monkeypatch):
     runs = [RunSpec("smoke", "base", "bc2l", "sb3_icrl/GridWorldWall-v0", seed, 2048) for seed in range(6)]
     backend = _Timeline(clock, finished, 1, {}, busy=runs[1:4], waiting={runs[0]}, saved_at=100)
+    monkeypatch.setattr(runner, "run_lock_held", lambda folder: folder in {run.run_folder("logs") for run in runs[1:4]})
     outcomes = run_all(runs, "logs", backend)
     # Back once the fifth run, which trained, has ended (and again after the sixth), not after each run held elsewhere
     assert [defer for run, defer, _ in backend.submitted if run == runs[0]] == [True, True, False]
     assert [outcome.status for outcome in outcomes] == ["done", "busy", "busy", "busy", "done", "done"]
+
+
+@pytest.mark.parametrize(
+    "there, start_until, started, status",
+    [
+        ("deferred", None, [1, 0, 2], "done"),  # its references saved since: back before the third run
+        ("finished", None, [1, 2], "busy"),
+        ("deferred", 5, [1], "busy"),  # let go after the start time: the other queue ends it
+    ],
+)
+def test_a_run_another_queue_lets_go_unfinished_comes_back_once_this_queue_s_run_ends(
+    clock, finished, monkeypatch, there, start_until, started, status
+):
+    held = {RUNS[0].run_folder("logs")}
+    monkeypatch.setattr(runner, "run_lock_held", lambda folder: folder in held)
+    backend = _Timeline(clock, finished, 1, {})
+    wait_any = backend.wait_any
+
+    def the_other_queue_lets_go(pending: set) -> tuple[set, set]:
+        # While this queue trains the second run, the other one ends its part of the first
+        held.clear()
+        if there == "finished":
+            finished.add(RUNS[0])
+        return wait_any(pending)
+
+    monkeypatch.setattr(backend, "wait_any", the_other_queue_lets_go)
+    outcomes = run_all(RUNS[:3], "logs", backend, start_until=start_until)
+    assert [run for run, _, _ in backend.submitted] == [RUNS[index] for index in started]
+    assert outcomes[0].status == status
+    assert outcomes[0].attempts == (1 if status == "done" else 0)
+
+
+def test_a_run_the_backend_finds_busy_is_no_attempt(clock, finished):
+    backend = _Timeline(clock, finished, 1, {}, busy={RUNS[0]})
+    outcomes = run_all(RUNS[:2], "logs", backend)
+    assert [(outcome.status, outcome.attempts) for outcome in outcomes] == [("busy", 0), ("done", 1)]
 
 
 @pytest.mark.skipif(held_lock_inodes() is None, reason="no readable /proc/locks")

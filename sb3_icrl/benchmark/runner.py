@@ -497,6 +497,30 @@ def _reason_not_to_start(run: RunSpec, root: str, backend: Backend) -> str | Non
     return None
 
 
+def _window_closed(start_until: float | None) -> bool:
+    """Whether the start window (``start_until``, see :func:`run_all`) has closed."""
+    return start_until is not None and time.time() >= start_until
+
+
+def _released_elsewhere(outcomes: dict[RunSpec, RunOutcome], root: str, backend: Backend) -> list[RunSpec]:
+    """
+    The runs found busy that another queue has let go unfinished since: a run whose transfer test it deferred (its
+    references may be saved by now: ending it takes seconds), or one it was stopped in (it resumes from its checkpoint).
+
+    :param outcomes: Each run's outcome so far
+    :param root: The log root (``-f``)
+    :param backend: Where the runs go (only a backend on this machine can see this machine's locks: none for others)
+    :return: Those runs, in the order of ``outcomes``
+    """
+    if backend.address is not None:
+        return []
+    return [
+        run
+        for run, outcome in outcomes.items()
+        if outcome.status == "busy" and not run.complete(root) and not run_lock_held(run.run_folder(root))
+    ]
+
+
 def run_all(
     runs: Sequence[RunSpec],
     root: str,
@@ -510,7 +534,9 @@ def run_all(
     result kept, and gives its core to the next run; it comes back first once another run has run and ended (not one
     busy elsewhere: by then the references are most likely saved), or when nothing else is left to start (then it
     waits for them); after ``start_until``, on a core the runs under way leave free, waiting for its references if need be
-    (it was started in time). Stepping aside does not count as an attempt.
+    (it was started in time). Stepping aside does not count as an attempt. A run found busy (another queue held it)
+    that the other queue has let go unfinished by the time one of this queue's runs ends is queued next, while the start
+    window is open: a transfer test deferred there, or a run stopped there.
 
     :param runs: The runs
     :param root: The log root (``-f``)
@@ -541,7 +567,7 @@ def run_all(
         while queue or pending or stepped_aside:
             if stepped_aside and not queue and len(pending) < backend.capacity:
                 queue, stepped_aside = stepped_aside, []  # nothing else to start: they wait for their references
-            if start_until is not None and time.time() >= start_until:
+            if _window_closed(start_until):
                 queue, stepped_aside = _after_the_start_window(queue, stepped_aside, outcomes, root, backend, notify), []
                 if not pending and not queue:
                     break
@@ -569,8 +595,13 @@ def run_all(
                     stepped_aside.append(run)
                     notify("end", outcome)
                     continue
-                if status != "busy":  # another run ran and ended: their turn first
-                    queue[:0], stepped_aside = stepped_aside, []
+                if status == "busy":
+                    outcome.attempts -= 1  # (another process held it: not an attempt; it may come back, see below)
+                else:  # another run ran and ended: their turn first, then the runs other queues let go
+                    released = [] if _window_closed(start_until) else _released_elsewhere(outcomes, root, backend)
+                    for other in released:
+                        outcomes[other].status = "left"
+                    queue[:0], stepped_aside = [*stepped_aside, *released], []
                 if status == "failed" and try_again:
                     outcome.status = "left"
                     queue.insert(0, run)  # once more, from its last checkpoint
