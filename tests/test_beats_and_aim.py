@@ -43,13 +43,16 @@ def write(tmp_path: pathlib.Path, text: str) -> str:
 
 def summary_of(suite, values, last=None) -> dict:
     """
-    The summary of the runs ``values`` names: ``{(env name, algo): [(feasible reward, violation rate) per seed]}``; with
+    The summary of the runs ``values`` names: ``{(env name, algo): [(feasible reward, violation rate) per seed]}`` (``None``
+    for a seed not finished); with
     ``last``, the same for the last training episodes (``None`` for a seed without them).
     """
     results, metrics = [], {}
     for run in suite.runs():
         key = (run.env_id.split("/")[-1], run.algo)
         if key not in values:
+            continue
+        if values[key][suite.seeds.index(run.seed)] is None:  # a seed not finished
             continue
         feasible, violation = values[key][suite.seeds.index(run.seed)]
         name = f"r/{run.env_id}/{run.algo}/{run.seed}"
@@ -179,7 +182,27 @@ def test_the_outcome_waits_for_missing_values_and_fails_where_every_method_fails
         "heldout": False,
         "last_training": True,
         "beats": False,
+        "n_seeds": 2,
+        "of_seeds": 2,
     }
+
+
+def test_a_verdict_on_fewer_seeds_than_the_suite_runs_says_on_how_many(tmp_path):
+    suite = load_suite(write(tmp_path, SUITE + BEATS), dry_build=False)
+    # MECL's wall cell has seed 0 only: it beats the row there on one of two seeds
+    held = {**HELDOUT, ("GridWorldWall-v0", "mecl"): [(12.0, 0.0), None]}
+    summary = summary_of(suite, held, LAST)
+    mecl = summary["beats_judgement"]["methods"][1]
+    assert [(task["n_seeds"], task["of_seeds"]) for task in mecl["tasks"]] == [(1, 2), (2, 2)]
+    table = markdown_table(summary)
+    assert "| mecl | yes / yes (1 of 2 seeds) | yes / yes | 2 of 2 |" in table
+    assert "MECL on 2 of 2 (GridWorldWall-v0 (1 of 2 seeds), GridWorldSquare-v0)" in table
+    # A summary written before the counts were kept reads as before
+    for task in mecl["tasks"]:
+        del task["n_seeds"], task["of_seeds"]
+    assert "MECL on 2 of 2 (GridWorldWall-v0, GridWorldSquare-v0)" in readme_table.scoreboard(
+        {"suite": "s", "beats_judgement": summary["beats_judgement"], "cells": []}
+    )
 
 
 def test_a_judgement_under_the_heldout_column_alone_ignores_the_training_episodes(tmp_path):
@@ -187,7 +210,7 @@ def test_a_judgement_under_the_heldout_column_alone_ignores_the_training_episode
     judgement = summary_of(suite, HELDOUT)["beats_judgement"]
     methods = {method["algo"]: method for method in judgement["methods"]}
     assert len(methods["bc2l"]["beaten"]) == 1 and judgement["outcome"] is True
-    assert set(methods["bc2l"]["tasks"][0]) == {"env", "variant", "heldout", "beats"}
+    assert set(methods["bc2l"]["tasks"][0]) == {"env", "variant", "heldout", "beats", "n_seeds", "of_seeds"}
 
 
 # ---------------------------------------------------------------- the aim

@@ -315,7 +315,8 @@ def beats_judgement(cells: list[dict[str, Any]], suite: Suite) -> dict[str, Any]
     The suite's judgement "beats the paper" (its key ``beats``): each ICRL method's cell on each judged env and variant
     against the paper's row of the method ``against``, under each column named (:func:`column_pair`, :func:`beats`),
     ``None`` where the column's value is missing; a cell beats the row where it does under every column. Each judged
-    cell gets ``beats_judgement`` (``{column: verdict, "beats": verdict}``), in place.
+    cell gets ``beats_judgement`` (``{column: verdict, "beats": verdict}``), in place. Each verdict says on how many
+    seeds it rests (``n_seeds``, of the ``of_seeds`` the suite runs there): a verdict on fewer is one "so far".
 
     :param cells: The cells of :func:`~sb3_icrl.benchmark.report.summarise_suite`
     :param suite: The suite (its ``beats`` rule, ``paper`` numbers, variants and algorithms)
@@ -343,7 +344,12 @@ def beats_judgement(cells: list[dict[str, Any]], suite: Suite) -> dict[str, Any]
             verdicts["beats"] = _all_of(list(verdicts.values()))
             if cell is not None:
                 cell["beats_judgement"] = dict(verdicts)
-            entries.append({"env": env, "variant": variant, **verdicts})
+            # The seeds the verdict rests on, beside the suite's: one seed's verdict is not five seeds'
+            seeds = {
+                "n_seeds": 0 if cell is None else int(cell.get("n_seeds", 0)),
+                "of_seeds": len(suite.env_seeds.get(env, suite.seeds)),
+            }
+            entries.append({"env": env, "variant": variant, **verdicts, **seeds})
         judged = [entry for entry in entries if entry.get("runs", True)]
         methods.append(
             {

@@ -116,6 +116,15 @@ def _verdict_text(verdict: bool | None) -> str:
     return "-" if verdict is None else "yes" if verdict else "no"
 
 
+def _seeds_note(entry: dict[str, Any]) -> str:
+    """`` (1 of 5 seeds)`` for a verdict on fewer seeds than the suite runs there, else nothing (older summaries say nothing
+    of their seeds)."""
+    n_seeds, of_seeds = entry.get("n_seeds"), entry.get("of_seeds")
+    if n_seeds is None or of_seeds is None or not n_seeds or n_seeds >= of_seeds:
+        return ""
+    return f" ({n_seeds} of {of_seeds} seeds)"
+
+
 def beats_judgement_text(judgement: dict[str, Any]) -> str:
     """
     The judgement "beats the paper" in one plain sentence: the rule, each method's count and the outcome.
@@ -127,7 +136,10 @@ def beats_judgement_text(judgement: dict[str, Any]) -> str:
     envs = ", ".join(_task_text(env, variant) for env, variant in judgement["tasks"])
     parts = []
     for method in judgement["methods"]:
-        named = ", ".join(_task_text(env, variant) for env, variant in method["beaten"])
+        entries = {(entry["env"], entry["variant"]): entry for entry in method["tasks"]}
+        named = ", ".join(
+            _task_text(env, variant) + _seeds_note(entries.get((env, variant), {})) for env, variant in method["beaten"]
+        )
         undecided = len(method["undecided"])
         notes = [named] * bool(named) + [f"{undecided} not decided yet"] * bool(undecided)
         parts.append(
@@ -172,7 +184,11 @@ def beats_judgement_lines(summary: dict[str, Any]) -> list[str]:
     ]
     for method in judgement["methods"]:
         entries = [
-            " / ".join(_verdict_text(entry[column]) for column in columns) if entry.get("runs", True) else "not run"
+            (
+                " / ".join(_verdict_text(entry[column]) for column in columns) + _seeds_note(entry)
+                if entry.get("runs", True)
+                else "not run"
+            )
             for entry in method["tasks"]
         ]
         judged = method.get("n_tasks", len(judgement["tasks"]))
