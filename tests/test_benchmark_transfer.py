@@ -9,6 +9,7 @@ import pytest
 from sb3_icrl.benchmark import load_suite
 from sb3_icrl.benchmark.cli import main as benchmark_main
 from sb3_icrl.benchmark.report import constraint_metrics
+from sb3_icrl.benchmark.report_text import _transfer_text
 from sb3_icrl.benchmark.suite import SuiteError, TransferSpec, run_complete
 from sb3_icrl.run_evaluation import RunResult
 from sb3_icrl.run_folder import FINISHED_FILE
@@ -117,3 +118,21 @@ def test_a_transfer_result_older_than_the_runs_final_model_does_not_count(tmp_pa
     assert (
         constraint_metrics([(icrl, entry)], str(tmp_path), log=lines.append)[entry.run]["transfer_same_violation_rate"] == 0.25
     )
+
+
+@pytest.mark.parametrize("oracle, note", [(27.6, " (oracle 27.6 <= PPO 49.3)"), (4000.0, "")])
+def test_a_transfer_ratio_over_an_oracle_no_better_than_ppo_says_so(tmp_path, oracle, note):
+    suite = load_suite(write(tmp_path, SUITE + "transfer: {tasks: [same], n_timesteps: 256}\n"))
+    icrl, _ = suite.runs()
+    folder = icrl.run_folder(tmp_path)
+    os.makedirs(folder)
+    with open(os.path.join(folder, FINISHED_FILE), "w") as file:
+        json.dump({"num_timesteps": 512}, file)
+    results = {"learned": {"feasible_reward": 52.7}, "oracle": {"feasible_reward": oracle}, "ppo": {"feasible_reward": 49.3}}
+    with open(os.path.join(folder, "transfer_same.json"), "w") as file:
+        json.dump({"violation_rate": 1.0, "feasible_reward_ratio": 52.7 / oracle, "results": results}, file)
+    entry = RunResult(os.path.relpath(folder, tmp_path), "bc2l", icrl.env_id, 0, 512, 1.0, 0.0, 1.0, 1.0, 2)
+    metrics = constraint_metrics([(icrl, entry)], str(tmp_path), log=lambda line: None)[entry.run]
+    assert metrics["transfer_same_oracle_feasible_reward"] == oracle and metrics["transfer_same_ppo_feasible_reward"] == 49.3
+    # The ratio stays in the table (per-seed values are shown as they are), read by its references where they say it is void
+    assert _transfer_text(metrics) == f"same 100% / {52.7 / oracle:.2f}{note}"

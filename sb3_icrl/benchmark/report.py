@@ -49,7 +49,7 @@ from sb3_icrl.benchmark.judgements import (
 )
 from sb3_icrl.benchmark.report_figures import summary_run
 from sb3_icrl.benchmark.report_numbers import finite_or_null
-from sb3_icrl.benchmark.report_text import csv_rows, latex_table, markdown_table, transfer_compute
+from sb3_icrl.benchmark.report_text import TRANSFER_REFERENCES, csv_rows, latex_table, markdown_table, transfer_compute
 from sb3_icrl.benchmark.suite import RunSpec, Suite, result_current
 from sb3_icrl.common.constraint_spec import get_constraint_spec
 from sb3_icrl.common.evaluation import CONSTRAINT_VIOLATION_PREFIX, OUTCOME_RATE_KEYS
@@ -288,6 +288,12 @@ def constraint_metrics(
                 continue
             entry[f"transfer_{task}_violation_rate"] = float(transfer["violation_rate"])
             entry[f"transfer_{task}_feasible_ratio"] = float(transfer["feasible_reward_ratio"])
+            # The references' feasible rewards, to read the ratio by: over an oracle that earns no more than PPO it says
+            # nothing of the learned cost
+            for reference in TRANSFER_REFERENCES:
+                value = (transfer.get("results") or {}).get(reference, {}).get("feasible_reward")
+                if value is not None:
+                    entry[f"transfer_{task}_{reference}_feasible_reward"] = float(value)
             current.append(transfer)
         # The transfer tests' compute: the suite's counts each reference file once, however many runs read it
         learned, references = transfer_times(current)

@@ -37,8 +37,12 @@ IDENTIFICATION_COLUMNS = (
 
 
 #: Transfer columns of the per-seed values, in table order
+#: The transfer tests' reference learners whose feasible rewards the report keeps beside each ratio
+TRANSFER_REFERENCES = ("oracle", "ppo")
 TRANSFER_COLUMNS = tuple(
-    f"transfer_{task}_{metric}" for task in ("same", "reward", "dynamics") for metric in ("violation_rate", "feasible_ratio")
+    f"transfer_{task}_{metric}"
+    for task in ("same", "reward", "dynamics")
+    for metric in ("violation_rate", "feasible_ratio", *(f"{reference}_feasible_reward" for reference in TRANSFER_REFERENCES))
 )
 
 
@@ -46,7 +50,8 @@ def _identification_text(seed: dict[str, Any]) -> str:
     """
     ``AUROC / threshold error`` of one seed: ``-`` where the learned cost never reaches 0.5 (or there is no
     threshold), ``everywhere`` where it stays at or above 0.5 up to the safe end of the feature's range. Beside the
-    AUROC, untrained nets' median and range (``one draw`` for a run scored when the baseline was a single net).
+    AUROC, untrained nets' median and range (``one draw`` for a run scored when the baseline was a single net, ``on every
+    draw`` where all draws scored alike).
     """
     if "identification_auroc" not in seed:
         return "-"
@@ -57,20 +62,30 @@ def _identification_text(seed: dict[str, Any]) -> str:
     untrained, low, high = (seed.get(key) for key in ("untrained_auroc", "untrained_auroc_low", "untrained_auroc_high"))
     if untrained is None or (isinstance(untrained, float) and math.isnan(untrained)):
         baseline = ""
-    elif low is None or high is None or low == high:  # one net (scored before the baseline took several)
+    elif low is None or high is None:  # one net (scored before the baseline took several)
         baseline = f" (untrained {_fmt(untrained, 2)}, one draw)"
+    elif low == high:  # every draw alike (a net that starts constant ranks nothing: 0.5)
+        baseline = f" (untrained {_fmt(untrained, 2)} on every draw)"
     else:
         baseline = f" (untrained {_fmt(untrained, 2)}, {_fmt(low, 2)}-{_fmt(high, 2)})"
     return f"{_fmt(seed['identification_auroc'], 2)}{baseline} / {error_text}"
 
 
 def _transfer_text(seed: dict[str, Any]) -> str:
-    """``task: violation / feasible-reward ratio`` of each transfer of one seed."""
+    """
+    ``task: violation / feasible-reward ratio`` of each transfer of one seed; where the transfer oracle earns no more
+    than the PPO reference (a task whose reward runs toward the line leaves little to earn short of it), the two beside
+    it: that ratio says nothing of the learned cost.
+    """
     parts = []
     for task in ("same", "reward", "dynamics"):
         if f"transfer_{task}_violation_rate" in seed:
             ratio = seed[f"transfer_{task}_feasible_ratio"]
-            parts.append(f"{task} {100 * seed[f'transfer_{task}_violation_rate']:.0f}% / {_fmt(ratio, 2)}")
+            text = f"{task} {100 * seed[f'transfer_{task}_violation_rate']:.0f}% / {_fmt(ratio, 2)}"
+            oracle, ppo = (seed.get(f"transfer_{task}_{reference}_feasible_reward") for reference in TRANSFER_REFERENCES)
+            if oracle is not None and ppo is not None and oracle <= ppo:
+                text += f" (oracle {format_reward(oracle)} <= PPO {format_reward(ppo)})"
+            parts.append(text)
     return ", ".join(parts) or "-"
 
 
