@@ -36,9 +36,9 @@ IDENTIFICATION_COLUMNS = (
 )
 
 
-#: Transfer columns of the per-seed values, in table order
 #: The transfer tests' reference learners whose feasible rewards the report keeps beside each ratio
 TRANSFER_REFERENCES = ("oracle", "ppo")
+#: Transfer columns of the per-seed values, in table order
 TRANSFER_COLUMNS = tuple(
     f"transfer_{task}_{metric}"
     for task in ("same", "reward", "dynamics")
@@ -132,8 +132,10 @@ def _verdict_text(verdict: bool | None) -> str:
 
 
 def _seeds_note(entry: dict[str, Any]) -> str:
-    """`` (1 of 5 seeds)`` for a verdict on fewer seeds than the suite runs there, else nothing (older summaries say nothing
-    of their seeds)."""
+    """
+    `` (1 of 5 seeds)`` for a verdict on fewer seeds than the suite runs there, else nothing (older summaries say
+    nothing of their seeds).
+    """
     n_seeds, of_seeds = entry.get("n_seeds"), entry.get("of_seeds")
     if n_seeds is None or of_seeds is None or not n_seeds or n_seeds >= of_seeds:
         return ""
