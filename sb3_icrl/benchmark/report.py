@@ -290,8 +290,9 @@ def constraint_metrics(
             entry[f"transfer_{task}_feasible_ratio"] = float(transfer["feasible_reward_ratio"])
             # The references' feasible rewards, to read the ratio by: over an oracle that earns no more than PPO it says
             # nothing of the learned cost
+            learners = transfer.get("results") or {}
             for reference in TRANSFER_REFERENCES:
-                value = (transfer.get("results") or {}).get(reference, {}).get("feasible_reward")
+                value = learners.get(reference, {}).get("feasible_reward")
                 if value is not None:
                     entry[f"transfer_{task}_{reference}_feasible_reward"] = float(value)
             current.append(transfer)

@@ -137,7 +137,7 @@ def _seeds_note(entry: dict[str, Any]) -> str:
     nothing of their seeds).
     """
     n_seeds, of_seeds = entry.get("n_seeds"), entry.get("of_seeds")
-    if n_seeds is None or of_seeds is None or not n_seeds or n_seeds >= of_seeds:
+    if not n_seeds or of_seeds is None or n_seeds >= of_seeds:
         return ""
     return f" ({n_seeds} of {of_seeds} seeds)"
 
@@ -153,9 +153,11 @@ def beats_judgement_text(judgement: dict[str, Any]) -> str:
     envs = ", ".join(_task_text(env, variant) for env, variant in judgement["tasks"])
     parts = []
     for method in judgement["methods"]:
-        entries = {(entry["env"], entry["variant"]): entry for entry in method["tasks"]}
+        # (the tasks it beats the row on, ``beaten``, in order, each with its seeds)
         named = ", ".join(
-            _task_text(env, variant) + _seeds_note(entries.get((env, variant), {})) for env, variant in method["beaten"]
+            _task_text(entry["env"], entry["variant"]) + _seeds_note(entry)
+            for entry in method["tasks"]
+            if entry.get("beats") is True
         )
         undecided = len(method["undecided"])
         notes = [named] * bool(named) + [f"{undecided} not decided yet"] * bool(undecided)

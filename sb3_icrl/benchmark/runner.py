@@ -512,12 +512,10 @@ def _released_elsewhere(outcomes: dict[RunSpec, RunOutcome], root: str, backend:
     :param backend: Where the runs go (only a backend on this machine can see this machine's locks: none for others)
     :return: Those runs, in the order of ``outcomes``
     """
-    if backend.address is not None:
+    if backend.address is not None:  # (it would find every unfinished run free)
         return []
     return [
-        run
-        for run, outcome in outcomes.items()
-        if outcome.status == "busy" and not run.complete(root) and not run_lock_held(run.run_folder(root))
+        run for run, outcome in outcomes.items() if outcome.status == "busy" and not _reason_not_to_start(run, root, backend)
     ]
 
 
