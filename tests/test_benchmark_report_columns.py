@@ -254,6 +254,46 @@ def test_transfer_tests_count_each_reference_learner_once(finished_suite, tmp_pa
     )
 
 
+def test_the_report_names_finished_runs_without_their_transfer_tests(finished_suite, tmp_path):
+    """A finished run whose transfer test has not run yet, or whose result predates its final model, is named."""
+    suite, root, results = finished_suite
+    assert summarise_suite(suite, suite.runs(), results)["transfer_tests_missing"] == []  # a suite without tests
+    tested_suite = load_suite(write(tmp_path, SUITE + "transfer: {tasks: [same], envs: [GridWorldWall-v0]}\n"))
+    by_name = {run.name: run for run in tested_suite.runs()}
+    tested = [(by_name[run.name], result) for run, result in results]
+    folders = {(run.env_id.split("/")[-1], run.algo, run.seed): run.run_folder(root) for run, _ in tested}
+    _transfer(folders[("GridWorldWall-v0", "bc2l", 0)], "same", 5.0, {})
+    _transfer(folders[("GridWorldWall-v0", "bc2l", 1)], "same", 5.0, {})
+    stale = os.path.join(folders[("GridWorldWall-v0", "bc2l", 1)], "transfer_same.json")
+    os.utime(stale, (1.0, 1.0))  # written before the run's finished.json: of an earlier final model
+    lines: list[str] = []
+    metrics = constraint_metrics(tested, root, log=lines.append)
+    summary = summarise_suite(tested_suite, tested_suite.runs(), tested, metrics)
+    # GridWorld-v0 takes no test: its runs are complete without one
+    expected = [
+        "base/bc2l/GridWorldWall-v0/seed 1",
+        "base/vicrl/GridWorldWall-v0/seed 0",
+        "base/vicrl/GridWorldWall-v0/seed 1",
+    ]
+    assert sorted(summary["transfer_tests_missing"]) == expected
+    assert [line.split(":")[0] for line in lines if "no transfer result for task same" in line] == expected[1:]
+    assert any(line.startswith(expected[0]) and "predates its final model" in line for line in lines)
+    assert markdown_table(summary).splitlines()[-3] == (
+        "Finished without the transfer tests the suite asks for, their transfer columns empty (3): " + ", ".join(expected)
+    )
+    # The best models have no transfer results: none is missing there
+    best = summarise_suite(
+        tested_suite, tested_suite.runs(), tested, constraint_metrics(tested, root, lambda line: None, "best"), "best"
+    )
+    assert best["transfer_tests_missing"] == []
+    # Many: counted, all of them in summary.json
+    many = {**summary, "transfer_tests_missing": [f"base/bc2l/GridWorldWall-v0/seed {seed}" for seed in range(13)]}
+    assert report_text.untested_text(many) == (
+        "Finished without the transfer tests the suite asks for, their transfer columns empty (13), all named in "
+        "summary.json's `transfer_tests_missing`."
+    )
+
+
 def test_without_run_folders_the_variant_settings_name_the_demonstrations(finished_suite):
     suite, _, results = finished_suite
     summary = summarise_suite(suite, suite.runs(), results)

@@ -279,7 +279,8 @@ def constraint_metrics(
             except Exception as error:  # a run that cannot be scored leaves its columns empty, not the report unwritten
                 log(f"no identification scores for {run.name}: {type(error).__name__}: {error}")
         current = []
-        for task, transfer in (read_transfers(folder) if model == "final" else {}).items():
+        transfers = read_transfers(folder) if model == "final" else {}
+        for task, transfer in transfers.items():
             if not result_current(folder, transfer_file(task)):
                 log(
                     f"{run.name}: its {transfer_file(task)} predates its final model (trained again since): left out; "
@@ -296,6 +297,12 @@ def constraint_metrics(
                 if value is not None:
                     entry[f"transfer_{task}_{reference}_feasible_reward"] = float(value)
             current.append(transfer)
+        untested = [task for task in run.transfer_tasks() if task not in transfers] if model == "final" else []
+        if untested:
+            log(
+                f"{run.name}: no transfer result for task {', '.join(untested)} (the suite tests it there): its transfer "
+                "columns stay empty; `benchmark run` runs the test, then report again"
+            )
         # The transfer tests' compute: the suite's counts each reference file once, however many runs read it
         learned, references = transfer_times(current)
         if learned is not None:
@@ -759,6 +766,13 @@ def summarise_suite(
                 }
             )
     all_seeds = [seed for cell in cells for seed in cell["per_seed"]]
+    # Finished runs without a transfer result the suite asks for (a test not run yet, left out as stale, or lost)
+    untested = [
+        run.name
+        for run, result in results
+        if model == "final"
+        and any(f"transfer_{task}_violation_rate" not in metrics[result.run] for task in run.transfer_tasks())
+    ]
     finished = {run for run, _ in results}
     unfinished = [run for run in runs if run not in finished]
     missing = [run.name for run in unfinished]
@@ -796,6 +810,7 @@ def summarise_suite(
         "success_rule": suite.success,
         "runs_missing": missing,
         "runs_missing_by_env": _missing_by_task(suite, [*runs, *(finished - set(runs))], unfinished),
+        "transfer_tests_missing": untested,
         "others_sources": list(suite.others),
         "core_hours": _core_hours(list(wall_time.values())),
         "core_hours_runs": sum(value is not None for value in wall_time.values()),

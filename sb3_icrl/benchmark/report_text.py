@@ -427,6 +427,8 @@ def markdown_table(summary: dict[str, Any]) -> str:
         lines += ["", BEST_MODELS_NOTE]
     if summary["runs_missing"]:
         lines += ["", not_finished_text(summary)]
+    if summary.get("transfer_tests_missing"):
+        lines += ["", untested_text(summary)]
     compute = compute_line(summary)
     if compute is not None:
         lines += ["", compute]
@@ -449,6 +451,20 @@ def not_finished_text(summary: dict[str, Any]) -> str:
         return f"Not finished yet ({len(missing)}): " + ", ".join(missing)
     counts = "; ".join(f"{_task_text(env, variant)} {left} of {total}" for env, variant, left, total in by_task)
     return f"Not finished yet ({len(missing)} runs, all named in summary.json's `runs_missing`): {counts}."
+
+
+def untested_text(summary: dict[str, Any]) -> str:
+    """
+    The finished runs without a transfer result their suite asks for: named when there are few
+    (:data:`MAX_MISSING_NAMED`), else counted (the summary's ``transfer_tests_missing`` names them all).
+
+    :param summary: A summary of :func:`~sb3_icrl.benchmark.report.summarise_suite`
+    """
+    untested = summary["transfer_tests_missing"]
+    head = f"Finished without the transfer tests the suite asks for, their transfer columns empty ({len(untested)})"
+    if len(untested) <= MAX_MISSING_NAMED:
+        return f"{head}: " + ", ".join(untested)
+    return f"{head}, all named in summary.json's `transfer_tests_missing`."
 
 
 def _last_training_text(cell: dict[str, Any]) -> str:

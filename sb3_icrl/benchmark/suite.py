@@ -244,20 +244,25 @@ class RunSpec:
             os.fspath(root), self.suite, "logs", f"{self.variant}_{self.algo}_{env_name(self.env_id)}_{self.seed}.log"
         )
 
-    def transfer_jobs(self, root: str | os.PathLike) -> list[tuple[str, list[str]]]:
-        """
-        The transfer tests of this run, each as ``(result file in the run folder, sb3-icrl transfer arguments)``: none
-        unless the suite asks for them and the run is an ICRL one. The learners take the run's seed.
-        """
+    def transfer_tasks(self) -> list[str]:
+        """The transfer tasks the suite tests this run on: none unless it asks for them and the run is an ICRL one."""
         if self.transfer is None or self.algo not in ICRL_ALGOS:
             return []
         if self.transfer.envs is not None and env_name(self.env_id) not in self.transfer.envs:
             return []
+        return list(self.transfer.tasks)
+
+    def transfer_jobs(self, root: str | os.PathLike) -> list[tuple[str, list[str]]]:
+        """
+        The transfer tests of this run (:meth:`transfer_tasks`), each as ``(result file in the run folder, sb3-icrl
+        transfer arguments)``. The learners take the run's seed.
+        """
+        n_timesteps = None if self.transfer is None else self.transfer.n_timesteps
         jobs = []
-        for task in self.transfer.tasks:
+        for task in self.transfer_tasks():
             argv = [self.run_folder(root), "--task", task, "--seed", str(self.seed)]
-            if self.transfer.n_timesteps is not None:
-                argv += ["-n", str(self.transfer.n_timesteps)]
+            if n_timesteps is not None:
+                argv += ["-n", str(n_timesteps)]
             if self.gym_packages:
                 argv += ["--gym-packages", *self.gym_packages]
             jobs.append((transfer_file(task), argv))
