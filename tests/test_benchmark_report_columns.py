@@ -255,37 +255,43 @@ def test_transfer_tests_count_each_reference_learner_once(finished_suite, tmp_pa
 
 
 def test_the_report_names_finished_runs_without_their_transfer_tests(finished_suite, tmp_path):
-    """A finished run whose transfer test has not run yet, or whose result predates its final model, is named."""
+    """A finished run without a transfer result its suite asks for (a test not run yet, or a result older than its final
+    model) is named, in the suite's order, and still named when an updated report keeps it from summary.json."""
     suite, root, results = finished_suite
-    assert summarise_suite(suite, suite.runs(), results)["transfer_tests_missing"] == []  # a suite without tests
-    tested_suite = load_suite(write(tmp_path, SUITE + "transfer: {tasks: [same], envs: [GridWorldWall-v0]}\n"))
+    assert summarise_suite(suite, suite.runs(), results, {})["transfer_tests_missing"] == []  # a suite without tests
+    text = SUITE + "transfer: {tasks: [same, dynamics], envs: [GridWorldWall-v0]}\n"
+    tested_suite = load_suite(write(tmp_path, text))
     by_name = {run.name: run for run in tested_suite.runs()}
     tested = [(by_name[run.name], result) for run, result in results]
     folders = {(run.env_id.split("/")[-1], run.algo, run.seed): run.run_folder(root) for run, _ in tested}
-    _transfer(folders[("GridWorldWall-v0", "bc2l", 0)], "same", 5.0, {})
-    _transfer(folders[("GridWorldWall-v0", "bc2l", 1)], "same", 5.0, {})
-    stale = os.path.join(folders[("GridWorldWall-v0", "bc2l", 1)], "transfer_same.json")
-    os.utime(stale, (1.0, 1.0))  # written before the run's finished.json: of an earlier final model
+    for key, tasks in {("bc2l", 0): ["same", "dynamics"], ("bc2l", 1): ["same"], ("vicrl", 0): ["same", "dynamics"]}.items():
+        for task in tasks:
+            _transfer(folders[("GridWorldWall-v0", *key)], task, 5.0, {})
+    os.utime(os.path.join(folders[("GridWorldWall-v0", "vicrl", 0)], "transfer_same.json"), (1.0, 1.0))  # of an earlier model
     lines: list[str] = []
     metrics = constraint_metrics(tested, root, log=lines.append)
     summary = summarise_suite(tested_suite, tested_suite.runs(), tested, metrics)
     # GridWorld-v0 takes no test: its runs are complete without one
-    expected = [
-        "base/bc2l/GridWorldWall-v0/seed 1",
-        "base/vicrl/GridWorldWall-v0/seed 0",
-        "base/vicrl/GridWorldWall-v0/seed 1",
-    ]
-    assert sorted(summary["transfer_tests_missing"]) == expected
-    assert [line.split(":")[0] for line in lines if "no transfer result for task same" in line] == expected[1:]
-    assert any(line.startswith(expected[0]) and "predates its final model" in line for line in lines)
-    assert markdown_table(summary).splitlines()[-3] == (
-        "Finished without the transfer tests the suite asks for, their transfer columns empty (3): " + ", ".join(expected)
-    )
-    # The best models have no transfer results: none is missing there
-    best = summarise_suite(
-        tested_suite, tested_suite.runs(), tested, constraint_metrics(tested, root, lambda line: None, "best"), "best"
-    )
-    assert best["transfer_tests_missing"] == []
+    named = {"base/bc2l/GridWorldWall-v0/seed 1", "base/vicrl/GridWorldWall-v0/seed 0", "base/vicrl/GridWorldWall-v0/seed 1"}
+    in_order = [run.name for run in tested_suite.runs() if run.name in named]
+    assert summary["transfer_tests_missing"] == in_order
+    assert {line.split(":")[0]: line.split(" (")[0].split("task ")[1] for line in lines if "no transfer result" in line} == {
+        "base/bc2l/GridWorldWall-v0/seed 1": "dynamics",
+        "base/vicrl/GridWorldWall-v0/seed 1": "same, dynamics",
+    }
+    assert any(line.startswith("base/vicrl/GridWorldWall-v0/seed 0") and "predates its final model" in line for line in lines)
+    table = markdown_table(summary).splitlines()
+    line = "Finished without the transfer tests the suite asks for, their transfer columns empty (3): " + ", ".join(in_order)
+    assert line in table and table.index(line) < next(i for i, text in enumerate(table) if text.startswith("Compute:"))
+    # An updated report keeps them from summary.json, their folders gone: the same runs named
+    kept, kept_metrics, _ = report.previous_results(_strict(summary), tested_suite, str(tmp_path / "elsewhere"))
+    assert summarise_suite(tested_suite, tested_suite.runs(), kept, kept_metrics)["transfer_tests_missing"] == in_order
+    # No columns to look in, or the best models (transfer tests are of the final model): none named
+    assert summarise_suite(tested_suite, tested_suite.runs(), tested)["transfer_tests_missing"] == []
+    best_metrics = constraint_metrics(tested, root, lambda line: None, "best")
+    assert summarise_suite(tested_suite, tested_suite.runs(), tested, best_metrics, "best")["transfer_tests_missing"] == []
+    # Only ICRL runs take the tests
+    assert dataclasses.replace(by_name["base/bc2l/GridWorldWall-v0/seed 1"], algo="ppo").transfer_tasks() == []
     # Many: counted, all of them in summary.json
     many = {**summary, "transfer_tests_missing": [f"base/bc2l/GridWorldWall-v0/seed {seed}" for seed in range(13)]}
     assert report_text.untested_text(many) == (

@@ -300,8 +300,8 @@ def constraint_metrics(
         untested = [task for task in run.transfer_tasks() if task not in transfers] if model == "final" else []
         if untested:
             log(
-                f"{run.name}: no transfer result for task {', '.join(untested)} (the suite tests it there): its transfer "
-                "columns stay empty; `benchmark run` runs the test, then report again"
+                f"{run.name}: no transfer result for task {', '.join(untested)} (the suite tests this env's runs on it): "
+                "its transfer columns stay empty; `benchmark run` runs the test, then report again"
             )
         # The transfer tests' compute: the suite's counts each reference file once, however many runs read it
         learned, references = transfer_times(current)
@@ -635,7 +635,8 @@ def summarise_suite(
     the cell beats it (``beats``: :func:`~sb3_icrl.benchmark.judgements.beats`); per algorithm, the IQM of the violation
     rate over the headline envs with a stratified bootstrap CI (``aggregates``), and the normalised aggregates over the
     envs of :func:`~sb3_icrl.benchmark.judgements.aggregated_envs` (``normalised_aggregates``, ``improvements``;
-    ``aggregated_envs`` and ``aggregates_left_out`` name them); the runs not finished yet; the suite's compute. With the
+    ``aggregated_envs`` and ``aggregates_left_out`` name them); the runs not finished yet, and the finished ones
+    without a transfer result their suite asks for (``transfer_tests_missing``); the suite's compute. With the
     suite keys ``beats`` and ``aim``, also their judgements (``beats_judgement``:
     :func:`~sb3_icrl.benchmark.judgements.beats_judgement`; ``aim``: :func:`~sb3_icrl.benchmark.judgements.aim_outcome`).
 
@@ -646,10 +647,13 @@ def summarise_suite(
         (:func:`constraint_metrics`); the cell gets the mean identification AUROC over the seeds that have one.
         Also the run's ``wall_time_s`` and ``expert_return`` (:func:`run_facts`): the cell sums the former into
         ``core_hours`` and averages the latter; a run without an ``expert_return`` there takes the dataset its variant
-        settings name
+        settings name. A run whose transfer columns lack a task its suite tests it on is named in
+        ``transfer_tests_missing`` (``None``: no columns to look in, nothing named)
     :param model: Which model of each run ``results`` evaluated (``"final"`` or ``"best"``), recorded as ``model``
+        (transfer tests are of the final model: under ``"best"`` none is missing)
     :return: A JSON-ready summary
     """
+    metrics_given = metrics is not None
     metrics = {name: dict(entry) for name, entry in (metrics or {}).items()}  # the caller's stays as it was
     by_cell: dict[tuple[str, str], list[RunResult]] = {}
     returns: dict[tuple[str, float | None], float | None] = {}  # one load per dataset, however many runs share it
@@ -766,13 +770,19 @@ def summarise_suite(
                 }
             )
     all_seeds = [seed for cell in cells for seed in cell["per_seed"]]
-    # Finished runs without a transfer result the suite asks for (a test not run yet, left out as stale, or lost)
-    untested = [
-        run.name
-        for run, result in results
-        if model == "final"
-        and any(f"transfer_{task}_violation_rate" not in metrics[result.run] for task in run.transfer_tasks())
-    ]
+    # Finished runs without a transfer result the suite asks for (a test not run yet, left out as stale, or lost), in
+    # the suite's order; only where transfer columns were given to look in
+    order = {run.name: index for index, run in enumerate(suite.runs())}
+    untested = sorted(
+        (
+            run.name
+            for run, result in results
+            if model == "final"
+            and metrics_given
+            and any(f"transfer_{task}_violation_rate" not in metrics[result.run] for task in run.transfer_tasks())
+        ),
+        key=lambda name: (order.get(name, len(order)), name),
+    )
     finished = {run for run, _ in results}
     unfinished = [run for run in runs if run not in finished]
     missing = [run.name for run in unfinished]

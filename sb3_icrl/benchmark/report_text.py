@@ -435,7 +435,8 @@ def markdown_table(summary: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-#: Up to this many unfinished runs are named one by one; more are counted per env
+#: Up to this many runs of a list (those not finished, those without a transfer test) are named one by one; more are
+#: counted
 MAX_MISSING_NAMED = 12
 
 
