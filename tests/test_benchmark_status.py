@@ -13,6 +13,7 @@ import zipfile
 
 import pytest
 import torch as th
+from model_files import write_whole_zip
 
 from sb3_icrl.benchmark import load_suite
 from sb3_icrl.benchmark.cli import main as benchmark_main
@@ -41,12 +42,6 @@ steps: 1000
 """
 
 
-def _whole_zip(path: str) -> None:
-    """A model zip as status sees it: it reads only whether the zip is whole."""
-    with zipfile.ZipFile(path, "w") as archive:
-        archive.writestr("data", "{}")
-
-
 @pytest.fixture
 def suite_in_five_states(tmp_path):
     """Seed 0 finished (1000 steps in 500 s), 1 failed at 200, 2 interrupted at 400, 3 training now at 600, 4 not
@@ -61,10 +56,10 @@ def suite_in_five_states(tmp_path):
         os.makedirs(folder)
     with open(os.path.join(folders[0], FINISHED_FILE), "w") as file:
         json.dump({"num_timesteps": 1000, "wall_time_total_s": 500.0}, file)
-    _whole_zip(os.path.join(folders[0], "GridWorldWall-v0.zip"))  # its final model
+    write_whole_zip(os.path.join(folders[0], "GridWorldWall-v0.zip"))  # its final model
     for folder, steps in zip(folders[1:4], (200, 400, 600), strict=True):
-        _whole_zip(os.path.join(folder, f"rl_model_{steps}_steps.zip"))
-        _whole_zip(os.path.join(folder, f"rl_model_{steps // 2}_steps.zip"))
+        write_whole_zip(os.path.join(folder, f"rl_model_{steps}_steps.zip"))
+        write_whole_zip(os.path.join(folder, f"rl_model_{steps // 2}_steps.zip"))
     with open(os.path.join(folders[1], FAILED_FILE), "w") as file:
         json.dump({"error": "ValueError: bad things"}, file)
     return suite, root, runs
@@ -388,7 +383,7 @@ def test_a_reported_ppo_row_is_trained_again_before_its_seeds_icrl_runs(tmp_path
     os.makedirs(ppo_folder)
     with open(os.path.join(ppo_folder, FINISHED_FILE), "w") as file:
         json.dump({"num_timesteps": 1000, "wall_time_total_s": 500.0}, file)
-    _whole_zip(os.path.join(ppo_folder, "BiasedPendulum-v0.zip"))
+    write_whole_zip(os.path.join(ppo_folder, "BiasedPendulum-v0.zip"))
     assert benchmark_main([*no_report, "--only", "env=BiasedPendulum-v0", "seed=0", "algo=mecl"]) == 0
     assert "note: the identification" not in capsys.readouterr().out
     assert benchmark_main([*no_report, "--only", "env=GridWorldWall-v0", "seed=0", "algo=mecl"]) == 0
@@ -454,7 +449,7 @@ def test_transfer_tests_to_come_and_their_time(tmp_path):
         os.makedirs(folder)
         with open(os.path.join(folder, FINISHED_FILE), "w") as file:
             json.dump({"num_timesteps": 1000, "wall_time_total_s": 500.0}, file)
-        _whole_zip(os.path.join(folder, "GridWorldWall-v0.zip"))
+        write_whole_zip(os.path.join(folder, "GridWorldWall-v0.zip"))
     # Seed 0's transfer test done: its learned-cost learner 10 minutes, the oracle 20 and PPO 30
     transfer = {
         "settings": {"reference_files": {"oracle": "/refs/oracle_0.json", "ppo": "/refs/ppo_0.json"}},
@@ -502,7 +497,7 @@ def test_a_running_transfer_test_shows_its_learner_s_steps_from_the_run_s_log(tm
     os.makedirs(folder)
     with open(os.path.join(folder, FINISHED_FILE), "w") as file:
         json.dump({"num_timesteps": 1000, "wall_time_total_s": 500.0}, file)
-    _whole_zip(os.path.join(folder, "GridWorldWall-v0.zip"))
+    write_whole_zip(os.path.join(folder, "GridWorldWall-v0.zip"))
     os.makedirs(os.path.dirname(run.log_file(root)))
     with open(run.log_file(root), "w") as file:
         file.write(

@@ -4,9 +4,9 @@ import json
 import os
 import tarfile
 import textwrap
-import zipfile
 
 import pytest
+from model_files import write_whole_zip
 
 from sb3_icrl.benchmark import load_suite
 from sb3_icrl.benchmark.cli import main as benchmark_main
@@ -25,14 +25,8 @@ steps: 1000
 """
 
 
-def _whole_zip(path: str) -> None:
-    """A model zip that reads as whole."""
-    with zipfile.ZipFile(path, "w") as archive:
-        archive.writestr("data", "{}")
-
-
 def _checkpoint(folder: str, steps: int) -> None:
-    _whole_zip(os.path.join(folder, f"rl_model_{steps}_steps.zip"))
+    write_whole_zip(os.path.join(folder, f"rl_model_{steps}_steps.zip"))
     for kind in ("vecnormalize", "training_state"):
         with open(os.path.join(folder, f"rl_model_{kind}_{steps}_steps.pkl"), "wb") as file:
             file.write(b"\x80\x04N.")  # pickle of None: it reads
@@ -57,7 +51,7 @@ def carried(tmp_path):
             file.write(f"log of seed {run.seed}\n")
     with open(os.path.join(folders[0], FINISHED_FILE), "w") as file:
         json.dump({"num_timesteps": 1000, "wall_time_total_s": 10.0}, file)
-    _whole_zip(os.path.join(folders[0], "GridWorldWall-v0.zip"))
+    write_whole_zip(os.path.join(folders[0], "GridWorldWall-v0.zip"))
     with open(os.path.join(folders[0], "GridWorldWall-v0", "config.yml"), "w") as file:
         file.write("n_timesteps: 1000\n")
     for steps in (100, 200):
