@@ -35,6 +35,7 @@ from sb3_icrl.benchmark.report import (
     evaluate_finished,
     keep_transfer_references,
     previous_results,
+    probe_rows_unlike_report,
     restore_transfer_references,
     summarise_suite,
     write_report,
@@ -535,7 +536,10 @@ def report_command(args: argparse.Namespace) -> int:
         )
     metrics = constraint_metrics(results, args.log_folder, model=model)
     if update:
+        scored = [run for run, _ in results]
         runs, results, metrics = _with_earlier_report(suite, runs, results, metrics, output, args.log_folder, model, withdraw)
+        for line in probe_rows_unlike_report(suite, scored, results, metrics, args.log_folder):
+            print(f"note: {line}")
     summary = summarise_suite(suite, runs, results, metrics, model=model)
     written = write_report(summary, output)
     if model == "final":

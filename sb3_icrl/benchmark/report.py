@@ -523,6 +523,67 @@ def training_provenance(folder: str | os.PathLike) -> dict[str, Any]:
     return provenance
 
 
+def probe_rows_unlike_report(
+    suite: Suite,
+    scored: Sequence[RunSpec],
+    results: Sequence[tuple[RunSpec, RunResult]],
+    metrics: dict[str, dict[str, Any]],
+    root: str,
+) -> list[str]:
+    """
+    The ICRL runs scored now whose probes read a ``ppo`` folder that is not the ``ppo`` row the report keeps for their
+    seed: the identification runs that folder's final policy for its episodes, so a row trained again that differs
+    from the reported one (stopped and resumed: fresh random streams) scores the run on episodes the report does not
+    show. Told apart by the folder's last training episodes and training starts against the kept row's (a row trained
+    again without a stop gives the reported one's every digit); a row reported by this same report is its folder.
+
+    :param suite: The suite
+    :param scored: The runs evaluated by this report (not those kept from an earlier one)
+    :param results: Every ``(run, result)`` of the report, kept ones too
+    :param metrics: Per ``result.run``, the report's per-seed metrics (the kept rows' from the earlier summary)
+    :param root: The log root
+    :return: One line per such probe row, naming the runs it scored and what brings the reported row back
+    """
+    scored_runs = set(scored)
+    kept = {run: result for run, result in results if run not in scored_runs}
+    scored_by_probe: dict[RunSpec, list[RunSpec]] = {}
+    for run, probe in suite.probe_runs(scored).items():
+        if probe in kept and os.path.isdir(probe.run_folder(root)):
+            scored_by_probe.setdefault(probe, []).append(run)
+    lines = []
+    for probe, runs in scored_by_probe.items():
+        reported = metrics.get(kept[probe].run, {})
+        folder = probe.run_folder(root)
+        here = last_training_episodes(folder) or {}
+        here_values = (here.get("feasible_reward"), here.get("violation_rate"))
+        reported_values = (reported.get("last_training_feasible_reward"), reported.get("last_training_violation_rate"))
+        if None in reported_values:
+            continue  # a kept row without last-training values (an older report): nothing to compare
+        starts_here, starts_reported = training_provenance(folder).get("training_starts"), reported.get("training_starts")
+        same_episodes = all(
+            a is not None and b is not None and math.isclose(float(a), float(b), rel_tol=1e-9)
+            for a, b in zip(here_values, reported_values, strict=True)
+        )
+        if same_episodes and (starts_here is None or starts_reported is None or int(starts_here) == int(starts_reported)):
+            continue
+        shown = ", ".join(run.name for run in runs)
+        lines.append(
+            f"{probe.name}: its folder here is not the reported row (last training episodes {_pair_text(*here_values)} "
+            f"against the report's {_pair_text(*reported_values)}; training starts {starts_here} against "
+            f"{starts_reported}), yet its episodes probed {shown}: move that folder out of the log root, train the row again "
+            "without a stop (`benchmark run` without --reported, --only its env, seed and algo=ppo) and report those "
+            "runs again"
+        )
+    return lines
+
+
+def _pair_text(feasible: Any, violation: Any) -> str:
+    """``feasible / violation%`` for a message; ``?`` where a value is missing."""
+    feasible_text = "?" if feasible is None else f"{float(feasible):.1f}"
+    violation_text = "?" if violation is None else f"{100 * float(violation):.0f}%"
+    return f"{feasible_text} / {violation_text}"
+
+
 def constraint_updates_made(model_file: str | os.PathLike) -> int | None:
     """
     How many times an ICRL model's constraint was updated (its ``n_constraint_updates``), read from the model zip's
