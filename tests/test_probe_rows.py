@@ -1,35 +1,43 @@
 """
 ``report --update`` names an ICRL run whose identification probes read a ``ppo`` folder that is not the ``ppo`` row
-the report keeps (a row trained again, stopped and resumed, differs from the reported one).
+the report keeps (a row trained again, stopped and resumed, differs from the reported one); the identification's cache
+is not read once that folder's model is newer than it.
 """
 
+import json
 import os
 import types
 
 import pytest
+from model_files import write_whole_zip
 
 from sb3_icrl.benchmark import load_suite
 from sb3_icrl.benchmark.report import probe_rows_unlike_report
+from sb3_icrl.metrics.identification import IDENTIFICATION_FILE, identify_run
+from sb3_icrl.zoo.train import main as train_main
 
 SUITE = """\
 description: probe rows
 envs: [BiasedPendulum-v0]
-algos: [mecl, ppo]
+algos: [mecl, vicrl, ppo]
 seeds: [0]
 steps: 1000
 """
 
-#: The kept ``ppo`` row's key in the report (its ``result.run``)
-KEY = "base/ppo/BiasedPendulum-v0_0"
+REPORTED = {"last_training_feasible_reward": 4.0, "last_training_violation_rate": 0.5, "training_starts": 1}
 
 
 @pytest.fixture
-def suite_with_ppo_folder(tmp_path):
-    """The suite, its MECL and PPO runs, and a PPO folder whose last training episodes are 1 of 2 broken, 4.0 feasible."""
+def probed(tmp_path):
+    """
+    The suite, its MECL, VICRL and PPO runs, the log root, and the report's results and metrics: the PPO row kept from
+    an earlier summary with :data:`REPORTED`, the two ICRL runs scored now on the PPO folder here, whose last training
+    episodes are 1 of 2 broken at 4.0 feasible, in one training start.
+    """
     path = tmp_path / "probes.yml"
     path.write_text(SUITE)
     suite = load_suite(path)
-    mecl, ppo = (next(run for run in suite.runs() if run.algo == algo) for algo in ("mecl", "ppo"))
+    mecl, vicrl, ppo = (next(run for run in suite.runs() if run.algo == algo) for algo in ("mecl", "vicrl", "ppo"))
     root = str(tmp_path / "logs")
     folder = ppo.run_folder(root)
     os.makedirs(folder)
@@ -37,40 +45,82 @@ def suite_with_ppo_folder(tmp_path):
         file.write('#{"t_start": 0}\nr,l,t,true_violation,true_feasible_reward\n3.0,10,1,1.0,3.0\n5.0,10,2,0.0,5.0\n')
     with open(os.path.join(folder, "command.txt"), "w") as file:
         file.write("python train.py --algo ppo\n")
-    return suite, mecl, ppo, root
+    keys = {run: os.path.relpath(run.run_folder(root), root) for run in (mecl, vicrl, ppo)}
+    results = [(run, types.SimpleNamespace(run=key)) for run, key in keys.items()]
+    metrics = {keys[ppo]: dict(REPORTED)}
+    for run in (mecl, vicrl):  # as the identification records it: relative to the ICRL run's folder
+        metrics[keys[run]] = {"identification_unconstrained_run": os.path.relpath(folder, run.run_folder(root))}
+    return suite, (mecl, vicrl, ppo), root, results, metrics, keys
 
 
-def _kept(ppo, **values):
-    """The report's results and metrics with ``ppo`` kept from an earlier summary with these per-seed values."""
-    return [(ppo, types.SimpleNamespace(run=KEY))], {KEY: values}
+def test_a_folder_that_is_the_reported_row_is_not_named(probed):
+    suite, (mecl, vicrl, _), root, results, metrics, _ = probed
+    assert probe_rows_unlike_report(suite, [mecl, vicrl], results, metrics, root) == []
 
 
-def test_a_folder_that_is_the_reported_row_is_not_named(suite_with_ppo_folder):
-    suite, mecl, ppo, root = suite_with_ppo_folder
-    results, metrics = _kept(ppo, last_training_feasible_reward=4.0, last_training_violation_rate=0.5, training_starts=1)
+def test_other_last_episodes_name_the_row_and_every_run_it_probed(probed):
+    suite, (mecl, vicrl, ppo), root, results, metrics, keys = probed
+    metrics[keys[ppo]]["last_training_feasible_reward"] = 4.5
+    (line,) = probe_rows_unlike_report(suite, [mecl, vicrl], results, metrics, root)
+    assert line.startswith(f"{ppo.name}: its folder here is not the reported row (last training episodes 4.0 / 50% against")
+    assert f"the report's 4.5 / 50%), yet it probed {mecl.name}, {vicrl.name}: move that folder out" in line
+    assert "train the row again without a stop" in line
+
+
+def test_another_start_count_names_the_row_and_a_resumed_reported_row_has_no_remedy(probed):
+    suite, (mecl, _, ppo), root, results, metrics, keys = probed
+    with open(os.path.join(ppo.run_folder(root), "command.txt"), "a") as file:
+        file.write("python train.py --algo ppo\n")  # resumed once here
+    (line,) = probe_rows_unlike_report(suite, [mecl], results, metrics, root)
+    assert "(training starts 2 against 1)" in line and "train the row again without a stop" in line
+    # The reported row itself resumed: no training here gives its episodes
+    metrics[keys[ppo]]["training_starts"] = 3
+    (line,) = probe_rows_unlike_report(suite, [mecl], results, metrics, root)
+    assert "training starts 2 against 3" in line and "the reported row itself started 3 times" in line
+
+
+def test_a_folder_without_readable_episodes_is_judged_by_its_training_starts(probed):
+    suite, (mecl, _, ppo), root, results, metrics, keys = probed
+    with open(os.path.join(ppo.run_folder(root), "0.monitor.csv"), "w") as file:
+        file.write('#{"t_start": 0}\nr,l,t\n3.0,10,1\n')  # no true_* columns
+    metrics[keys[ppo]]["last_training_feasible_reward"] = 4.5
     assert probe_rows_unlike_report(suite, [mecl], results, metrics, root) == []
-
-
-def test_other_last_episodes_or_another_start_count_name_the_row_and_the_runs_it_probed(suite_with_ppo_folder):
-    suite, mecl, ppo, root = suite_with_ppo_folder
-    results, metrics = _kept(ppo, last_training_feasible_reward=4.5, last_training_violation_rate=0.5, training_starts=1)
+    metrics[keys[ppo]]["training_starts"] = 2
     (line,) = probe_rows_unlike_report(suite, [mecl], results, metrics, root)
-    assert line.startswith(f"{ppo.name}: its folder here is not the reported row")
-    assert "4.0 / 50% against the report's 4.5 / 50%" in line and mecl.name in line and "without a stop" in line
-    # The same episodes from a row the report says started twice (resumed): not the same policy either
-    results, metrics = _kept(ppo, last_training_feasible_reward=4.0, last_training_violation_rate=0.5, training_starts=2)
-    (line,) = probe_rows_unlike_report(suite, [mecl], results, metrics, root)
-    assert "training starts 1 against 2" in line
+    assert "(training starts 1 against 2)" in line and "last training episodes" not in line
 
 
-def test_nothing_to_compare_names_nothing(suite_with_ppo_folder, tmp_path):
-    suite, mecl, ppo, root = suite_with_ppo_folder
-    results, metrics = _kept(ppo, last_training_feasible_reward=4.5, last_training_violation_rate=0.5)
+def test_runs_not_scored_on_that_folder_or_a_row_reported_now_are_not_named(probed, tmp_path):
+    suite, (mecl, vicrl, ppo), root, results, metrics, keys = probed
+    metrics[keys[ppo]]["last_training_feasible_reward"] = 4.5
     # The PPO row reported by this same report (scored now): the report shows that folder's own numbers
     assert probe_rows_unlike_report(suite, [mecl, ppo], results, metrics, root) == []
-    # A kept row from an older report without last-training values
-    assert probe_rows_unlike_report(suite, [mecl], *_kept(ppo, training_starts=1), root) == []
-    # No PPO folder here: the probes hold no PPO episodes (the report says so elsewhere)
-    assert probe_rows_unlike_report(suite, [mecl], results, metrics, str(tmp_path / "elsewhere")) == []
+    # A run whose identification read another folder (the folder here unfinished, say) or none, or was not scored
+    metrics[keys[mecl]]["identification_unconstrained_run"] = "../../ppo/BiasedPendulum-v0_7"
+    metrics[keys[vicrl]].pop("identification_unconstrained_run")
+    assert probe_rows_unlike_report(suite, [mecl, vicrl], results, metrics, root) == []
+    # A kept row from an older report without last-training values or training starts: nothing to compare
+    metrics[keys[mecl]]["identification_unconstrained_run"] = os.path.relpath(ppo.run_folder(root), mecl.run_folder(root))
+    metrics[keys[ppo]] = {}
+    assert probe_rows_unlike_report(suite, [mecl], results, metrics, root) == []
     # No ICRL run scored now
     assert probe_rows_unlike_report(suite, [], results, metrics, root) == []
+
+
+def test_the_identification_cache_is_not_read_once_the_probe_agent_is_newer(tmp_path):
+    root = tmp_path / "logs"
+    argv = ["--algo", "mecl", "--env", "GridWorldWall-v0", "-n", "256", "-f", str(root), "--seed", "0"]
+    assert train_main([*argv, "--eval-freq", "0", "--save-freq", "0", "--num-threads", "1", "--verbose", "0"]) == 0
+    run = root / "mecl" / "GridWorldWall-v0_1"
+    agent = root / "ppo" / "GridWorldWall-v0_1"  # (grid worlds run no agent episodes: only the cache is at stake)
+    agent.mkdir(parents=True)
+    write_whole_zip(str(agent / "GridWorldWall-v0.zip"))
+    first = identify_run(run, unconstrained_run=agent)
+    cache = run / IDENTIFICATION_FILE
+    written = cache.stat().st_mtime
+    os.utime(agent / "GridWorldWall-v0.zip", (written - 10, written - 10))
+    assert identify_run(run, unconstrained_run=agent) == json.loads(json.dumps(first))
+    assert cache.stat().st_mtime == written  # read from the cache
+    os.utime(agent / "GridWorldWall-v0.zip", (written + 10, written + 10))  # the agent trained again since
+    assert identify_run(run, unconstrained_run=agent)["settings"] == first["settings"]
+    assert cache.stat().st_mtime != written  # scored again

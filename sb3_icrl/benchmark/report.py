@@ -533,46 +533,70 @@ def probe_rows_unlike_report(
     """
     The ICRL runs scored now whose probes read a ``ppo`` folder that is not the ``ppo`` row the report keeps for their
     seed: the identification runs that folder's final policy for its episodes, so a row trained again that differs
-    from the reported one (stopped and resumed: fresh random streams) scores the run on episodes the report does not
-    show. Told apart by the folder's last training episodes and training starts against the kept row's (a row trained
-    again without a stop gives the reported one's every digit); a row reported by this same report is its folder.
+    from the reported one (stopped and resumed, it goes on with fresh random streams) scores the runs on episodes the
+    report does not show. Told apart by the folder's last training episodes and training starts against the kept
+    row's; a row reported by this same report is its folder, and only the folder each run's identification recorded
+    reading counts.
 
     :param suite: The suite
     :param scored: The runs evaluated by this report (not those kept from an earlier one)
     :param results: Every ``(run, result)`` of the report, kept ones too
-    :param metrics: Per ``result.run``, the report's per-seed metrics (the kept rows' from the earlier summary)
+    :param metrics: Per ``result.run`` (relative to ``root``), the report's per-seed metrics, the kept rows' read from
+        the earlier summary and the scored runs' with the ``identification_unconstrained_run`` they recorded
     :param root: The log root
-    :return: One line per such probe row, naming the runs it scored and what brings the reported row back
+    :return: One line per such probe row, naming the runs it probed and what brings the reported row back
     """
     scored_runs = set(scored)
-    kept = {run: result for run, result in results if run not in scored_runs}
-    scored_by_probe: dict[RunSpec, list[RunSpec]] = {}
+    by_run = dict(results)
+    probed: dict[RunSpec, list[RunSpec]] = {}
     for run, probe in suite.probe_runs(scored).items():
-        if probe in kept and os.path.isdir(probe.run_folder(root)):
-            scored_by_probe.setdefault(probe, []).append(run)
-    lines = []
-    for probe, runs in scored_by_probe.items():
-        reported = metrics.get(kept[probe].run, {})
-        folder = probe.run_folder(root)
-        here = last_training_episodes(folder) or {}
-        here_values = (here.get("feasible_reward"), here.get("violation_rate"))
-        reported_values = (reported.get("last_training_feasible_reward"), reported.get("last_training_violation_rate"))
-        if None in reported_values:
-            continue  # a kept row without last-training values (an older report): nothing to compare
-        starts_here, starts_reported = training_provenance(folder).get("training_starts"), reported.get("training_starts")
-        same_episodes = all(
-            a is not None and b is not None and math.isclose(float(a), float(b), rel_tol=1e-9)
-            for a, b in zip(here_values, reported_values, strict=True)
-        )
-        if same_episodes and (starts_here is None or starts_reported is None or int(starts_here) == int(starts_reported)):
+        if run not in by_run or probe not in by_run or probe in scored_runs:
             continue
+        recorded = metrics.get(by_run[run].run, {}).get("identification_unconstrained_run")
+        if recorded is None:
+            continue  # not scored, or on no PPO episodes (said elsewhere)
+        read = os.path.realpath(os.path.join(root, by_run[run].run, recorded))
+        if read == os.path.realpath(probe.run_folder(root)):
+            probed.setdefault(probe, []).append(run)
+    lines = []
+    for probe, runs in probed.items():
+        reported = metrics.get(by_run[probe].run, {})
+        folder = probe.run_folder(root)
+        differences = []
+        try:
+            here = last_training_episodes(folder)
+        except (ValueError, IndexError):  # a Monitor line cut short: judged by its training starts alone
+            here = None
+        reported_feasible, reported_violation = (
+            reported.get("last_training_feasible_reward"),
+            reported.get("last_training_violation_rate"),
+        )
+        if here is not None and reported_feasible is not None and reported_violation is not None:
+            reported_values = (float(reported_feasible), float(reported_violation))
+            here_values = (here["feasible_reward"], here["violation_rate"])
+            if not all(math.isclose(a, b, rel_tol=1e-9) for a, b in zip(here_values, reported_values, strict=True)):
+                differences.append(
+                    f"last training episodes {_pair_text(*here_values)} against the report's {_pair_text(*reported_values)}"
+                )
+        starts_here, starts_reported = training_provenance(folder).get("training_starts"), reported.get("training_starts")
+        if starts_here is not None and starts_reported is not None and int(starts_here) != int(starts_reported):
+            differences.append(f"training starts {starts_here} against {starts_reported}")
+        if not differences:
+            continue  # the same row, or nothing to tell them apart by
+        if starts_reported is not None and int(starts_reported) > 1:
+            remedy = (
+                f"the reported row itself started {starts_reported} times, so no training here gives its episodes: "
+                "those runs' identification reads a PPO agent the report does not show"
+            )
+        else:
+            remedy = (
+                "move that folder out of the log root, train the row again without a stop (`benchmark run` without "
+                "--reported, --only its env, seed and algo=ppo) and report those runs again"
+            )
         shown = ", ".join(run.name for run in runs)
         lines.append(
-            f"{probe.name}: its folder here is not the reported row (last training episodes {_pair_text(*here_values)} "
-            f"against the report's {_pair_text(*reported_values)}; training starts {starts_here} against "
-            f"{starts_reported}), yet its episodes probed {shown}: move that folder out of the log root, train the row again "
-            "without a stop (`benchmark run` without --reported, --only its env, seed and algo=ppo) and report those "
-            "runs again"
+            f"{probe.name}: its folder here is not the reported row ({'; '.join(differences)}), yet it probed {shown}: "
+            + remedy
         )
     return lines
 

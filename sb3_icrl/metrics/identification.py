@@ -862,7 +862,8 @@ def identify_run(
     :param n_episodes: Episodes of the learner (and of the unconstrained agent)
     :param unconstrained_run: A PPO run folder on the same env (default: one found near the run, if any)
     :param seed: Seed of the episodes and draws
-    :param use_cache: Return the cached result when its settings match and it is newer than the model
+    :param use_cache: Return the cached result when its settings match and it is newer than the run's models and the
+        unconstrained run's
     :param save: Write the result to the cache
     :return: ``{"settings": ..., "scores": ...}`` (scores: see :func:`identification_scores`)
     """
@@ -879,7 +880,9 @@ def identify_run(
     if use_cache and cache.is_file():
         with open(cache) as file:
             saved = json.load(file)
-        newest_model = max((p.stat().st_mtime for p in run.glob("*.zip")), default=0.0)
+        models = [*run.glob("*.zip"), *(unconstrained.glob("*.zip") if unconstrained is not None else [])]
+        # (the probe agent's models too: a PPO row trained again in the same folder gives other episodes)
+        newest_model = max((path.stat().st_mtime for path in models), default=0.0)
         if saved.get("settings") == settings and cache.stat().st_mtime >= newest_model:
             return saved
 
