@@ -601,11 +601,9 @@ def probe_rows_unlike_report(
     return lines
 
 
-def _pair_text(feasible: Any, violation: Any) -> str:
-    """``feasible / violation%`` for a message; ``?`` where a value is missing."""
-    feasible_text = "?" if feasible is None else f"{float(feasible):.1f}"
-    violation_text = "?" if violation is None else f"{100 * float(violation):.0f}%"
-    return f"{feasible_text} / {violation_text}"
+def _pair_text(feasible: float, violation: float) -> str:
+    """``feasible / violation%`` for a message."""
+    return f"{feasible:.1f} / {100 * violation:.0f}%"
 
 
 def constraint_updates_made(model_file: str | os.PathLike) -> int | None:
