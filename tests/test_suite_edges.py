@@ -9,10 +9,10 @@ import subprocess
 import sys
 import textwrap
 import time
-import zipfile
 
 import pytest
 import torch as th
+from model_files import write_whole_zip
 
 from sb3_icrl.benchmark import load_suite
 from sb3_icrl.benchmark.cli import main as benchmark_main
@@ -292,8 +292,7 @@ def test_a_broken_model_leaves_its_seed_out_of_the_report_and_names_its_folder(t
 
 def test_resume_falls_back_past_a_checkpoint_whose_pickles_are_broken(tmp_path):
     for steps in (100, 200):
-        with zipfile.ZipFile(tmp_path / f"rl_model_{steps}_steps.zip", "w") as archive:
-            archive.writestr("data", "{}")
+        write_whole_zip(str(tmp_path / f"rl_model_{steps}_steps.zip"))
         for kind in ("vecnormalize", "training_state"):
             (tmp_path / f"rl_model_{kind}_{steps}_steps.pkl").write_bytes(pickle.dumps({"steps": steps}))
     assert latest_checkpoint(str(tmp_path)).endswith("rl_model_200_steps.zip")
