@@ -273,16 +273,20 @@ def test_summary_cells_hold_hand_computed_statistics(tmp_path):
     assert partial["runs_missing"] == [suite.runs()[-1].name]
 
 
-def test_identification_text_names_a_cost_above_the_level_everywhere():
+def test_identification_text_names_how_a_cost_meets_the_level_at_the_safe_end():
     from sb3_icrl.benchmark.report_text import _identification_text
 
-    assert _identification_text({"identification_auroc": 0.5, "threshold_error": float("inf")}) == "0.50 / everywhere"
+    for crossing in ("everywhere", "reversed", "both ends"):
+        seed = {"identification_auroc": 0.5, "threshold_error": float("inf"), "threshold_crossing": crossing}
+        assert _identification_text(seed) == f"0.50 / {crossing}"
+    # An infinite error with no crossing recorded: at or above the level at the safe end, its shape not known
+    assert _identification_text({"identification_auroc": 0.5, "threshold_error": float("inf")}) == "0.50 / safe end"
     assert _identification_text({"identification_auroc": 0.9, "threshold_error": -4.831}) == "0.90 / -4.83"
     assert _identification_text({"identification_auroc": 0.9, "threshold_error": float("nan")}) == "0.90 / -"
     assert _identification_text({}) == "-"
 
 
-def test_headline_keeps_everywhere_and_nowhere_apart_through_strict_json():
+def test_headline_keeps_the_safe_end_and_nowhere_apart_through_strict_json():
     """Strict JSON writes both non-finite threshold errors as null: the crossing tells a summary read back which."""
     import json
 
@@ -294,10 +298,10 @@ def test_headline_keeps_everywhere_and_nowhere_apart_through_strict_json():
         return {"auroc": 0.5, "features": {"x": {"at_0.5": {"threshold_error": error}}}}
 
     rows = [headline(scores(error)) for error in (float("inf"), float("nan"), -1.25)]
-    assert [row["threshold_crossing"] for row in rows] == ["everywhere", "nowhere", "crosses"]
+    assert [row["threshold_crossing"] for row in rows] == ["safe end", "nowhere", "crosses"]
     read_back = [json.loads(json.dumps(finite_or_null(row), allow_nan=False)) for row in rows]
     assert [row["threshold_error"] for row in read_back] == [None, None, -1.25]
-    assert [_identification_text(row) for row in read_back] == ["0.50 / everywhere", "0.50 / -", "0.50 / -1.25"]
+    assert [_identification_text(row) for row in read_back] == ["0.50 / safe end", "0.50 / -", "0.50 / -1.25"]
 
 
 def test_the_held_out_episode_length_goes_with_each_seed(tmp_path):
@@ -425,6 +429,31 @@ def test_figure_data_from_run_folders_else_from_the_earlier_report(tmp_path):
     for other in ({"suite": "other", "model": "final"}, {"suite": suite.name, "model": "best"}):
         (output / FIGURE_DATA_FILE).write_text(json.dumps({**other, "runs": earlier}))
         assert figure_data(summary, suite, root, str(output)) == {here.name: {"curves": kept["curves"]}}
+
+
+def test_an_updated_report_tells_the_kept_runs_crossings_from_their_kept_curves(tmp_path):
+    """Reports once named every cost at or above 0.5 at the safe end "everywhere": an update tells them apart."""
+    from sb3_icrl.benchmark.report_figures import refresh_crossings
+
+    suite = load_suite(write(tmp_path, TINY_SUITE))
+    kept = [(run, _result(run.algo, run.seed, 1.0, 0.0)) for run in suite.runs()[:4]]
+    with_curve, with_flat_curve, _, crossing = (run for run, _ in kept)
+
+    def learned(costs: list[float]) -> dict:
+        return {"learned_cost": {"features": {"x": {"op": "<=", "curve": {"values": [0, 1, 2], "mean_cost": costs}}}}}
+
+    data = {with_curve.name: learned([0.1, 0.2, 0.9]), with_flat_curve.name: learned([0.7, 0.6, 0.9])}
+    data[crossing.name] = learned([0.9, 0.2, 0.1])
+    metrics = {result.run: {"threshold_crossing": "everywhere", "threshold_error": float("inf")} for _, result in kept}
+    metrics[kept[3][1].run] = {"threshold_crossing": "crosses", "threshold_error": 0.5}
+    assert refresh_crossings(kept, metrics, data) == 2
+    assert [metrics[result.run]["threshold_crossing"] for _, result in kept] == [
+        "reversed",  # x <= t is unsafe: high at the safe (right) end only
+        "everywhere",
+        "safe end",  # no curve kept: only that it is at or above 0.5 at the safe end
+        "crosses",
+    ]
+    assert refresh_crossings(kept, metrics, data) == 0  # a second update changes nothing
 
 
 def test_figures_follow_the_cells_the_report_keeps(tmp_path, monkeypatch):

@@ -28,7 +28,7 @@ from sb3_icrl.metrics import (
     overlap_scores,
     threshold_error,
 )
-from sb3_icrl.metrics.identification import find_unconstrained_run, headline, policy_pairs
+from sb3_icrl.metrics.identification import crossing_kind, find_unconstrained_run, headline, headline_crossing, policy_pairs
 from sb3_icrl.plots.figures import TrueConstraint, methods_partial_dependence_figure
 from sb3_icrl.zoo.compare import RunResult
 from sb3_icrl.zoo.train import main as train_main
@@ -96,6 +96,44 @@ def test_threshold_error_of_a_step_a_ramp_and_constants():
     assert error == np.inf and "no crossing" in crossing.reason
     # Cost on the wrong side (forward): high up to the safe end as well
     assert threshold_error(VALUES, (VALUES >= 0).astype(float), 0.5, -3.0, "<=")[0] == np.inf
+
+
+def test_crossing_kind_tells_apart_how_a_cost_meets_the_level():
+    # x <= -3 is unsafe: the safe end is the right one (x = 10), the unsafe end the left one (x = -10)
+    cases = {
+        "crosses": (VALUES <= -3).astype(float),
+        "everywhere": np.full(21, 0.7),
+        "reversed": (VALUES >= 0).astype(float),  # high on the safe side only: the wrong side
+        "both ends": (np.abs(VALUES) >= 5).astype(float),  # high at both ends, 0 between
+        "nowhere": np.full(21, 0.2),
+    }
+    for kind, curve in cases.items():
+        assert crossing_kind(VALUES, curve, 0.5, "<=") == kind
+        # The same curves mirrored, for a constraint broken above (x >= 3): the safe end is now the left one
+        assert crossing_kind(VALUES, curve[::-1], 0.5, ">=") == kind
+    # The reasons say which
+    assert "over the whole of [-10, 10]" in learned_threshold(VALUES, cases["everywhere"], 0.5, "<=").reason
+    reversed_reason = learned_threshold(VALUES, cases["reversed"], 0.5, "<=").reason
+    assert "safe (right) end" in reversed_reason and "rises toward the safe side" in reversed_reason
+    assert "at both ends" in learned_threshold(VALUES, cases["both ends"], 0.5, "<=").reason
+    assert learned_threshold(VALUES, cases["both ends"][::-1], 0.5, ">=").value == -np.inf
+
+
+def test_headline_reads_the_crossing_from_the_curve():
+    def scores(curve: np.ndarray, error: float) -> dict:
+        feature = {"op": "<=", "curve": {"values": VALUES.tolist(), "mean_cost": curve.tolist()}}
+        return {"auroc": 0.9, "features": {"x": {**feature, "at_0.5": {"threshold_error": error}}}}
+
+    both_ends = (np.abs(VALUES) >= 5).astype(float)
+    assert headline(scores(both_ends, float("inf")))["threshold_crossing"] == "both ends"
+    assert headline(scores((VALUES >= 0).astype(float), float("inf")))["threshold_crossing"] == "reversed"
+    assert headline(scores((VALUES <= -3).astype(float), 0.5))["threshold_crossing"] == "crosses"
+    # No curve (or one read back from strict JSON with a null): the error alone names the crossing
+    assert headline_crossing({}) is None
+    assert headline_crossing({"x": {"op": "<=", "curve": {"values": [0.0, 1.0], "mean_cost": [None, 0.2]}}}) is None
+    assert headline({"auroc": 0.9, "features": {"x": {"at_0.5": {"threshold_error": np.inf}}}})["threshold_crossing"] == (
+        "safe end"
+    )
 
 
 def test_threshold_error_of_a_constraint_broken_above():

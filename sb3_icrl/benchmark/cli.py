@@ -40,7 +40,7 @@ from sb3_icrl.benchmark.report import (
     summarise_suite,
     write_report,
 )
-from sb3_icrl.benchmark.report_figures import write_figures
+from sb3_icrl.benchmark.report_figures import kept_figure_data, refresh_crossings, write_figures
 from sb3_icrl.benchmark.report_text import markdown_table
 from sb3_icrl.benchmark.runner import BACKENDS, RunOutcome, load_runtime_env, make_backend, run_all
 from sb3_icrl.benchmark.status import RunStatus, mark_reported, reported_runs, status_lines, suite_status
@@ -470,6 +470,7 @@ def _with_earlier_report(
             f"them by {suite.eval_budget} (eval_budget): its cells would mix the two. Pass another -o folder."
         )
     kept, kept_metrics, missing = previous_results(earlier, suite, root)
+    refresh_crossings(kept, kept_metrics, kept_figure_data(output, suite.name, model))
     chosen = set(runs)
     withdrawn: list[RunSpec] = []
     if withdraw:  # (no fresh results: the earlier report less the selected runs, which are listed as not finished)

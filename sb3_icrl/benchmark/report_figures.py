@@ -9,7 +9,7 @@ folders are gone still draws them.
 import json
 import math
 import os
-from collections.abc import Collection
+from collections.abc import Collection, Sequence
 from typing import Any
 
 import numpy as np
@@ -19,9 +19,10 @@ from sb3_icrl.benchmark.report_numbers import finite_or_null
 from sb3_icrl.benchmark.suite import RunSpec, Suite
 from sb3_icrl.common.statistics import performance_profile, performance_profile_ci
 from sb3_icrl.common.utils import atomic_write_json
-from sb3_icrl.metrics.identification import identification_file, learned_cost_curves, learned_cost_figure
+from sb3_icrl.metrics.identification import headline_crossing, identification_file, learned_cost_curves, learned_cost_figure
 from sb3_icrl.plots.figures import load_evaluations, new_figure, save_figure, training_curves_figure
 from sb3_icrl.registry import ICRL_ALGOS, env_name
+from sb3_icrl.run_evaluation import RunResult
 from sb3_icrl.run_folder import is_finished
 
 #: Per run of a report, what its figures draw (training curves, learned-cost curves): kept in the report folder, so
@@ -70,6 +71,59 @@ def summary_run(suite: Suite, cell: dict[str, Any], seed: dict[str, Any]) -> Run
     return RunSpec(suite.name, cell["variant"], cell["algo"], cell["env"], int(seed["seed"]), 0)
 
 
+def kept_figure_data(output: str, suite_name: str, model: str = "final") -> dict[str, dict[str, Any]]:
+    """
+    What the report already in ``output`` keeps to draw its runs (:data:`FIGURE_DATA_FILE`), by run name; empty where
+    there is none, it cannot be read, or it is another suite's or model's.
+
+    :param output: The report folder
+    :param suite_name: The suite the report is of
+    :param model: ``"final"`` or ``"best"``, the models it evaluated
+    """
+    path = os.path.join(output, FIGURE_DATA_FILE)
+    if not os.path.isfile(path):
+        return {}
+    try:
+        with open(path) as file:
+            content = json.load(file)
+        # (another suite's or model's file in the same folder draws nothing here)
+        if content.get("suite") == suite_name and content.get("model", "final") == model:
+            return dict(content.get("runs", {}))
+    except (OSError, ValueError, AttributeError):  # unreadable: the runs with folders are drawn, the others not
+        pass
+    return {}
+
+
+def refresh_crossings(
+    kept: Sequence[tuple[RunSpec, RunResult]], metrics: dict[str, dict[str, Any]], data: dict[str, dict[str, Any]]
+) -> int:
+    """
+    Each kept run's ``threshold_crossing`` told again from the learned-cost curve the report keeps for it (its
+    :func:`~sb3_icrl.metrics.identification.headline_crossing`), so that a report updated with today's code tells
+    every run's crossing alike. A run with no curve kept whose crossing says only that the cost is at or above 0.5 at
+    the safe end (``"everywhere"``, as reports told all three such kinds before they were told apart) becomes
+    ``"safe end"``: its shape over the rest of the range is not known.
+
+    :param kept: ``(run, held-out result)`` of the runs kept from the earlier report
+    :param metrics: Their metrics by ``result.run``, changed in place
+    :param data: The earlier report's figure data by run name (:func:`kept_figure_data`)
+    :return: How many crossings changed
+    """
+    changed = 0
+    for run, result in kept:
+        entry = metrics.get(result.run)
+        if not entry or "threshold_crossing" not in entry:
+            continue
+        learned = (data.get(run.name) or {}).get("learned_cost") or {}
+        crossing = headline_crossing(learned.get("features") or {})
+        if crossing is None:
+            crossing = "safe end" if entry["threshold_crossing"] == "everywhere" else entry["threshold_crossing"]
+        if crossing != entry["threshold_crossing"]:
+            entry["threshold_crossing"] = crossing
+            changed += 1
+    return changed
+
+
 def figure_data(summary: dict[str, Any], suite: Suite, root: str, output: str) -> dict[str, dict[str, Any]]:
     """
     Per run of the summary (by name), what its figures draw: read from its folder where it has one, else kept from
@@ -78,17 +132,7 @@ def figure_data(summary: dict[str, Any], suite: Suite, root: str, output: str) -
     :return: ``{run name: run_figure_data(...)}``, runs with nothing to draw left out
     """
     model = summary.get("model", "final")
-    earlier: dict[str, Any] = {}
-    path = os.path.join(output, FIGURE_DATA_FILE)
-    if os.path.isfile(path):
-        try:
-            with open(path) as file:
-                content = json.load(file)
-            # (another suite's or model's file in the same folder draws nothing here)
-            if content.get("suite") == suite.name and content.get("model", "final") == model:
-                earlier = dict(content.get("runs", {}))
-        except (OSError, ValueError, AttributeError):  # unreadable: the runs with folders are drawn, the others not
-            earlier = {}
+    earlier = kept_figure_data(output, suite.name, model)
     data: dict[str, dict[str, Any]] = {}
     for cell in summary["cells"]:
         for seed in cell["per_seed"]:

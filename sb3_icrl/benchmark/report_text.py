@@ -46,10 +46,16 @@ TRANSFER_COLUMNS = tuple(
 )
 
 
+#: The crossings of a learned cost at or above 0.5 at the safe end of its feature's range: no finite threshold error
+SAFE_END_CROSSINGS = ("everywhere", "reversed", "both ends", "safe end")
+
+
 def _identification_text(seed: dict[str, Any]) -> str:
     """
     ``AUROC / threshold error`` of one seed: ``-`` where the learned cost never reaches 0.5 (or there is no
-    threshold), ``everywhere`` where it stays at or above 0.5 up to the safe end of the feature's range. Beside the
+    threshold); where it is at or above 0.5 at the safe end of the feature's range (no finite error), how it meets the
+    level: ``everywhere``, ``reversed`` (below 0.5 at the unsafe end), ``both ends`` (below it between) or ``safe end``
+    (a run reported before the three were told apart, its curve not kept). Beside the
     AUROC, untrained nets' median and range (``one draw`` for a run scored when the baseline was a single net, ``on every
     draw`` where all draws scored alike).
     """
@@ -57,8 +63,13 @@ def _identification_text(seed: dict[str, Any]) -> str:
         return "-"
     error = seed.get("threshold_error")
     # (a summary read back from JSON has null for both non-finite errors: its crossing tells them apart)
-    everywhere = seed.get("threshold_crossing") == "everywhere" or (error is not None and math.isinf(error))
-    error_text = "everywhere" if everywhere else _fmt(error, 2) if error is not None and math.isfinite(error) else "-"
+    crossing = seed.get("threshold_crossing")
+    if crossing in SAFE_END_CROSSINGS:
+        error_text = str(crossing)
+    elif error is not None and math.isinf(error):  # (a seed with no crossing recorded)
+        error_text = "safe end"
+    else:
+        error_text = _fmt(error, 2) if error is not None and math.isfinite(error) else "-"
     untrained, low, high = (seed.get(key) for key in ("untrained_auroc", "untrained_auroc_low", "untrained_auroc_high"))
     if untrained is None or (isinstance(untrained, float) and math.isnan(untrained)):
         baseline = ""

@@ -170,6 +170,53 @@ def expected_calibration_error(
     return float(error)
 
 
+#: How a learned cost curve meets a level, read from the safe end of the feature's range (see :func:`crossing_kind`)
+CROSSING_KINDS = ("crosses", "everywhere", "reversed", "both ends", "nowhere")
+
+
+def _from_safe_end(values: np.ndarray, curve: np.ndarray, side: str) -> tuple[np.ndarray, np.ndarray]:
+    """The grid and curve as checked arrays, mirrored where needed so that index 0 is the safe end of the range."""
+    grid, costs = np.asarray(values, dtype=float).reshape(-1), np.asarray(curve, dtype=float).reshape(-1)
+    if grid.shape != costs.shape or grid.size < 2:
+        raise ValueError(f"`values` and `curve` must be two arrays of the same length >= 2, got {grid.size} and {costs.size}.")
+    if not np.all(np.diff(grid) > 0):
+        raise ValueError("`values` must be strictly increasing.")
+    if unsafe_side(side) == "below":  # read from the safe end (right) towards the unsafe one: mirror the grid
+        return -grid[::-1], costs[::-1]
+    return grid, costs
+
+
+def crossing_kind(values: np.ndarray, curve: np.ndarray, level: float, side: str) -> str:
+    """
+    How a learned cost curve over a constrained feature meets ``level``, read from the safe end of the range:
+
+    - ``"crosses"``: below the level at the safe end, at or above it somewhere toward the unsafe end (a finite
+      learned threshold, :func:`learned_threshold`);
+    - ``"everywhere"``: at or above the level over the whole range (the learned constraint forbids all of it);
+    - ``"reversed"``: at or above it at the safe end, below it at the unsafe end (the cost rises toward the safe side);
+    - ``"both ends"``: at or above it at both ends, below it somewhere between;
+    - ``"nowhere"``: below the level over the whole range (nothing learned at that level).
+
+    The last four have no finite learned threshold: ``inf`` for the three that reach the safe end, ``nan`` for
+    ``"nowhere"``.
+
+    :param values: Increasing grid of feature values
+    :param curve: Learned cost at each value (a partial dependence)
+    :param level: The level ``t``
+    :param side: ``"below"`` or ``"above"`` (or an op: ``"<="``, ``">"``...), the truly unsafe side
+    :return: One of :data:`CROSSING_KINDS`
+    """
+    _, costs = _from_safe_end(values, curve, side)
+    above_level = costs >= level
+    if not above_level.any():
+        return "nowhere"
+    if not above_level[0]:
+        return "crosses"
+    if above_level.all():
+        return "everywhere"
+    return "both ends" if above_level[-1] else "reversed"
+
+
 @dataclass(frozen=True)
 class ThresholdCrossing:
     """
@@ -197,25 +244,23 @@ def learned_threshold(values: np.ndarray, curve: np.ndarray, level: float, side:
     :param side: ``"below"`` or ``"above"`` (or an op: ``"<="``, ``">"``...), the truly unsafe side
     :return: The crossing, or ``inf``/``nan`` with the reason there is none
     """
-    grid, costs = np.asarray(values, dtype=float).reshape(-1), np.asarray(curve, dtype=float).reshape(-1)
-    if grid.shape != costs.shape or grid.size < 2:
-        raise ValueError(f"`values` and `curve` must be two arrays of the same length >= 2, got {grid.size} and {costs.size}.")
-    if not np.all(np.diff(grid) > 0):
-        raise ValueError("`values` must be strictly increasing.")
+    grid, costs = _from_safe_end(values, curve, side)
     below = unsafe_side(side) == "below"
-    if below:  # read from the safe end (right) towards the unsafe one: mirror the grid
-        grid, costs = -grid[::-1], costs[::-1]
     above_level = costs >= level
     span = f"[{min(values[0], values[-1]):g}, {max(values[0], values[-1]):g}]"
-    if not above_level.any():
+    kind = crossing_kind(values, curve, level, side)
+    if kind == "nowhere":
         return ThresholdCrossing(float("nan"), f"the learned cost never reaches {level:g} over {span}")
     first = int(np.argmax(above_level))
     if first == 0:
         sign = 1.0 if below else -1.0
         end = "right" if below else "left"
-        return ThresholdCrossing(
-            sign * float("inf"), f"the learned cost is >= {level:g} up to the safe ({end}) end of {span}: no crossing"
-        )
+        shape = {
+            "everywhere": f"over the whole of {span}",
+            "reversed": f"at the safe ({end}) end of {span}, below it at the unsafe end (it rises toward the safe side)",
+            "both ends": f"at both ends of {span} and below it between",
+        }[kind]
+        return ThresholdCrossing(sign * float("inf"), f"the learned cost is >= {level:g} {shape}: no crossing")
     # Between grid[first - 1] (below the level) and grid[first] (at or above it)
     low_cost, high_cost = costs[first - 1], costs[first]
     fraction = (level - low_cost) / (high_cost - low_cost)
@@ -903,8 +948,9 @@ def headline(scores: Mapping[str, Any]) -> dict[str, float | str]:
     :return: ``{"identification_auroc": ..., "threshold_error": ..., "threshold_crossing": ...}`` (and
         ``untrained_auroc``, the median of untrained nets' of the same shape on the same probes, where scored, with
         ``untrained_auroc_low`` and ``untrained_auroc_high``, their range), the crossing
-        ``"crosses"`` (a finite error), ``"everywhere"`` (the cost stays at or above 0.5 up to the safe end of the
-        range: an infinite error) or ``"nowhere"`` (it never reaches 0.5: NaN). Strict JSON writes both non-finite
+        (:func:`crossing_kind`) ``"crosses"`` (a finite error), ``"everywhere"``, ``"reversed"`` or ``"both ends"``
+        (the cost at or above 0.5 at the safe end of the range: an infinite error; ``"safe end"`` where the scores
+        keep no curve to tell which) or ``"nowhere"`` (it never reaches 0.5: NaN). Strict JSON writes both non-finite
         errors as ``null``; the crossing keeps them apart. Where the probe set has them, also ``learner_cost`` (the
         mean learned cost per step on the learner's own pairs) and ``cost_budget`` (the learner's budget as the run
         ended): a learner far over its budget wherever it goes tends to end its episodes early.
@@ -923,8 +969,32 @@ def headline(scores: Mapping[str, Any]) -> dict[str, float | str]:
     if features:  # grid worlds have no threshold: no column rather than a NaN
         error = float(features[0][_level_key("0.5")]["threshold_error"])
         row["threshold_error"] = error
-        row["threshold_crossing"] = "everywhere" if math.isinf(error) else "nowhere" if math.isnan(error) else "crosses"
+        row["threshold_crossing"] = headline_crossing(scores["features"]) or (
+            "safe end" if math.isinf(error) else "nowhere" if math.isnan(error) else "crosses"
+        )
     return row
+
+
+def headline_crossing(features: Mapping[str, Any], level: float = 0.5) -> str | None:
+    """
+    How the learned cost over the first constrained feature meets ``level`` (:func:`crossing_kind`), from the curve
+    that identification scores (and a report's figure data) keep under ``features``.
+
+    :param features: ``{feature: {"curve": {"values": ..., "mean_cost": ...}, "op": ...}}``
+    :param level: The level ``t``
+    :return: The crossing, or ``None`` where there is no curve to read (or one with a value that is not finite)
+    """
+    if not features:
+        return None
+    entry = next(iter(features.values()))
+    curve, op = entry.get("curve"), entry.get("op")
+    if not curve or op is None:
+        return None
+    # (dtype float: a curve read back from strict JSON has None where a value was not finite)
+    values, costs = np.asarray(curve["values"], dtype=float), np.asarray(curve["mean_cost"], dtype=float)
+    if values.size < 2 or not (np.isfinite(values).all() and np.isfinite(costs).all()):
+        return None
+    return crossing_kind(values, costs, level, op)
 
 
 def methods_figure(
