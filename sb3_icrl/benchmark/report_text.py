@@ -18,6 +18,7 @@ from sb3_icrl.benchmark.report_numbers import format_hours, format_rate, format_
 from sb3_icrl.benchmark.suite import BEATS_COLUMNS
 from sb3_icrl.common.evaluation import CONSTRAINT_VIOLATION_PREFIX, OUTCOME_KEYS, OUTCOME_RATE_KEYS
 from sb3_icrl.common.statistics import MIN_PAIRS_FOR_WILCOXON
+from sb3_icrl.metrics.identification import SAFE_END_CROSSINGS
 from sb3_icrl.metrics.transfer import transfer_spent_seconds
 from sb3_icrl.run_evaluation import OUTCOME_TITLES, format_outcome_rate
 from sb3_icrl.run_folder import LAST_TRAINING_EPISODES
@@ -44,10 +45,6 @@ TRANSFER_COLUMNS = tuple(
     for task in ("same", "reward", "dynamics")
     for metric in ("violation_rate", "feasible_ratio", *(f"{reference}_feasible_reward" for reference in TRANSFER_REFERENCES))
 )
-
-
-#: The crossings of a learned cost at or above 0.5 at the safe end of its feature's range: no finite threshold error
-SAFE_END_CROSSINGS = ("everywhere", "reversed", "both ends", "safe end")
 
 
 def _identification_text(seed: dict[str, Any]) -> str:

@@ -172,6 +172,9 @@ def expected_calibration_error(
 
 #: How a learned cost curve meets a level, read from the safe end of the feature's range (see :func:`crossing_kind`)
 CROSSING_KINDS = ("crosses", "everywhere", "reversed", "both ends", "nowhere")
+#: The crossings of a cost at or above the level at the safe end (no finite threshold), with ``"safe end"`` for one
+#: whose curve is not at hand to tell which (:func:`headline`)
+SAFE_END_CROSSINGS = ("everywhere", "reversed", "both ends", "safe end")
 
 
 def _from_safe_end(values: np.ndarray, curve: np.ndarray, side: str) -> tuple[np.ndarray, np.ndarray]:
@@ -207,7 +210,11 @@ def crossing_kind(values: np.ndarray, curve: np.ndarray, level: float, side: str
     :return: One of :data:`CROSSING_KINDS`
     """
     _, costs = _from_safe_end(values, curve, side)
-    above_level = costs >= level
+    return _kind_from_safe_end(costs >= level)
+
+
+def _kind_from_safe_end(above_level: np.ndarray) -> str:
+    """:func:`crossing_kind` of where a curve, read from the safe end (index 0), is at or above the level."""
     if not above_level.any():
         return "nowhere"
     if not above_level[0]:
@@ -248,7 +255,7 @@ def learned_threshold(values: np.ndarray, curve: np.ndarray, level: float, side:
     below = unsafe_side(side) == "below"
     above_level = costs >= level
     span = f"[{min(values[0], values[-1]):g}, {max(values[0], values[-1]):g}]"
-    kind = crossing_kind(values, curve, level, side)
+    kind = _kind_from_safe_end(above_level)
     if kind == "nowhere":
         return ThresholdCrossing(float("nan"), f"the learned cost never reaches {level:g} over {span}")
     first = int(np.argmax(above_level))
