@@ -18,6 +18,7 @@ import pickle
 import re
 import time
 import warnings
+from collections.abc import Sequence
 from typing import Any, TypeGuard
 
 import yaml
@@ -259,6 +260,9 @@ FINISHED_FILE = "finished.json"
 #: Keys of ``finished.json`` holding a run's training time in seconds, the first present wins: a resumed run's
 #: ``wall_time_s`` may cover only its last segment, ``wall_time_total_s`` the whole run
 WALL_TIME_KEYS = ("wall_time_total_s", "wall_time_s")
+#: Keys of ``finished.json`` holding the CPU time the run's process spent training, in seconds, the first present wins
+#: (as :data:`WALL_TIME_KEYS`); on a shared machine it is the fairer measure of the compute a run took
+CPU_TIME_KEYS = ("cpu_time_total_s", "cpu_time_s")
 
 
 #: Written (atomically) into a run folder whose training raised an error; such a run has no final model
@@ -324,12 +328,27 @@ def run_wall_time(folder: str | os.PathLike) -> float | None:
     return finished_wall_time(read_finished(folder))
 
 
+def run_cpu_time(folder: str | os.PathLike) -> float | None:
+    """
+    The CPU time a finished run's process spent training, from its ``finished.json`` (see :data:`CPU_TIME_KEYS`).
+
+    :param folder: The run folder
+    :return: Seconds; ``None`` when the run is not finished or its ``finished.json`` records no CPU time
+    """
+    return _finished_seconds(read_finished(folder), CPU_TIME_KEYS)
+
+
 def finished_wall_time(finished: dict[str, Any] | None) -> float | None:
     """
     :param finished: A run's ``finished.json`` (:func:`read_finished`)
     :return: Its training time in seconds (see :data:`WALL_TIME_KEYS`), ``None`` when it records none
     """
-    for key in WALL_TIME_KEYS:
+    return _finished_seconds(finished, WALL_TIME_KEYS)
+
+
+def _finished_seconds(finished: dict[str, Any] | None, keys: Sequence[str]) -> float | None:
+    """The first of ``keys`` that ``finished`` (a ``finished.json``) holds as a time in seconds; ``None`` if none."""
+    for key in keys:
         value = finished.get(key) if finished is not None else None
         if _is_seconds(value):
             return float(value)

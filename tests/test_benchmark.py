@@ -651,11 +651,15 @@ def _without_compute(summary: dict) -> dict:
     cells = [
         {
             **{key: value for key, value in cell.items() if key != "core_hours"},
-            "per_seed": [{key: value for key, value in seed.items() if key != "wall_time_s"} for seed in cell["per_seed"]],
+            "per_seed": [
+                {key: value for key, value in seed.items() if key not in ("wall_time_s", "cpu_time_s")}
+                for seed in cell["per_seed"]
+            ],
         }
         for cell in summary["cells"]
     ]
-    return {**{key: value for key, value in summary.items() if key not in ("core_hours", "core_hours_runs")}, "cells": cells}
+    times = ("core_hours", "core_hours_runs", "cpu_hours", "cpu_hours_runs", "cpu_runs_wall_hours")
+    return {**{key: value for key, value in summary.items() if key not in times}, "cells": cells}
 
 
 def test_kill_9_mid_suite_then_rerun_gives_the_same_table(tmp_path):

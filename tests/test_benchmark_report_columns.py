@@ -25,7 +25,7 @@ from sb3_icrl.benchmark.suite import SuiteError
 from sb3_icrl.data import Trajectory, save
 from sb3_icrl.registry import env_name
 from sb3_icrl.zoo.compare import RunResult
-from sb3_icrl.zoo.runs import FINISHED_FILE, run_wall_time
+from sb3_icrl.zoo.runs import FINISHED_FILE, run_cpu_time, run_wall_time
 
 readme_table = load_script("benchmarks/readme_table.py")
 
@@ -195,6 +195,43 @@ def test_summary_carries_others_expert_fraction_and_core_hours(finished_suite):
     assert summary["others_sources"] == ["simple-icrl", "another re-run"]
     assert summary["core_hours"] == pytest.approx((1800 + 3600 + 900 + 900 + 360) / 3600)
     assert summary["core_hours_runs"] == 7
+
+
+def test_cpu_time_is_reported_beside_the_wall_clock(finished_suite, tmp_path):
+    """The CPU time a run's process spent is read from finished.json (a resumed run's whole time first), kept per seed,
+    summed over the runs that recorded one and shown against the same runs' wall time; runs without one are counted."""
+    _finish(str(tmp_path / "a"), cpu_time_s=5.0, cpu_time_total_s=20.0)
+    _finish(str(tmp_path / "b"), cpu_time_s=5.0)
+    _finish(str(tmp_path / "c"), wall_time_s=10.0)
+    assert [run_cpu_time(tmp_path / name) for name in "abcd"] == [20.0, 5.0, None, None]
+
+    suite, root, results = finished_suite
+    folders = {(run.env_id.split("/")[-1], run.algo, run.seed): run.run_folder(root) for run, _ in results}
+    _finish(folders[("GridWorldWall-v0", "bc2l", 0)], wall_time_s=1800.0, cpu_time_s=1440.0)
+    _finish(folders[("GridWorldWall-v0", "vicrl", 1)], wall_time_s=900.0, cpu_time_s=720.0)
+    metrics = run_facts(results, root)
+    summary = summarise_suite(suite, suite.runs(), results, metrics)
+    assert [seed.get("cpu_time_s") for seed in _cell(summary, "GridWorldWall-v0", "bc2l")["per_seed"]] == [1440.0, None]
+    assert summary["cpu_hours_runs"] == 2
+    assert summary["cpu_hours"] == pytest.approx((1440 + 720) / 3600)
+    assert summary["cpu_runs_wall_hours"] == pytest.approx((1800 + 900) / 3600)
+    assert markdown_table(summary).splitlines()[-1] == (
+        "Compute: 2.1 core-hours of training over 7 runs (wall clock; 2 runs recorded CPU time too: "
+        "0.60 CPU-hours against 0.75 wall)"
+    )
+    rows = list(csv.DictReader(io.StringIO(csv_rows(summary))))
+    assert sorted(row["cpu_time_s"] for row in rows if row["cpu_time_s"]) == ["1440.0", "720.0"]
+    # An updated report keeps them from summary.json
+    strict = _strict(summary)
+    kept, kept_metrics, _ = report.previous_results(strict, suite, root)
+    assert _strict(summarise_suite(suite, suite.runs(), kept, kept_metrics)) == strict
+    # Every run with a wall time recorded its CPU time too: "all of them"
+    every = {name: {**entry, "cpu_time_s": 60.0} if "wall_time_s" in entry else entry for name, entry in metrics.items()}
+    line = markdown_table(summarise_suite(suite, suite.runs(), results, every)).splitlines()[-1]
+    assert line == (
+        "Compute: 2.1 core-hours of training over 7 runs (wall clock; all of them recorded CPU time too: "
+        "0.12 CPU-hours against 2.1 wall)"
+    )
 
 
 def _transfer(folder: str, task: str, learned_min: float, references: dict[str, tuple[str, float]]) -> None:

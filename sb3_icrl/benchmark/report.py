@@ -80,6 +80,7 @@ from sb3_icrl.run_folder import (
     is_finished,
     lacks_own_statistics,
     last_training_episodes,
+    run_cpu_time,
     run_wall_time,
     unreadable_finished,
 )
@@ -383,7 +384,8 @@ def restore_transfer_references(reported: str, root: str, suite: Suite, log: Cal
 
 def run_facts(results: Sequence[tuple[RunSpec, RunResult]], root: str) -> dict[str, dict[str, Any]]:
     """
-    Per finished run, its training time (``wall_time_s``, from ``finished.json``, see :func:`run_wall_time`), the
+    Per finished run, its training time (``wall_time_s``, from ``finished.json``, see :func:`run_wall_time`) and the
+    CPU time its process spent on it (``cpu_time_s``, see :func:`run_cpu_time`), the
     mean return of the demonstrations it learned from (``expert_return``, see :func:`demonstrations_source`; NaN when
     there are none, e.g. an env without a shipped dataset), its recipe version, its :func:`training_provenance` and
     its last training episodes.
@@ -400,6 +402,9 @@ def run_facts(results: Sequence[tuple[RunSpec, RunResult]], root: str) -> dict[s
         seconds = run_wall_time(folder)
         if seconds is not None:
             entry["wall_time_s"] = seconds
+        cpu_seconds = run_cpu_time(folder)
+        if cpu_seconds is not None:
+            entry["cpu_time_s"] = cpu_seconds
         entry["expert_return"] = _expert_return_once(demonstrations_source(run, folder), returns)
         version = recorded_recipe_version(folder)
         if version is not None:
@@ -703,6 +708,24 @@ def _core_hours(seconds: Sequence[float | None]) -> float | None:
     return sum(known) / 3600 if known else None
 
 
+def cpu_compute(metrics: dict[str, dict[str, Any]], wall_time: dict[str, float | None]) -> dict[str, Any]:
+    """
+    The training CPU time of the runs that recorded one (runs reported before it was kept did not): ``cpu_hours_runs``,
+    how many; ``cpu_hours``, their CPU-hours; ``cpu_runs_wall_hours``, the wall-clock core-hours of the same runs, so
+    a reader sees how much of the wall time was waiting for a shared core.
+
+    :param metrics: Per run, its facts (:func:`run_facts`: ``cpu_time_s``)
+    :param wall_time: Per run, its training wall time in seconds
+    :return: The three entries; ``cpu_hours`` and ``cpu_runs_wall_hours`` are ``None`` when no run recorded a CPU time
+    """
+    timed = [run for run in wall_time if metrics.get(run, {}).get("cpu_time_s") is not None]
+    return {
+        "cpu_hours_runs": len(timed),
+        "cpu_hours": _core_hours([metrics[run]["cpu_time_s"] for run in timed]) if timed else None,
+        "cpu_runs_wall_hours": _core_hours([wall_time[run] for run in timed]) if timed else None,
+    }
+
+
 def summarise_suite(
     suite: Suite,
     runs: Sequence[RunSpec],
@@ -907,6 +930,7 @@ def summarise_suite(
         "others_sources": list(suite.others),
         "core_hours": _core_hours(list(wall_time.values())),
         "core_hours_runs": sum(value is not None for value in wall_time.values()),
+        **cpu_compute(metrics, wall_time),
         **transfer_compute(all_seeds),
         **judgements,
     }

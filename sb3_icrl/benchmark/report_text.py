@@ -126,11 +126,6 @@ def format_spread(entry: dict[str, Any] | None, shown: Callable[[float], str] = 
     return f"{'IQM' if entry['kind'] == 'iqm' else 'mean'} {shown(entry['centre'])} [{shown(low)}, {shown(high)}]"
 
 
-def _runs_text(count: int) -> str:
-    """``1 run``, ``2 runs``."""
-    return f"{count} run" + "s" * (count != 1)
-
-
 #: Short names of the evaluation columns in the tables
 COLUMN_LABELS = {"heldout": "held-out", "last_training": "last training"}
 
@@ -178,7 +173,7 @@ def beats_judgement_text(judgement: dict[str, Any]) -> str:
     leader = f"; the most, {most} of {n_tasks}: {best}" if most else ""
     pending = judgement.get("pending_runs", 0)
     # A verdict on seeds still coming is the verdict so far: one more seed can move a mean either way
-    so_far = f" so far, {_runs_text(pending)} of the judged envs not finished" if pending else ""
+    so_far = f" so far, {_runs(pending)} of the judged envs not finished" if pending else ""
     if judgement["outcome"]:
         outcome = f"{best} on every judged env{so_far}"
     elif judgement["outcome"] is False:
@@ -257,7 +252,7 @@ def aim_text(aim: dict[str, Any]) -> str:
     pending = aim.get("pending_runs", 0)
     if pending:
         # The envs and seeds still coming can move either IQM: the verdict is provisional until they are in
-        verdict += f" so far (provisional: {_runs_text(pending)} of the headline envs not finished)"
+        verdict += f" so far (provisional: {_runs(pending)} of the headline envs not finished)"
     return (
         f"{rule}; over {envs}: the best, {best['algo'].upper()} (highest IQM of that fraction), has {fraction} and a "
         f"violation-rate IQM of {violation}: {verdict}.{left}"
@@ -294,13 +289,20 @@ def aim_lines(summary: dict[str, Any]) -> list[str]:
 
 def compute_line(summary: dict[str, Any]) -> str | None:
     """
-    ``Compute: N core-hours of training over M runs`` (runs with a recorded wall time) and, where runs have transfer
-    tests, their core-hours (:func:`transfer_compute_text`); ``None`` without any training time.
+    ``Compute: N core-hours of training over M runs`` (runs with a recorded wall time; the CPU time of those that
+    recorded one beside their wall time, see :func:`~sb3_icrl.benchmark.report.cpu_compute`) and, where runs have
+    transfer tests, their core-hours (:func:`transfer_compute_text`); ``None`` without any training time.
     """
     if summary.get("core_hours") is None:
         return None
     runs = summary.get("core_hours_runs", 0)
     line = f"Compute: {format_hours(summary['core_hours'])} core-hours of training over {runs} runs"
+    if summary.get("cpu_hours") is not None:  # the wall clock counts the time a run waited for a shared core
+        timed = summary["cpu_hours_runs"]
+        line += (
+            f" (wall clock; {'all of them' if timed == runs else _runs(timed)} recorded CPU time too: "
+            f"{format_hours(summary['cpu_hours'])} CPU-hours against {format_hours(summary['cpu_runs_wall_hours'])} wall)"
+        )
     transfer = transfer_compute_text(summary)
     return line if transfer is None else f"{line}; {transfer}"
 
@@ -707,6 +709,7 @@ def csv_rows(summary: dict[str, Any]) -> str:
             *TRANSFER_COLUMNS,
             *LAST_TRAINING_COLUMNS,
             "wall_time_s",
+            "cpu_time_s",
             "transfer_wall_time_s",
             "training_starts",
             "constraint_updates",
@@ -738,6 +741,7 @@ def csv_rows(summary: dict[str, Any]) -> str:
                         for column in (*IDENTIFICATION_COLUMNS, *TRANSFER_COLUMNS, *LAST_TRAINING_COLUMNS)
                     ),
                     _csv_number(seed.get("wall_time_s")),
+                    _csv_number(seed.get("cpu_time_s")),
                     _csv_number(seed.get("transfer_wall_time_s")),
                     seed.get("training_starts", ""),
                     seed.get("constraint_updates", ""),
