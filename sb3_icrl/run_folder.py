@@ -335,7 +335,16 @@ def run_cpu_time(folder: str | os.PathLike) -> float | None:
     :param folder: The run folder
     :return: Seconds; ``None`` when the run is not finished or its ``finished.json`` records no CPU time
     """
-    return _finished_seconds(read_finished(folder), CPU_TIME_KEYS)
+    return finished_cpu_time(read_finished(folder))
+
+
+def finished_cpu_time(finished: dict[str, Any] | None) -> float | None:
+    """
+    :param finished: A run's ``finished.json`` (:func:`read_finished`)
+    :return: The CPU time its training process spent, in seconds (see :data:`CPU_TIME_KEYS`), ``None`` when it records
+        none
+    """
+    return _finished_seconds(finished, CPU_TIME_KEYS)
 
 
 def finished_wall_time(finished: dict[str, Any] | None) -> float | None:

@@ -77,11 +77,12 @@ from sb3_icrl.run_evaluation import (
 )
 from sb3_icrl.run_folder import (
     find_vecnormalize,
+    finished_cpu_time,
+    finished_wall_time,
     is_finished,
     lacks_own_statistics,
     last_training_episodes,
-    run_cpu_time,
-    run_wall_time,
+    read_finished,
     unreadable_finished,
 )
 
@@ -384,8 +385,8 @@ def restore_transfer_references(reported: str, root: str, suite: Suite, log: Cal
 
 def run_facts(results: Sequence[tuple[RunSpec, RunResult]], root: str) -> dict[str, dict[str, Any]]:
     """
-    Per finished run, its training time (``wall_time_s``, from ``finished.json``, see :func:`run_wall_time`) and the
-    CPU time its process spent on it (``cpu_time_s``, see :func:`run_cpu_time`), the
+    Per finished run, its training time (``wall_time_s``, from ``finished.json``, see :func:`finished_wall_time`) and
+    the CPU time its process spent on it (``cpu_time_s``, see :func:`finished_cpu_time`), the
     mean return of the demonstrations it learned from (``expert_return``, see :func:`demonstrations_source`; NaN when
     there are none, e.g. an env without a shipped dataset), its recipe version, its :func:`training_provenance` and
     its last training episodes.
@@ -399,12 +400,10 @@ def run_facts(results: Sequence[tuple[RunSpec, RunResult]], root: str) -> dict[s
     for run, result in results:
         folder = os.path.join(root, result.run)
         entry: dict[str, Any] = {}
-        seconds = run_wall_time(folder)
-        if seconds is not None:
-            entry["wall_time_s"] = seconds
-        cpu_seconds = run_cpu_time(folder)
-        if cpu_seconds is not None:
-            entry["cpu_time_s"] = cpu_seconds
+        finished = read_finished(folder)
+        for column, seconds in (("wall_time_s", finished_wall_time(finished)), ("cpu_time_s", finished_cpu_time(finished))):
+            if seconds is not None:
+                entry[column] = seconds
         entry["expert_return"] = _expert_return_once(demonstrations_source(run, folder), returns)
         version = recorded_recipe_version(folder)
         if version is not None:
@@ -710,19 +709,19 @@ def _core_hours(seconds: Sequence[float | None]) -> float | None:
 
 def cpu_compute(metrics: dict[str, dict[str, Any]], wall_time: dict[str, float | None]) -> dict[str, Any]:
     """
-    The training CPU time of the runs that recorded one (runs reported before it was kept did not): ``cpu_hours_runs``,
-    how many; ``cpu_hours``, their CPU-hours; ``cpu_runs_wall_hours``, the wall-clock core-hours of the same runs, so
-    a reader sees how much of the wall time was waiting for a shared core.
+    The training CPU time of the runs that recorded one beside their wall time (runs reported before it was kept did
+    not): ``cpu_hours_runs``, how many; ``cpu_hours``, their CPU-hours; ``cpu_runs_wall_hours``, the wall-clock
+    core-hours of the same runs, so a reader sees how much of the wall time was waiting for a shared core.
 
     :param metrics: Per run, its facts (:func:`run_facts`: ``cpu_time_s``)
     :param wall_time: Per run, its training wall time in seconds
     :return: The three entries; ``cpu_hours`` and ``cpu_runs_wall_hours`` are ``None`` when no run recorded a CPU time
     """
-    timed = [run for run in wall_time if metrics.get(run, {}).get("cpu_time_s") is not None]
+    timed = [run for run, wall in wall_time.items() if wall is not None and metrics.get(run, {}).get("cpu_time_s") is not None]
     return {
         "cpu_hours_runs": len(timed),
-        "cpu_hours": _core_hours([metrics[run]["cpu_time_s"] for run in timed]) if timed else None,
-        "cpu_runs_wall_hours": _core_hours([wall_time[run] for run in timed]) if timed else None,
+        "cpu_hours": _core_hours([metrics[run]["cpu_time_s"] for run in timed]),
+        "cpu_runs_wall_hours": _core_hours([wall_time[run] for run in timed]),
     }
 
 
