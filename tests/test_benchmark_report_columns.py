@@ -606,11 +606,55 @@ def test_update_keeps_the_runs_whose_folders_are_elsewhere(finished_suite, tmp_p
         (c["env"], c["algo"], c["per_seed"]) for c in earlier["cells"]
     ]
     assert updated["runs_missing"] == [] and here.name not in updated["runs_missing"]
-    # A run whose folder is here but has not finished (being trained again) still loses its old result
+    # A run whose folder is here but has not finished (being trained again) stops the update, before any evaluation;
+    # with --replace it loses its old result
     os.remove(os.path.join(here.run_folder(root), "finished.json"))
+    monkeypatch.setattr(cli, "evaluate_finished", lambda *args, **kwargs: pytest.fail("evaluated before the check"))
+    assert cli.main(["report", path, "-f", root, "-o", output, "--no-figures", "--update"]) == 2
+    assert f"{here.name}: its training here has not finished" in capsys.readouterr().err
     monkeypatch.setattr(cli, "evaluate_finished", evaluated(1, 2))
-    assert cli.main(["report", path, "-f", root, "-o", output, "--no-figures", "--update"]) == 0
+    assert cli.main(["report", path, "-f", root, "-o", output, "--no-figures", "--update", "--replace"]) == 0
     assert here.name in json.loads(pathlib.Path(output, "summary.json").read_text())["runs_missing"]
+
+
+def test_update_refuses_a_reported_run_trained_again_unless_told(finished_suite, tmp_path, monkeypatch, capsys):
+    """A reported row trained again here (a probe copy of `run --reported`, say) does not silently replace it."""
+    from sb3_icrl.benchmark import cli
+
+    suite, root, results = finished_suite
+    path, output, earlier = _report_of_every_run(finished_suite, tmp_path)
+    again = results[0][0]
+    assert report.reported_runs_trained_again(earlier, suite, suite.runs(), root) == []  # the very trainings it reported
+    reported_minutes = report.finished_wall_time(report.read_finished(again.run_folder(root))) / 60
+    # Another git revision tells a training apart too, where both the folder and the report record one
+    versions = pathlib.Path(again.run_folder(root), again.env_id.split("/")[-1], "versions.yml")
+    versions.write_text("git_revision: 0123456789abcdef\n")
+    with_revision = json.loads(json.dumps(earlier))
+    for cell in with_revision["cells"]:
+        for seed in cell["per_seed"]:
+            seed["git_revision"] = "fedcba9876543210"
+    assert report.reported_runs_trained_again(with_revision, suite, suite.runs(), root) == [
+        f"{again.name}: git revision 0123456 here against the report's fedcba9"
+    ]
+    versions.unlink()
+    _finish(again.run_folder(root), wall_time_s=4321.0)
+    assert report.reported_runs_trained_again(earlier, suite, suite.runs(), root) == [
+        f"{again.name}: trained 72.0 min here against the report's {reported_minutes:.1f}"
+    ]
+    assert report.reported_runs_trained_again(earlier, suite, [run for run in suite.runs() if run != again], root) == []
+
+    monkeypatch.setattr(cli, "evaluate_finished", lambda runs, *args, **kwargs: [item for item in results if item[0] in runs])
+    argv = ["report", path, "-f", root, "-o", output, "--no-figures", "--update"]
+    assert cli.main(argv) == 2
+    error = capsys.readouterr().err
+    assert "1 of the selected runs" in error and again.name in error and "add --replace" in error
+    assert json.loads(pathlib.Path(output, "summary.json").read_text()) == earlier  # nothing written
+    other = [f"algo={algo}" for algo in sorted({run.algo for run in suite.runs()} - {again.algo})]
+    assert cli.main([*argv, "--only", *other]) == 0  # the copy left out of --only
+    assert cli.main([*argv, "--replace"]) == 0
+    summary = json.loads(pathlib.Path(output, "summary.json").read_text())
+    replaced = _cell(summary, again.env_id.split("/")[-1], again.algo)
+    assert 4321.0 in [seed.get("wall_time_s") for seed in replaced["per_seed"]]
 
 
 def test_update_lists_a_run_still_to_come_once(finished_suite, tmp_path, monkeypatch):

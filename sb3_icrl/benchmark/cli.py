@@ -36,6 +36,7 @@ from sb3_icrl.benchmark.report import (
     keep_transfer_references,
     previous_results,
     probe_rows_unlike_report,
+    reported_runs_trained_again,
     restore_transfer_references,
     summarise_suite,
     write_report,
@@ -169,6 +170,12 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
         help="update the report in -o with these runs: their cells' seeds replace the ones it has, its other cells stay, "
         "and so do selected runs with no folder under -f (with no finished run, the report is written again from its "
         "summary, with the current statistics)",
+    )
+    report.add_argument(
+        "--replace",
+        action="store_true",
+        help="with --update: let selected runs trained again here (not finished, or another training time or git "
+        "revision than the report's row) replace the rows the report holds; without it they stop the update",
     )
     report.add_argument(
         "--withdraw",
@@ -515,6 +522,36 @@ def _check_withdrawal(args: argparse.Namespace, runs: list[RunSpec], update: boo
         )
 
 
+def _check_trained_again(args: argparse.Namespace, suite: Suite, runs: list[RunSpec], output: str) -> None:
+    """
+    ``report --update``: the report to update is there, and none of the selected runs it holds was trained again here
+    (:func:`~sb3_icrl.benchmark.report.reported_runs_trained_again`) unless ``--replace`` says to put the new training
+    in its place.
+    """
+    path = _earlier_summary_path(output)
+    if getattr(args, "replace", False):
+        return
+    try:
+        with open(path) as file:
+            earlier = json.load(file)
+    except ValueError:
+        return  # said with its remedy where the report is read
+    if not isinstance(earlier, dict):
+        return
+    try:
+        lines = reported_runs_trained_again(earlier, suite, runs, args.log_folder)
+    except ValueError as error:
+        raise SuiteError(str(error)) from error
+    if lines:
+        shown = "; ".join(lines[:4]) + (f"; and {len(lines) - 4} more" if len(lines) > 4 else "")
+        raise SuiteError(
+            f"--update: {len(lines)} of the selected runs that the report in {output!r} holds were trained again here "
+            f"({shown}): updating would replace the reported rows. A PPO row that `run --reported` trained again for the "
+            "identification probes must stay as reported: leave it out of --only (algo=...). To put the new training "
+            "in the report's place, add --replace."
+        )
+
+
 def report_command(args: argparse.Namespace) -> int:
     suite = _load_suite(args)
     runs = suite.select(_only(args.only))
@@ -525,7 +562,7 @@ def report_command(args: argparse.Namespace) -> int:
     update = getattr(args, "update", False)  # (``benchmark run`` writes a report of its own runs)
     withdraw = getattr(args, "withdraw", False)
     if update:
-        _earlier_summary_path(output)  # before the evaluations too
+        _check_trained_again(args, suite, runs, output)  # before the evaluations too
     if withdraw:
         _check_withdrawal(args, runs, update)
     results = [] if withdraw else evaluate_finished(runs, args.log_folder, suite, model=model)

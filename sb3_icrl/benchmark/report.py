@@ -527,6 +527,43 @@ def training_provenance(folder: str | os.PathLike) -> dict[str, Any]:
     return provenance
 
 
+def reported_runs_trained_again(summary: dict[str, Any], suite: Suite, runs: Sequence[RunSpec], root: str) -> list[str]:
+    """
+    The selected ``runs`` that an earlier report holds and whose folder under ``root`` is another training than the
+    one it reported: not finished (yet), or with another training time or git revision. ``report --update`` would put
+    that training in the reported row's place (or drop the row, if it has not finished); ``benchmark run --reported``
+    trains a reported PPO row again only for its seed's identification probes, and that copy must not replace it.
+
+    :param summary: The earlier report's summary
+    :param suite: The suite it reported
+    :param runs: The runs ``--only`` selects
+    :param root: The log root
+    :return: One line per such run, naming what differs
+    """
+    selected = set(runs)
+    kept, kept_metrics, _ = previous_results(summary, suite, root)
+    lines = []
+    for run, result in kept:
+        folder = run.run_folder(root)
+        if run not in selected or not os.path.isdir(folder):
+            continue
+        reported = kept_metrics.get(result.run, {})
+        finished = read_finished(folder)
+        if finished is None:
+            lines.append(f"{run.name}: its training here has not finished")
+            continue
+        differences = []
+        here, there = finished_wall_time(finished), reported.get("wall_time_s")
+        if here is not None and there is not None and not math.isclose(here, float(there), rel_tol=1e-9):
+            differences.append(f"trained {here / 60:.1f} min here against the report's {float(there) / 60:.1f}")
+        revision, reported_revision = training_provenance(folder).get("git_revision"), reported.get("git_revision")
+        if revision is not None and reported_revision is not None and revision != reported_revision:
+            differences.append(f"git revision {revision[:7]} here against the report's {str(reported_revision)[:7]}")
+        if differences:
+            lines.append(f"{run.name}: {'; '.join(differences)}")
+    return lines
+
+
 def probe_rows_unlike_report(
     suite: Suite,
     scored: Sequence[RunSpec],
