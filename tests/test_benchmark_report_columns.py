@@ -606,12 +606,8 @@ def test_update_keeps_the_runs_whose_folders_are_elsewhere(finished_suite, tmp_p
         (c["env"], c["algo"], c["per_seed"]) for c in earlier["cells"]
     ]
     assert updated["runs_missing"] == [] and here.name not in updated["runs_missing"]
-    # A run whose folder is here but has not finished (being trained again) stops the update, before any evaluation;
-    # with --replace it loses its old result
+    # A run whose folder is here but has not finished (being trained again) still loses its old result
     os.remove(os.path.join(here.run_folder(root), "finished.json"))
-    monkeypatch.setattr(cli, "evaluate_finished", lambda *args, **kwargs: pytest.fail("evaluated before the check"))
-    assert cli.main(["report", path, "-f", root, "-o", output, "--no-figures", "--update"]) == 2
-    assert f"{here.name}: its training here has not finished" in capsys.readouterr().err
     monkeypatch.setattr(cli, "evaluate_finished", evaluated(1, 2))
     assert cli.main(["report", path, "-f", root, "-o", output, "--no-figures", "--update", "--replace"]) == 0
     assert here.name in json.loads(pathlib.Path(output, "summary.json").read_text())["runs_missing"]
@@ -642,6 +638,32 @@ def test_update_refuses_a_reported_run_trained_again_unless_told(finished_suite,
         f"{again.name}: trained 72.0 min here against the report's {reported_minutes:.1f}"
     ]
     assert report.reported_runs_trained_again(earlier, suite, [run for run in suite.runs() if run != again], root) == []
+    # A git revision of a working tree with changes keeps its suffix: the short forms alone could read the same
+    versions.write_text("git_revision: fedcba9876543210-dirty\n")
+    _finish(again.run_folder(root), wall_time_s=reported_minutes * 60)
+    assert report.reported_runs_trained_again(with_revision, suite, suite.runs(), root) == [
+        f"{again.name}: git revision fedcba9-dirty here against the report's fedcba9"
+    ]
+    versions.unlink()
+    # A run of another recipe version than its reported row is that recipe's run, not a copy of the row
+    args_file = pathlib.Path(again.run_folder(root), again.env_id.split("/")[-1], "args.yml")
+    original_args = args_file.read_text()
+    _args(again.run_folder(root), again.env_id.split("/")[-1], recipe_version="v2")
+    with_version = json.loads(json.dumps(earlier))
+    for cell in with_version["cells"]:
+        for seed in cell["per_seed"]:
+            seed["recipe_version"] = "v1"
+    _finish(again.run_folder(root), wall_time_s=4321.0)
+    assert report.reported_runs_trained_again(with_version, suite, suite.runs(), root) == []
+    assert len(report.reported_runs_trained_again(earlier, suite, suite.runs(), root)) == 1  # the row recorded none
+    args_file.write_text(original_args)
+    # A training not finished yet counts where a selected run has finished: otherwise the update changes nothing
+    os.remove(os.path.join(again.run_folder(root), FINISHED_FILE))
+    assert report.reported_runs_trained_again(earlier, suite, suite.runs(), root) == [
+        f"{again.name}: its training here has not finished"
+    ]
+    assert report.reported_runs_trained_again(earlier, suite, [again], root) == []
+    _finish(again.run_folder(root), wall_time_s=4321.0)
 
     monkeypatch.setattr(cli, "evaluate_finished", lambda runs, *args, **kwargs: [item for item in results if item[0] in runs])
     argv = ["report", path, "-f", root, "-o", output, "--no-figures", "--update"]
@@ -651,6 +673,11 @@ def test_update_refuses_a_reported_run_trained_again_unless_told(finished_suite,
     assert json.loads(pathlib.Path(output, "summary.json").read_text()) == earlier  # nothing written
     other = [f"algo={algo}" for algo in sorted({run.algo for run in suite.runs()} - {again.algo})]
     assert cli.main([*argv, "--only", *other]) == 0  # the copy left out of --only
+    # --withdraw says what it needs (the folders out of -f), --replace needs --update
+    assert cli.main([*argv, "--withdraw", "--only", f"algo={again.algo}"]) == 2
+    assert "have a folder under" in capsys.readouterr().err
+    assert cli.main([*argv[:-1], "--replace"]) == 2
+    assert "--replace lets runs trained again replace rows of an existing report: add --update" in capsys.readouterr().err
     assert cli.main([*argv, "--replace"]) == 0
     summary = json.loads(pathlib.Path(output, "summary.json").read_text())
     replaced = _cell(summary, again.env_id.split("/")[-1], again.algo)

@@ -524,13 +524,13 @@ def _check_withdrawal(args: argparse.Namespace, runs: list[RunSpec], update: boo
 
 def _check_trained_again(args: argparse.Namespace, suite: Suite, runs: list[RunSpec], output: str) -> None:
     """
-    ``report --update``: the report to update is there, and none of the selected runs it holds was trained again here
-    (:func:`~sb3_icrl.benchmark.report.reported_runs_trained_again`) unless ``--replace`` says to put the new training
+    ``report --update``: none of the selected runs the report holds was trained again here
+    (:func:`~sb3_icrl.benchmark.report.reported_runs_trained_again`), unless ``--replace`` says to put the new training
     in its place.
     """
-    path = _earlier_summary_path(output)
     if getattr(args, "replace", False):
         return
+    path = _earlier_summary_path(output)
     try:
         with open(path) as file:
             earlier = json.load(file)
@@ -561,10 +561,14 @@ def report_command(args: argparse.Namespace) -> int:
         check_writable_folder(output, "-o/--output")  # before the evaluations, which take minutes
     update = getattr(args, "update", False)  # (``benchmark run`` writes a report of its own runs)
     withdraw = getattr(args, "withdraw", False)
+    if getattr(args, "replace", False) and not update:
+        raise SuiteError("--replace lets runs trained again replace rows of an existing report: add --update.")
     if update:
-        _check_trained_again(args, suite, runs, output)  # before the evaluations too
+        _earlier_summary_path(output)  # before the evaluations too
     if withdraw:
         _check_withdrawal(args, runs, update)
+    elif update:
+        _check_trained_again(args, suite, runs, output)  # before the evaluations as well
     results = [] if withdraw else evaluate_finished(runs, args.log_folder, suite, model=model)
     # With --update and no finished run, the earlier report is written again from its summary with today's statistics
     if not results and args.command == "report" and not update:

@@ -529,10 +529,12 @@ def training_provenance(folder: str | os.PathLike) -> dict[str, Any]:
 
 def reported_runs_trained_again(summary: dict[str, Any], suite: Suite, runs: Sequence[RunSpec], root: str) -> list[str]:
     """
-    The selected ``runs`` that an earlier report holds and whose folder under ``root`` is another training than the
-    one it reported: not finished (yet), or with another training time or git revision. ``report --update`` would put
-    that training in the reported row's place (or drop the row, if it has not finished); ``benchmark run --reported``
-    trains a reported PPO row again only for its seed's identification probes, and that copy must not replace it.
+    The selected ``runs`` that an earlier report holds and whose folder under ``root`` is another training of the same
+    recipe version than the one it reported: another training time or git revision, or not finished (yet; counted only
+    when some selected run has finished, as ``report --update`` changes nothing otherwise). ``report --update`` would
+    put that training in the reported row's place (or drop the row, if it has not finished); ``benchmark run
+    --reported`` trains a reported PPO row again only for its seed's identification probes, and that copy must not
+    replace it. A folder that recorded another recipe version than the reported row is a new recipe's run: not listed.
 
     :param summary: The earlier report's summary
     :param suite: The suite it reported
@@ -542,26 +544,38 @@ def reported_runs_trained_again(summary: dict[str, Any], suite: Suite, runs: Seq
     """
     selected = set(runs)
     kept, kept_metrics, _ = previous_results(summary, suite, root)
-    lines = []
+    lines, unfinished = [], []
     for run, result in kept:
         folder = run.run_folder(root)
         if run not in selected or not os.path.isdir(folder):
             continue
         reported = kept_metrics.get(result.run, {})
+        version, reported_version = recorded_recipe_version(folder), reported.get("recipe_version")
+        if version is not None and reported_version is not None and version != str(reported_version):
+            continue
         finished = read_finished(folder)
         if finished is None:
-            lines.append(f"{run.name}: its training here has not finished")
+            unfinished.append(f"{run.name}: its training here has not finished")
             continue
         differences = []
         here, there = finished_wall_time(finished), reported.get("wall_time_s")
         if here is not None and there is not None and not math.isclose(here, float(there), rel_tol=1e-9):
             differences.append(f"trained {here / 60:.1f} min here against the report's {float(there) / 60:.1f}")
         revision, reported_revision = training_provenance(folder).get("git_revision"), reported.get("git_revision")
-        if revision is not None and reported_revision is not None and revision != reported_revision:
-            differences.append(f"git revision {revision[:7]} here against the report's {str(reported_revision)[:7]}")
+        if revision is not None and reported_revision is not None and revision != str(reported_revision):
+            differences.append(
+                f"git revision {_short_revision(revision)} here against the report's {_short_revision(str(reported_revision))}"
+            )
         if differences:
             lines.append(f"{run.name}: {'; '.join(differences)}")
+    if unfinished and any(read_finished(run.run_folder(root)) is not None for run in runs):
+        lines += unfinished
     return lines
+
+
+def _short_revision(revision: str) -> str:
+    """A git revision's first 7 characters, with the ``-dirty`` suffix of a working tree that had changes kept."""
+    return revision[:7] + ("-dirty" if revision.endswith("-dirty") else "")
 
 
 def probe_rows_unlike_report(
