@@ -436,6 +436,22 @@ def _earlier_summary_path(output: str) -> str:
     return path
 
 
+def _earlier_summary(output: str) -> dict[str, Any]:
+    """The ``summary.json`` of the report that ``--update`` updates, with a clear error when it is not one."""
+    path = _earlier_summary_path(output)
+    try:
+        with open(path) as file:
+            earlier = json.load(file)
+    except ValueError as error:
+        earlier = error
+    if not isinstance(earlier, dict):
+        raise SuiteError(
+            f"--update: {path} is not a report's summary (cut short or overwritten): write the report anew without "
+            "--update, or pass the folder of an intact report with -o."
+        )
+    return earlier
+
+
 def _with_earlier_report(
     suite: Suite,
     runs: list[RunSpec],
@@ -453,17 +469,7 @@ def _with_earlier_report(
     :param withdraw: ``report --update --withdraw``: the selected runs leave the report and are listed as not finished
     :return: The runs (to list the unfinished ones), the results and the metrics of the whole updated report
     """
-    path = _earlier_summary_path(output)
-    try:
-        with open(path) as file:
-            earlier = json.load(file)
-    except ValueError as error:
-        earlier = error
-    if not isinstance(earlier, dict):
-        raise SuiteError(
-            f"--update: {path} is not a report's summary (cut short or overwritten): write the report anew without "
-            "--update, or pass the folder of an intact report with -o."
-        )
+    earlier = _earlier_summary(output)
     earlier_model = earlier.get("model", "final")
     if earlier_model != model:
         raise SuiteError(
@@ -530,16 +536,8 @@ def _check_trained_again(args: argparse.Namespace, suite: Suite, runs: list[RunS
     """
     if getattr(args, "replace", False):
         return
-    path = _earlier_summary_path(output)
     try:
-        with open(path) as file:
-            earlier = json.load(file)
-    except ValueError:
-        return  # said with its remedy where the report is read
-    if not isinstance(earlier, dict):
-        return
-    try:
-        lines = reported_runs_trained_again(earlier, suite, runs, args.log_folder)
+        lines = reported_runs_trained_again(_earlier_summary(output), suite, runs, args.log_folder)
     except ValueError as error:
         raise SuiteError(str(error)) from error
     if lines:

@@ -568,7 +568,7 @@ def reported_runs_trained_again(summary: dict[str, Any], suite: Suite, runs: Seq
             )
         if differences:
             lines.append(f"{run.name}: {'; '.join(differences)}")
-    if unfinished and any(read_finished(run.run_folder(root)) is not None for run in runs):
+    if unfinished and any(is_finished(run.run_folder(root)) for run in runs):
         lines += unfinished
     return lines
 
