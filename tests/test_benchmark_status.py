@@ -395,6 +395,41 @@ def test_a_reported_ppo_row_is_trained_again_before_its_seeds_icrl_runs(tmp_path
     assert "(base/ppo/BiasedPendulum-v0/seed 1)" in last
 
 
+def test_a_reported_ppo_row_whose_policy_the_report_keeps_is_not_trained_again(tmp_path, monkeypatch, capsys):
+    """``run --reported`` restores the PPO rows' policies the report keeps, and trains again only the others."""
+    import sb3_icrl.benchmark.cli as cli
+
+    path = tmp_path / "probes.yml"
+    path.write_text("description: a method and PPO, two seeds\nenvs: [BiasedPendulum-v0]\nalgos: [mecl, ppo]\nseeds: [0, 1]\n")
+    report = tmp_path / "report"
+    report.mkdir()
+    cells = [{"env": "BiasedPendulum-v0", "variant": "base", "algo": "ppo", "per_seed": [{"seed": 0}, {"seed": 1}]}]
+    (report / "summary.json").write_text(json.dumps({"suite": "probes", "cells": cells}))
+    kept = report / "probe_policies" / "base" / "ppo" / "BiasedPendulum-v0_0"
+    (kept / "BiasedPendulum-v0").mkdir(parents=True)
+    for name, text in (
+        ("BiasedPendulum-v0.zip", "model"),
+        ("BiasedPendulum-v0/args.yml", "algo: ppo\n"),
+        (FINISHED_FILE, "{}"),
+    ):
+        (kept / name).write_text(text)
+    root = str(tmp_path / "logs")
+    base = ["--only", "env=BiasedPendulum-v0", "algo=mecl", "--reported", str(report)]
+    assert benchmark_main(["status", str(path), "-f", root, *base]) == 0
+    assert "also trains again 1 reported PPO run with no folder here" in capsys.readouterr().out
+    started: list[list[str]] = []
+    monkeypatch.setattr(cli, "run_all", lambda runs, *args, **kwargs: started.append([r.name for r in runs]) or [])
+    assert benchmark_main(["run", str(path), "-f", root, "--no-report", "--order", "seed", *base]) == 0
+    assert started[-1] == [
+        "base/mecl/BiasedPendulum-v0/seed 0",
+        "base/ppo/BiasedPendulum-v0/seed 1",
+        "base/mecl/BiasedPendulum-v0/seed 1",
+    ]
+    out = capsys.readouterr().out
+    assert f"probe policies: 1 restored from {report}" in out and "trained again: 1 reported PPO run" in out
+    assert os.path.isfile(os.path.join(root, "probes", "base", "probe_policies", "ppo", "BiasedPendulum-v0_0", FINISHED_FILE))
+
+
 def test_runs_start_seed_by_seed_when_asked(tmp_path, monkeypatch):
     import sb3_icrl.benchmark.cli as cli
 

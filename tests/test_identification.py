@@ -293,7 +293,7 @@ def test_identify_run_refuses_what_is_not_an_icrl_run(tmp_path, grid_run):
         identify_run(tmp_path)
 
 
-def test_unconstrained_run_is_found_beside_the_run_or_in_the_experts_suite(tmp_path):
+def test_unconstrained_run_is_found_beside_the_run_kept_from_a_report_or_in_the_experts_suite(tmp_path):
     run = tmp_path / "table3" / "base" / "mecl" / "BlockedHalfCheetah-v0_123"
     run.mkdir(parents=True)
     assert find_unconstrained_run(run) is None
@@ -306,11 +306,15 @@ def test_unconstrained_run_is_found_beside_the_run_or_in_the_experts_suite(tmp_p
     beside.mkdir(parents=True)
     (beside / "finished.json").write_text("{}")
     assert find_unconstrained_run(run) == beside.resolve()  # the same folder first
+    kept = tmp_path / "table3" / "base" / "probe_policies" / "ppo" / "BlockedHalfCheetah-v0_123"
+    kept.mkdir(parents=True)
+    (kept / "finished.json").write_text("{}")
+    assert find_unconstrained_run(run) == kept.resolve()  # the own seed's policy kept from a report before another seed
     same_seed = tmp_path / "table3" / "base" / "ppo" / "BlockedHalfCheetah-v0_123"
     same_seed.mkdir()
-    assert find_unconstrained_run(run) == beside.resolve()  # not finished yet
+    assert find_unconstrained_run(run) == kept.resolve()  # not finished yet
     (same_seed / "finished.json").write_text("{}")
-    assert find_unconstrained_run(run) == same_seed.resolve()  # the run's own seed before a seed sorted earlier
+    assert find_unconstrained_run(run) == same_seed.resolve()  # the run's own training before its kept policy
     (tmp_path / "experts" / "base" / "ppo" / "BlockedAnt-v0_0").mkdir()
     assert find_unconstrained_run(tmp_path / "table3" / "base" / "mecl" / "BlockedAnt-v0_1") is None  # not finished
 

@@ -6,6 +6,7 @@ is not read once that folder's model is newer than it.
 
 import json
 import os
+import pathlib
 import types
 
 import pytest
@@ -124,3 +125,68 @@ def test_the_identification_cache_is_not_read_once_the_probe_agent_is_newer(tmp_
     os.utime(agent / "GridWorldWall-v0.zip", (written + 10, written + 10))  # the agent trained again since
     assert identify_run(run, unconstrained_run=agent)["settings"] == first["settings"]
     assert cache.stat().st_mtime != written  # scored again
+
+
+def _finish_ppo_folder(folder: str) -> dict[str, bytes]:
+    """The files of a finished PPO run that its kept policy holds (stand-ins: only copied, never loaded here)."""
+    files = {
+        "BiasedPendulum-v0.zip": b"model",
+        "BiasedPendulum-v0/args.yml": b"algo: ppo\n",
+        "BiasedPendulum-v0/vecnormalize.pkl": b"statistics",
+        "finished.json": b'{"timesteps": 1000}',
+        "command.txt": b"python train.py --algo ppo\n",
+    }
+    for path, data in files.items():
+        os.makedirs(os.path.dirname(os.path.join(folder, path)), exist_ok=True)
+        with open(os.path.join(folder, path), "wb") as file:
+            file.write(data)
+    with open(os.path.join(folder, "rl_model_1000_steps.zip"), "wb") as file:
+        file.write(b"checkpoint")  # not kept
+    return files
+
+
+def test_a_report_keeps_the_reported_ppo_row_s_policy_and_run_restores_it(probed, tmp_path):
+    from sb3_icrl.benchmark.report import (
+        keep_probe_policies,
+        kept_probe_policy_folder,
+        probe_policy_folder,
+        restore_probe_policies,
+    )
+    from sb3_icrl.metrics.identification import find_unconstrained_run
+
+    suite, (mecl, _, ppo), root, results, metrics, keys = probed
+    files = _finish_ppo_folder(ppo.run_folder(root))
+    report = str(tmp_path / "report")
+    kept = kept_probe_policy_folder(report, ppo)
+    assert kept == os.path.join(report, "probe_policies", "base", "ppo", "BiasedPendulum-v0_0")
+    written = keep_probe_policies(suite, results, metrics, root, report)
+    assert sorted(os.path.relpath(path, kept) for path in written) == sorted(files)  # the ICRL runs' folders: none
+    assert not os.path.exists(os.path.join(kept, "rl_model_1000_steps.zip"))
+    assert keep_probe_policies(suite, results, metrics, root, report) == []  # kept as it is: not written again
+
+    # A folder that is not the reported row (other last training episodes, or another training start) is not kept
+    other_report = str(tmp_path / "other_report")
+    metrics[keys[ppo]]["last_training_feasible_reward"] = 4.5
+    assert keep_probe_policies(suite, results, metrics, root, other_report) == []
+    metrics[keys[ppo]].update(last_training_feasible_reward=4.0, training_starts=2)
+    assert keep_probe_policies(suite, results, metrics, root, other_report) == []
+
+    # Restored where the identification of the seed's ICRL runs finds it, never over a folder there
+    other_root = str(tmp_path / "other")
+    restored = probe_policy_folder(other_root, ppo)
+    assert restored == os.path.join(other_root, suite.name, "base", "probe_policies", "ppo", "BiasedPendulum-v0_0")
+    lines: list[str] = []
+    assert restore_probe_policies(report, other_root, suite, log=lines.append) == [restored] and lines == []
+    for path, data in files.items():
+        with open(os.path.join(restored, path), "rb") as file:
+            assert file.read() == data
+    os.makedirs(mecl.run_folder(other_root))
+    assert find_unconstrained_run(mecl.run_folder(other_root)) == pathlib.Path(restored).resolve()
+    os.remove(os.path.join(restored, "finished.json"))
+    assert restore_probe_policies(report, other_root, suite, log=lines.append) == []
+    assert not os.path.exists(os.path.join(restored, "finished.json"))
+
+    # A kept policy that lacks a file it needs stays in the report, named
+    os.remove(os.path.join(kept, "BiasedPendulum-v0", "args.yml"))
+    assert restore_probe_policies(report, str(tmp_path / "third"), suite, log=lines.append) == []
+    assert lines == [f"probe policies: {kept} lacks BiasedPendulum-v0/args.yml: not restored"]

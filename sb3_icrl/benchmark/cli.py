@@ -33,10 +33,14 @@ from sb3_icrl.benchmark.report import (
     REPORT_MODELS,
     constraint_metrics,
     evaluate_finished,
+    keep_probe_policies,
     keep_transfer_references,
+    kept_probe_policy_folder,
     previous_results,
+    probe_policy_folder,
     probe_rows_unlike_report,
     reported_runs_trained_again,
+    restore_probe_policies,
     restore_transfer_references,
     summarise_suite,
     write_report,
@@ -50,6 +54,7 @@ from sb3_icrl.benchmark.transport import pack_runs, pack_summary, unpack_bundles
 from sb3_icrl.common.utils import check_writable_folder, plain_docstring, sigterm_interrupts, write_error_message
 from sb3_icrl.registry import import_gym_packages
 from sb3_icrl.run_evaluation import RunResult
+from sb3_icrl.run_folder import is_finished
 
 #: The orders ``run`` can start a suite's runs in (``--order``)
 RUN_ORDERS = ("suite", "seed")
@@ -151,7 +156,8 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
             metavar="REPORT",
             help="a committed report of the suite (the -o of `benchmark report`): the runs it holds at the suite's recipe "
             "version, with no folder under -f, count as done (trained on another machine, say): `run` does not train "
-            "them again, `status` lists them as reported; `run` also restores the transfer references the report keeps",
+            "them again, `status` lists them as reported; `run` also restores the transfer references and the PPO rows' "
+            "policies (read by the identification of their seeds' ICRL runs) the report keeps",
         )
     status.add_argument("-v", "--verbose", action="store_true", help="list the finished and reported runs too")
     report.add_argument(
@@ -290,18 +296,17 @@ def run_command(args: argparse.Namespace) -> int:
         runs = [run for run in runs if run not in reported]
         many = len(reported) > 1
         print(f"not trained again: {len(reported)} run{'s' if many else ''} that {args.reported} holds", flush=True)
-    probe_runs, missing = _probe_runs_by_state(args, suite, runs)
     if args.reported is not None:
-        if probe_runs:
-            runs = _before_their_seed(probe_runs, runs)
-            print(f"trained again: {_probe_runs_text(probe_runs)}", flush=True)
-        restored = restore_transfer_references(args.reported, args.log_folder, suite)
-        if restored:
-            print(
-                f"transfer references: {len(restored)} restored from {args.reported} (not trained again by the transfer "
-                "tests that read them)",
-                flush=True,
-            )
+        why = "reported PPO rows whose episodes the identification of their seed's ICRL runs reads, not trained again for it"
+        _say_restored("probe policies", restore_probe_policies(args.reported, args.log_folder, suite), args.reported, why)
+        why = "not trained again by the transfer tests that read them"
+        _say_restored(
+            "transfer references", restore_transfer_references(args.reported, args.log_folder, suite), args.reported, why
+        )
+    probe_runs, missing = _probe_runs_by_state(args, suite, runs)
+    if args.reported is not None and probe_runs:
+        runs = _before_their_seed(probe_runs, runs)
+        print(f"trained again: {_probe_runs_text(probe_runs)}", flush=True)
     if missing:
         print(_missing_probe_runs_text(missing), flush=True)
     start_until = None if args.start_within is None else time.time() + args.start_within
@@ -328,6 +333,12 @@ def run_command(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
+def _say_restored(what: str, restored: list[str], report: str, why: str) -> None:
+    """One line for what ``run --reported`` copied from the report into the log folder, when it copied anything."""
+    if restored:
+        print(f"{what}: {len(restored)} restored from {report} ({why})", flush=True)
+
+
 #: States of a probe run that nothing brings: neither finished, running elsewhere nor reported (and not selected)
 UNBROUGHT_STATES = ("not started", "interrupted", "failed")
 
@@ -336,15 +347,24 @@ def _probe_runs_by_state(args: argparse.Namespace, suite: Suite, runs: list[RunS
     """
     The PPO runs whose episodes the identification of ``runs``' ICRL runs reads
     (:meth:`~sb3_icrl.benchmark.suite.Suite.probe_runs`), those among ``runs`` left out, in the suite's order, from one
-    read of where they stand: those a report holds with no folder here (trained again by ``run --reported``: without
-    them here, the report would score the ICRL runs on another seed's episodes or none), and those nothing brings
+    read of where they stand: those a report holds with no folder here and no policy kept from it (trained again by
+    ``run --reported``: without them here, the report would score the ICRL runs on another seed's episodes or none),
+    and those nothing brings
     (:data:`UNBROUGHT_STATES`).
     """
     selected = set(runs)
     probes = {probe for probe in suite.probe_runs(runs).values() if probe not in selected}
     statuses = _statuses(args, suite, [run for run in suite.runs() if run in probes]) if probes else []
-    reported = [status.run for status in statuses if status.state == "reported"]
+    reported = [status.run for status in statuses if status.state == "reported" and not _has_probe_policy(args, status.run)]
     return reported, [status.run for status in statuses if status.state in UNBROUGHT_STATES]
+
+
+def _has_probe_policy(args: argparse.Namespace, run: RunSpec) -> bool:
+    """Whether a reported PPO row's policy is in the log folder or kept by the ``--reported`` report (restored by ``run``)."""
+    folders = [probe_policy_folder(args.log_folder, run)]
+    if getattr(args, "reported", None) is not None:
+        folders.append(kept_probe_policy_folder(args.reported, run))
+    return any(is_finished(folder) for folder in folders)
 
 
 def _run_names(runs: list[RunSpec], shown: int = 5) -> str:
@@ -584,6 +604,7 @@ def report_command(args: argparse.Namespace) -> int:
     written = write_report(summary, output)
     if model == "final":
         written += keep_transfer_references([run for run, _ in results], args.log_folder, output)
+        written += keep_probe_policies(suite, results, metrics, args.log_folder, output)
     if not args.no_figures:
         written += write_figures(summary, suite, args.log_folder, output)
     print(markdown_table(summary))

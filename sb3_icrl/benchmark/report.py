@@ -58,7 +58,7 @@ from sb3_icrl.common.statistics import MIN_SEEDS_FOR_INTERVAL, iqm, stratified_b
 from sb3_icrl.common.utils import atomic_write_bytes, atomic_write_json
 from sb3_icrl.data import load_demonstrations
 from sb3_icrl.envs import heldout_env_kwargs
-from sb3_icrl.metrics.identification import headline, identification_cached, identify_run
+from sb3_icrl.metrics.identification import PROBE_POLICIES_FOLDER, headline, identification_cached, identify_run
 from sb3_icrl.metrics.transfer import (
     REFERENCES_FOLDER,
     default_references_dir,
@@ -76,6 +76,7 @@ from sb3_icrl.run_evaluation import (
     summarise,
 )
 from sb3_icrl.run_folder import (
+    FINISHED_FILE,
     find_vecnormalize,
     finished_cpu_time,
     finished_wall_time,
@@ -380,6 +381,123 @@ def restore_transfer_references(reported: str, root: str, suite: Suite, log: Cal
         target.parent.mkdir(parents=True, exist_ok=True)
         atomic_write_bytes(str(target), data)
         written.append(str(target))
+    return written
+
+
+def probe_policy_folder(root: str | os.PathLike, run: RunSpec) -> str:
+    """
+    Where a log root keeps a ``ppo`` row's final policy brought from a report (:func:`restore_probe_policies`):
+    ``<root>/<suite>/<variant>/probe_policies/ppo/<EnvName>_<seed>``, which the identification reads when the row's
+    own folder is not there (:func:`~sb3_icrl.metrics.identification.find_unconstrained_run`).
+    """
+    return os.path.join(run.log_folder(root), PROBE_POLICIES_FOLDER, run.algo, f"{env_name(run.env_id)}_{run.seed}")
+
+
+def kept_probe_policy_folder(report: str | os.PathLike, run: RunSpec) -> str:
+    """Where a report keeps a ``ppo`` row's final policy (:func:`keep_probe_policies`)."""
+    return os.path.join(os.fspath(report), PROBE_POLICIES_FOLDER, run.variant, run.algo, f"{env_name(run.env_id)}_{run.seed}")
+
+
+def _probe_policy_files(run: RunSpec) -> tuple[list[str], list[str]]:
+    """
+    The files of a PPO run folder that its kept policy holds, relative to the folder: those it needs (the final model
+    and its arguments, which the identification's probes load, and ``finished.json``) and those kept when present
+    (the normalisation statistics, and what tells one training from another: the command lines and versions).
+    """
+    name = env_name(run.env_id)
+    needed = [f"{name}.zip", f"{name}/args.yml", FINISHED_FILE]
+    return needed, [f"{name}/config.yml", f"{name}/vecnormalize.pkl", f"{name}/versions.yml", "command.txt"]
+
+
+def keep_probe_policies(
+    suite: Suite, results: Sequence[tuple[RunSpec, RunResult]], metrics: dict[str, dict[str, Any]], root: str, output: str
+) -> list[str]:
+    """
+    Copy the final policy of each reported ``ppo`` row whose episodes its seed's identification probes read
+    (:meth:`~sb3_icrl.benchmark.suite.Suite.probe_runs`) into ``<output>/probe_policies/<variant>/ppo/<EnvName>_<seed>/``
+    (a few hundred kilobytes: the model, its arguments and statistics, not its checkpoints or Monitor files), so that
+    ``benchmark run --reported <output>`` on a machine without the row's folder restores it
+    (:func:`restore_probe_policies`) instead of training the row again for the probes. Only a folder that is the
+    reported row is kept: its last training episodes and training starts those of the report's row (a row trained
+    again after a stop goes on with fresh random streams, and its policy is another). A file already kept as it is is
+    not written again.
+
+    :param suite: The suite
+    :param results: Every ``(run, result)`` of the report
+    :param metrics: Per ``result.run``, the report's per-seed metrics
+    :param root: The log root
+    :param output: The report folder
+    :return: The paths written
+    """
+    probes = set(suite.probe_runs(suite.runs()).values())
+    written = []
+    for run, result in results:
+        folder = run.run_folder(root)
+        if run not in probes or not is_finished(folder) or not _is_reported_row(folder, metrics.get(result.run, {})):
+            continue
+        needed, optional = _probe_policy_files(run)
+        if not all(os.path.isfile(os.path.join(folder, path)) for path in needed):
+            continue
+        target = kept_probe_policy_folder(output, run)
+        # finished.json last: a copy cut short is not a finished run
+        for path in [*(path for path in optional if os.path.isfile(os.path.join(folder, path))), *needed[:-1], FINISHED_FILE]:
+            data = pathlib.Path(folder, path).read_bytes()
+            destination = pathlib.Path(target, path)
+            if destination.is_file() and destination.read_bytes() == data:
+                continue
+            atomic_write_bytes(str(destination), data)
+            written.append(str(destination))
+    return written
+
+
+def _is_reported_row(folder: str, reported: dict[str, Any]) -> bool:
+    """Whether a run folder is the row the report keeps: the same last training episodes and training starts."""
+    feasible, violation = reported.get("last_training_feasible_reward"), reported.get("last_training_violation_rate")
+    try:
+        here = last_training_episodes(folder)
+    except (ValueError, IndexError):  # a Monitor line cut short
+        return False
+    if here is None or feasible is None or violation is None:
+        return False
+    same = math.isclose(here["feasible_reward"], float(feasible), rel_tol=1e-9) and math.isclose(
+        here["violation_rate"], float(violation), rel_tol=1e-9
+    )
+    starts_here, starts_reported = training_provenance(folder).get("training_starts"), reported.get("training_starts")
+    return same and (starts_here is None or starts_reported is None or int(starts_here) == int(starts_reported))
+
+
+def restore_probe_policies(reported: str, root: str, suite: Suite, log: Callable[[str], None] = print) -> list[str]:
+    """
+    The ``ppo`` rows' policies a report keeps (:func:`keep_probe_policies`), copied into the log folder
+    (:func:`probe_policy_folder`) when it lacks them, so that the identification of their seeds' ICRL runs reads the
+    reported row's episodes without training it again. A folder already there is never replaced; a kept policy that
+    lacks a file it needs is left in the report, with a line in ``log``, and the row trained again.
+
+    :param reported: The report folder (``--reported``)
+    :param root: The log root
+    :param suite: The suite
+    :param log: Where the policies passed over are named
+    :return: The folders written
+    """
+    written = []
+    by_name = {
+        (run.variant, run.algo, f"{env_name(run.env_id)}_{run.seed}"): run for run in suite.probe_runs(suite.runs()).values()
+    }
+    for source in sorted(pathlib.Path(reported, PROBE_POLICIES_FOLDER).glob("*/*/*")):
+        run = by_name.get(source.parts[-3:])
+        if run is None or not source.is_dir():
+            continue
+        target = probe_policy_folder(root, run)
+        if os.path.exists(target):
+            continue
+        needed, optional = _probe_policy_files(run)
+        missing = [path for path in needed if not (source / path).is_file()]
+        if missing or read_finished(source) is None:
+            log(f"probe policies: {source} lacks {', '.join(missing) or 'a readable finished.json'}: not restored")
+            continue
+        for path in [*(path for path in optional if (source / path).is_file()), *needed[:-1], FINISHED_FILE]:
+            atomic_write_bytes(os.path.join(target, path), (source / path).read_bytes())
+        written.append(target)
     return written
 
 

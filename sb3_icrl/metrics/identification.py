@@ -740,27 +740,32 @@ def untrained_copy(net: "th.nn.Module", seed: int = 0) -> "th.nn.Module":
     return copy
 
 
+#: Where a log root keeps the final policies of unconstrained PPO runs brought from a report rather than trained there
+#: (``<root>/<suite>/<variant>/probe_policies/ppo/<EnvName>_<N>``): the identification reads them as it reads the runs
+PROBE_POLICIES_FOLDER = "probe_policies"
+
+
 def find_unconstrained_run(run_folder: str | os.PathLike) -> pathlib.Path | None:
     """
-    A finished unconstrained PPO run on the same env, near an ICRL run: ``<folder>/ppo/<EnvName>_*`` beside it (the
-    run's own seed first: a suite's ``ppo`` row of that seed, so that a run's probes do not depend on which other seeds
-    have finished), or an ``experts`` suite run (``<root>/experts/<variant>/ppo/<EnvName>_*``) when the run belongs to
-    a suite.
+    A finished unconstrained PPO run on the same env, near an ICRL run, the run's own seed first (a suite's ``ppo``
+    row of that seed, so that a run's probes do not depend on which other seeds have finished): ``<folder>/ppo/
+    <EnvName>_<N>`` beside it, else that row's policy kept from a report (``<folder>/probe_policies/ppo/<EnvName>_<N>``,
+    :data:`PROBE_POLICIES_FOLDER`), else another seed's, else an ``experts`` suite run
+    (``<root>/experts/<variant>/ppo/<EnvName>_*``) when the run belongs to a suite.
 
     :param run_folder: The ICRL run folder ``<folder>/<algo>/<EnvName>_<N>``
     :return: The run folder, or ``None`` when there is none
     """
     run = pathlib.Path(run_folder).resolve()
     name = run.name.rpartition("_")[0]
-    patterns = [run.parent.parent / "ppo"]
+    suite_folder = run.parent.parent / "ppo"
+    candidates = [suite_folder / run.name, run.parent.parent / PROBE_POLICIES_FOLDER / "ppo" / run.name]
+    candidates += [path for path in sorted(suite_folder.glob(f"{name}_*")) if path != candidates[0]]
     if len(run.parents) > 4:
-        patterns += sorted((run.parents[3] / "experts").glob("*/ppo"))
-    for folder in patterns:
-        same_seed = folder / run.name
-        for candidate in [same_seed, *(path for path in sorted(folder.glob(f"{name}_*")) if path != same_seed)]:
-            if candidate.is_dir() and is_finished(str(candidate)):
-                return candidate
-    return None
+        for folder in sorted((run.parents[3] / "experts").glob("*/ppo")):
+            same_seed = folder / run.name
+            candidates += [same_seed, *(path for path in sorted(folder.glob(f"{name}_*")) if path != same_seed)]
+    return next((candidate for candidate in candidates if candidate.is_dir() and is_finished(str(candidate))), None)
 
 
 def read_icrl_run(run_folder: str | os.PathLike) -> tuple[pathlib.Path, dict[str, Any]]:
