@@ -484,7 +484,8 @@ def restore_probe_policies(reported: str, root: str, suite: Suite, log: Callable
         (run.variant, run.algo, f"{env_name(run.env_id)}_{run.seed}"): run for run in suite.probe_runs(suite.runs()).values()
     }
     for source in sorted(pathlib.Path(reported, PROBE_POLICIES_FOLDER).glob("*/*/*")):
-        run = by_name.get(source.parts[-3:])
+        variant, algo, name = source.parts[-3:]
+        run = by_name.get((variant, algo, name))
         if run is None or not source.is_dir():
             continue
         target = probe_policy_folder(root, run)
