@@ -415,7 +415,7 @@ def keep_probe_policies(
     """
     Copy the final policy of each reported ``ppo`` row whose episodes its seed's identification probes read
     (:meth:`~sb3_icrl.benchmark.suite.Suite.probe_runs`) into ``<output>/probe_policies/<variant>/ppo/<EnvName>_<seed>/``
-    (a few hundred kilobytes: the model, its arguments and statistics, not its checkpoints or Monitor files), so that
+    (about 200 KB for a MuJoCo row: the model, its arguments and statistics, not its checkpoints or Monitor files), so that
     ``benchmark run --reported <output>`` on a machine without the row's folder restores it
     (:func:`restore_probe_policies`) instead of training the row again for the probes. Only a folder that is the
     reported row is kept: its last training episodes and training starts those of the report's row (a row trained
