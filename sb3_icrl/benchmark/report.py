@@ -401,7 +401,8 @@ def kept_probe_policy_folder(report: str | os.PathLike, run: RunSpec) -> str:
 def _probe_policy_files(run: RunSpec) -> tuple[list[str], list[str]]:
     """
     The files of a PPO run folder that its kept policy holds, relative to the folder: those it needs (the final model
-    and its arguments, which the identification's probes load, and ``finished.json``) and those kept when present
+    and its arguments, which the identification's probes load, and ``finished.json``, last, so that a copy is written
+    in this order and one cut short is not a finished run) and those kept when present
     (the normalisation statistics, and what tells one training from another: the command lines and versions).
     """
     name = env_name(run.env_id)
@@ -439,8 +440,8 @@ def keep_probe_policies(
         if not all(os.path.isfile(os.path.join(folder, path)) for path in needed):
             continue
         target = kept_probe_policy_folder(output, run)
-        # finished.json last: a copy cut short is not a finished run
-        for path in [*(path for path in optional if os.path.isfile(os.path.join(folder, path))), *needed[:-1], FINISHED_FILE]:
+        # finished.json last (``needed`` ends with it): a copy cut short is not a finished run
+        for path in [*(path for path in optional if os.path.isfile(os.path.join(folder, path))), *needed]:
             data = pathlib.Path(folder, path).read_bytes()
             destination = pathlib.Path(target, path)
             if destination.is_file() and destination.read_bytes() == data:
@@ -452,18 +453,8 @@ def keep_probe_policies(
 
 def _is_reported_row(folder: str, reported: dict[str, Any]) -> bool:
     """Whether a run folder is the row the report keeps: the same last training episodes and training starts."""
-    feasible, violation = reported.get("last_training_feasible_reward"), reported.get("last_training_violation_rate")
-    try:
-        here = last_training_episodes(folder)
-    except (ValueError, IndexError):  # a Monitor line cut short
-        return False
-    if here is None or feasible is None or violation is None:
-        return False
-    same = math.isclose(here["feasible_reward"], float(feasible), rel_tol=1e-9) and math.isclose(
-        here["violation_rate"], float(violation), rel_tol=1e-9
-    )
-    starts_here, starts_reported = training_provenance(folder).get("training_starts"), reported.get("training_starts")
-    return same and (starts_here is None or starts_reported is None or int(starts_here) == int(starts_reported))
+    compared, differences = _row_differences(folder, reported)
+    return compared and not differences
 
 
 def restore_probe_policies(reported: str, root: str, suite: Suite, log: Callable[[str], None] = print) -> list[str]:
@@ -496,7 +487,7 @@ def restore_probe_policies(reported: str, root: str, suite: Suite, log: Callable
         if missing or read_finished(source) is None:
             log(f"probe policies: {source} lacks {', '.join(missing) or 'a readable finished.json'}: not restored")
             continue
-        for path in [*(path for path in optional if (source / path).is_file()), *needed[:-1], FINISHED_FILE]:
+        for path in [*(path for path in optional if (source / path).is_file()), *needed]:
             atomic_write_bytes(os.path.join(target, path), (source / path).read_bytes())
         written.append(target)
     return written
@@ -735,26 +726,8 @@ def probe_rows_unlike_report(
     lines = []
     for probe, runs in probed.items():
         reported = metrics.get(by_run[probe].run, {})
-        folder = probe.run_folder(root)
-        differences = []
-        try:
-            here = last_training_episodes(folder)
-        except (ValueError, IndexError):  # a Monitor line cut short: judged by its training starts alone
-            here = None
-        reported_feasible, reported_violation = (
-            reported.get("last_training_feasible_reward"),
-            reported.get("last_training_violation_rate"),
-        )
-        if here is not None and reported_feasible is not None and reported_violation is not None:
-            reported_values = (float(reported_feasible), float(reported_violation))
-            here_values = (here["feasible_reward"], here["violation_rate"])
-            if not all(math.isclose(a, b, rel_tol=1e-9) for a, b in zip(here_values, reported_values, strict=True)):
-                differences.append(
-                    f"last training episodes {_pair_text(*here_values)} against the report's {_pair_text(*reported_values)}"
-                )
-        starts_here, starts_reported = training_provenance(folder).get("training_starts"), reported.get("training_starts")
-        if starts_here is not None and starts_reported is not None and int(starts_here) != int(starts_reported):
-            differences.append(f"training starts {starts_here} against {starts_reported}")
+        _, differences = _row_differences(probe.run_folder(root), reported)
+        starts_reported = reported.get("training_starts")
         if not differences:
             continue  # the same row, or nothing to tell them apart by
         if starts_reported is not None and int(starts_reported) > 1:
@@ -773,6 +746,39 @@ def probe_rows_unlike_report(
             + remedy
         )
     return lines
+
+
+def _row_differences(folder: str, reported: dict[str, Any]) -> tuple[bool, list[str]]:
+    """
+    How a ``ppo`` folder differs from the row a report keeps, by its last training episodes and its training starts.
+
+    :param folder: The run folder
+    :param reported: The report's per-seed metrics of the row
+    :return: Whether the last training episodes could be compared (both sides have them, and the folder's Monitor
+        files read), and one phrase per difference found
+    """
+    differences = []
+    try:
+        here = last_training_episodes(folder)
+    except (ValueError, IndexError):  # a Monitor line cut short: judged by its training starts alone
+        here = None
+    reported_feasible, reported_violation = (
+        reported.get("last_training_feasible_reward"),
+        reported.get("last_training_violation_rate"),
+    )
+    compared = False
+    if here is not None and reported_feasible is not None and reported_violation is not None:
+        compared = True
+        reported_values = (float(reported_feasible), float(reported_violation))
+        here_values = (here["feasible_reward"], here["violation_rate"])
+        if not all(math.isclose(a, b, rel_tol=1e-9) for a, b in zip(here_values, reported_values, strict=True)):
+            differences.append(
+                f"last training episodes {_pair_text(*here_values)} against the report's {_pair_text(*reported_values)}"
+            )
+    starts_here, starts_reported = training_provenance(folder).get("training_starts"), reported.get("training_starts")
+    if starts_here is not None and starts_reported is not None and int(starts_here) != int(starts_reported):
+        differences.append(f"training starts {starts_here} against {starts_reported}")
+    return compared, differences
 
 
 def _pair_text(feasible: float, violation: float) -> str:
