@@ -101,9 +101,13 @@ def glance(results: pathlib.Path = RESULTS, suite: str = GLANCE_SUITE) -> str:
     missing = len(summary.get("runs_missing") or [])
     hours = summary.get("core_hours")
     compute = f", {format_hours(hours)} core-hours of training" if hours is not None else ""
+    # A complete suite is no longer "so far"
+    progress = f"so far ({summary.get('core_hours_runs', 0)} runs{compute}; {missing} runs to come)"
+    if not missing:
+        progress = f"({summary.get('core_hours_runs', 0)} runs{compute}, every run of the suite in)"
     notes = [
         f"Suite `{suite}`, final models on {summary.get('eval_episodes', 'the')} held-out episodes, {seeds} seeds per cell "
-        f"so far ({summary.get('core_hours_runs', 0)} runs{compute}; {missing} runs to come). Each cell: the mean "
+        f"{progress}. Each cell: the mean "
         "normalised score (a run's feasible reward F as (F - F_PPO) / (F_oracle - F_PPO), over the two reference rows' "
         f"means on its env) / the mean violation rate (successful runs / seeds: {success}); F itself and `n=` where the "
         "reference rows give no normalised scores (the oracle breaking the constraint, or earning no more than PPO).",

@@ -65,6 +65,12 @@ def test_glance_table_has_a_row_per_headline_env_and_a_column_per_method(tmp_pat
     assert "a violation rate of at most 5% and a normalised score of at least 0.5" in note
     assert note.endswith("outside its headline envs, are in its report: BlockedHalfCheetah-v0.")
 
+    summary["runs_missing"] = []
+    (tmp_path / "table3" / "summary.json").write_text(json.dumps(summary))
+    note = readme_table.glance(tmp_path, "table3").splitlines()[5]
+    assert "2 to 5 seeds per cell (11 runs, 2.5 core-hours of training, every run of the suite in)" in note
+    assert "so far" not in note and "to come" not in note
+
 
 def test_table_rows_come_from_the_summaries(tmp_path):
     cell = {
