@@ -101,10 +101,13 @@ def glance(results: pathlib.Path = RESULTS, suite: str = GLANCE_SUITE) -> str:
     missing = len(summary.get("runs_missing") or [])
     hours = summary.get("core_hours")
     compute = f", {format_hours(hours)} core-hours of training" if hours is not None else ""
+    runs = summary.get("core_hours_runs", 0)
     # A complete suite is no longer "so far"
-    progress = f"so far ({summary.get('core_hours_runs', 0)} runs{compute}; {missing} runs to come)"
-    if not missing:
-        progress = f"({summary.get('core_hours_runs', 0)} runs{compute}, every run of the suite in)"
+    progress = (
+        f"so far ({runs} runs{compute}; {missing} runs to come)"
+        if missing
+        else f"({runs} runs{compute}, every run of the suite in)"
+    )
     notes = [
         f"Suite `{suite}`, final models on {summary.get('eval_episodes', 'the')} held-out episodes, {seeds} seeds per cell "
         f"{progress}. Each cell: the mean "
