@@ -45,10 +45,11 @@ from sb3_icrl.benchmark.report import (
     summarise_suite,
     write_report,
 )
-from sb3_icrl.benchmark.report_figures import kept_figure_data, refresh_crossings, write_figures
+from sb3_icrl.benchmark.report_figures import STUDY_AXES, kept_figure_data, refresh_crossings, study_axis, write_figures
 from sb3_icrl.benchmark.report_text import markdown_table
 from sb3_icrl.benchmark.runner import BACKENDS, RunOutcome, load_runtime_env, make_backend, run_all
 from sb3_icrl.benchmark.status import RunStatus, mark_reported, reported_runs, status_lines, suite_status
+from sb3_icrl.benchmark.study_baseline import read_report_summary, study_baseline
 from sb3_icrl.benchmark.suite import SUITES_DIR, RunSpec, Suite, SuiteError, load_suite
 from sb3_icrl.benchmark.transport import pack_runs, pack_summary, unpack_bundles
 from sb3_icrl.common.utils import check_writable_folder, plain_docstring, sigterm_interrupts, write_error_message
@@ -170,6 +171,14 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
         help="evaluate each run's final model (default) or the best_model.zip its training chose on learned quantities",
     )
     report.add_argument("--no-figures", action="store_true", help="tables only")
+    report.add_argument(
+        "--baseline",
+        default=None,
+        metavar="REPORT",
+        help="for a study (noise, imperfect): the report folder of the runs it extends (benchmarks/results/table3): its "
+        "runs of the study's envs, methods and seeds, at the same recipe version, are the figure's level 0 (kept "
+        "through --update)",
+    )
     report.add_argument(
         "--update",
         action="store_true",
@@ -570,6 +579,24 @@ def _check_trained_again(args: argparse.Namespace, suite: Suite, runs: list[RunS
         )
 
 
+def _study_baseline(args: argparse.Namespace, suite: Suite, output: str, model: str, update: bool) -> dict[str, Any] | None:
+    """
+    The study's level 0: from the report ``--baseline`` names, or with ``--update`` and no ``--baseline`` the one the
+    updated report kept; ``None`` without either.
+
+    :raises SuiteError: When ``--baseline`` is given for a suite that is no study, or names no suitable report
+    """
+    source = getattr(args, "baseline", None)
+    if source is None:
+        return _earlier_summary(output).get("study_baseline") if update else None
+    if study_axis(suite) is None:
+        raise SuiteError(
+            f"--baseline: suite {suite.name!r} is no study (its variants do not all set one of "
+            f"{', '.join(STUDY_AXES)} to a number): a baseline is the level 0 of a study's figure. Drop --baseline."
+        )
+    return study_baseline(read_report_summary(source), suite, source, model)
+
+
 def report_command(args: argparse.Namespace) -> int:
     suite = _load_suite(args)
     runs = suite.select(_only(args.only))
@@ -587,6 +614,7 @@ def report_command(args: argparse.Namespace) -> int:
         _check_withdrawal(args, runs, update)
     elif update:
         _check_trained_again(args, suite, runs, output)  # before the evaluations as well
+    baseline = _study_baseline(args, suite, output, model, update)  # before the evaluations as well
     results = [] if withdraw else evaluate_finished(runs, args.log_folder, suite, model=model)
     # With --update and no finished run, the earlier report is written again from its summary with today's statistics
     if not results and args.command == "report" and not update:
@@ -601,6 +629,8 @@ def report_command(args: argparse.Namespace) -> int:
         for line in probe_rows_unlike_report(suite, scored, results, metrics, args.log_folder):
             print(f"note: {line}")
     summary = summarise_suite(suite, runs, results, metrics, model=model)
+    if baseline is not None:
+        summary["study_baseline"] = baseline
     written = write_report(summary, output)
     if model == "final":
         written += keep_transfer_references([run for run, _ in results], args.log_folder, output)

@@ -254,7 +254,7 @@ def write_figures(summary: dict[str, Any], suite: Suite, root: str, output: str)
         written.append(str(save_figure(profile, os.path.join(output, "performance_profile.png"))))
     axis = study_axis(suite)
     if axis is not None:
-        study = study_figure(summary, *axis)
+        study = study_figure(summary, *axis, baseline=summary.get("study_baseline"))
         if study is not None:
             written.append(str(save_figure(study, os.path.join(output, "study.png"))))
     return written
@@ -281,7 +281,11 @@ def study_axis(suite: Suite) -> tuple[str, dict[str, float]] | None:
     return None
 
 
-def study_figure(summary: dict[str, Any], key: str, levels: dict[str, float]) -> Any:
+#: The variant name a study's level 0 takes in :func:`study_figure` (the runs of another report, without the change)
+BASELINE_VARIANT = "level 0"
+
+
+def study_figure(summary: dict[str, Any], key: str, levels: dict[str, float], baseline: dict[str, Any] | None = None) -> Any:
     """
     The paper's study figure from ours: one column per env, the violation rate (top) and the feasible reward (bottom)
     of each method against the study's level (:func:`study_axis`), its mean over seeds joined by a line and each
@@ -290,10 +294,16 @@ def study_figure(summary: dict[str, Any], key: str, levels: dict[str, float]) ->
     :param summary: A summary of :func:`~sb3_icrl.benchmark.report.summarise_suite`
     :param key: The setting varied (a key of :data:`STUDY_AXES`)
     :param levels: Each variant's level
+    :param baseline: The study's level 0 (:func:`~sb3_icrl.benchmark.study_baseline.study_baseline`): its cells are
+        drawn at level 0 beside the study's, on the envs where the study has cells
     """
     cells = [cell for cell in summary["cells"] if cell["variant"] in levels]
     if not cells:
         return None
+    if baseline:
+        studied = {cell["env"] for cell in cells}
+        cells += [{**cell, "variant": BASELINE_VARIANT} for cell in baseline["cells"] if cell["env"] in studied]
+        levels = {**levels, BASELINE_VARIANT: 0.0}
     envs = list(dict.fromkeys(cell["env"] for cell in cells))
     algos = list(dict.fromkeys(cell["algo"] for cell in cells))
     figure = new_figure(width=max(4.8, 3.6 * len(envs)), height=6.4)

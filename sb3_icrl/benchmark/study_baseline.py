@@ -1,0 +1,132 @@
+"""
+A study's level 0, read from another report: a study (transition noise, violating demonstrations) changes one setting
+of the fresh-seed table's runs, so that table's runs of the same recipes, seeds and evaluation are the study's runs
+without the change. ``report --baseline`` keeps them in the study's summary, and its figure draws them at level 0.
+"""
+
+import json
+import math
+import os
+from typing import Any
+
+from sb3_icrl.benchmark.suite import Suite, SuiteError
+from sb3_icrl.registry import env_name
+
+#: The summary keys a baseline report must share with the study's: the same held-out evaluation
+_SAME_EVALUATION = ("eval_budget", "eval_episodes", "eval_seed")
+
+
+def read_report_summary(folder: str, option: str = "--baseline") -> dict[str, Any]:
+    """
+    :param folder: A report folder (``benchmark report -o``)
+    :param option: The option that named it, for the error messages
+    :return: Its ``summary.json``
+    :raises SuiteError: When the folder holds no intact report
+    """
+    path = os.path.join(folder, "summary.json")
+    if not os.path.isfile(path):
+        raise SuiteError(f"{option}: no report in {folder!r} (no summary.json): pass a folder `benchmark report -o` wrote.")
+    try:
+        with open(path) as file:
+            summary = json.load(file)
+    except ValueError:
+        summary = None
+    if not isinstance(summary, dict) or not isinstance(summary.get("cells"), list):
+        raise SuiteError(f"{option}: {path} is not a report's summary (cut short or overwritten): write that report again.")
+    return summary
+
+
+def study_baseline(baseline: dict[str, Any], suite: Suite, source: str, model: str = "final") -> dict[str, Any]:
+    """
+    The runs of ``baseline`` (another suite's report) that are the study's at level 0: its cells of the study's envs
+    and methods, each with the seeds the study trains on that env, all at the study's recipe version and evaluated as
+    the study evaluates.
+
+    :param baseline: The other report's summary (:func:`read_report_summary`)
+    :param suite: The study's suite
+    :param source: Where that report lies, as the study's report names it
+    :param model: The model the study's report evaluates (``final`` or ``best``)
+    :return: ``source``, ``suite``, ``recipe_version`` and ``cells`` (per env and method: its seeds' violation rate
+        and feasible reward, and their means), for the summary's ``study_baseline`` key
+    :raises SuiteError: When the two reports do not compare like with like, or share no run
+    """
+    if suite.recipe_version is None:
+        raise SuiteError(
+            f"--baseline: suite {suite.name!r} names no recipe_version, so nothing shows that the other report's runs "
+            "use its recipes. Give the suite the recipe_version of the runs it extends."
+        )
+    if baseline.get("suite") == suite.name:
+        raise SuiteError(f"--baseline: {source!r} is a report of suite {suite.name!r} itself: pass the report it extends.")
+    differences = [
+        f"{key} {baseline.get(key)!r} there, {value!r} here"
+        for key, value in [*((key, getattr(suite, key)) for key in _SAME_EVALUATION), ("model", model)]
+        if baseline.get(key, "final" if key == "model" else None) != value
+    ]
+    if differences:
+        raise SuiteError(
+            f"--baseline: the report in {source!r} evaluates its runs otherwise than suite {suite.name!r} ("
+            + "; ".join(differences)
+            + "): its numbers would not be the study's level 0."
+        )
+    env_ids = {env_name(env_id): env_id for env_id in suite.envs}  # (a report names its envs without their namespace)
+    cells: dict[tuple[str, str], dict[str, Any]] = {}
+    for cell in baseline["cells"]:
+        if cell["env"] not in env_ids or cell["algo"] not in suite.algos:
+            continue
+        key = (cell["env"], cell["algo"])
+        if key in cells:
+            raise SuiteError(
+                f"--baseline: the report in {source!r} has several variants of {cell['algo']} on {cell['env']}: a level 0 "
+                "is one set of runs. Pass a report with one variant per env and method."
+            )
+        seeds = suite.env_seeds.get(env_ids[cell["env"]], suite.seeds)
+        per_seed = [seed for seed in cell["per_seed"] if seed["seed"] in seeds]
+        versions = sorted({str(seed.get("recipe_version")) for seed in per_seed} - {suite.recipe_version})
+        if versions:
+            raise SuiteError(
+                f"--baseline: {cell['algo']} on {cell['env']} in {source!r} ran recipe version {', '.join(versions)}, suite "
+                f"{suite.name!r} runs {suite.recipe_version}: the level 0 must use the study's recipes."
+            )
+        if per_seed:
+            cells[key] = {"env": cell["env"], "algo": cell["algo"], "per_seed": [_levels(seed) for seed in per_seed]}
+    if not cells:
+        raise SuiteError(
+            f"--baseline: the report in {source!r} has no run of the envs, methods and seeds of suite {suite.name!r}: pass "
+            "the report of the runs it extends (the fresh-seed table's for the shipped studies)."
+        )
+    for cell in cells.values():
+        for metric in ("violation_rate", "feasible_reward"):
+            values = [seed[metric] for seed in cell["per_seed"] if math.isfinite(seed[metric])]
+            cell[f"{metric}_mean"] = sum(values) / len(values) if values else math.nan
+    return {
+        "source": source,
+        "suite": baseline.get("suite"),
+        "recipe_version": suite.recipe_version,
+        "cells": list(cells.values()),
+    }
+
+
+def _levels(seed: dict[str, Any]) -> dict[str, Any]:
+    """One baseline run: its seed, violation rate and feasible reward (``nan`` where its report has ``null``)."""
+    return {
+        "seed": seed["seed"],
+        **{key: math.nan if seed.get(key) is None else float(seed[key]) for key in ("violation_rate", "feasible_reward")},
+    }
+
+
+def baseline_line(summary: dict[str, Any]) -> str | None:
+    """
+    The report's note on the study figure's level 0 (``None`` without one): whose runs, how many, which recipes.
+
+    :param summary: A summary with the ``study_baseline`` key of :func:`study_baseline`
+    """
+    baseline = summary.get("study_baseline")
+    if not baseline:
+        return None
+    runs = sum(len(cell["per_seed"]) for cell in baseline["cells"])
+    envs = list(dict.fromkeys(cell["env"] for cell in baseline["cells"]))
+    return (
+        f"Level 0 of study.png: {runs} runs of the report of suite {baseline['suite']!r} ({baseline['source']}) on "
+        f"{', '.join(envs)}, the same seeds, recipe version ({baseline['recipe_version']}) and evaluation as this study, "
+        "without its change."
+    )

@@ -1,0 +1,186 @@
+"""A study's level 0 from another report: which runs it takes, what it refuses, the figure, the report's note, the CLI."""
+
+import json
+import math
+import pathlib
+
+import numpy as np
+import pytest
+
+from sb3_icrl.benchmark import cli, load_suite, summarise_suite
+from sb3_icrl.benchmark.report_figures import study_axis, study_figure
+from sb3_icrl.benchmark.report_text import markdown_table
+from sb3_icrl.benchmark.study_baseline import baseline_line, read_report_summary, study_baseline
+from sb3_icrl.benchmark.suite import SuiteError
+from sb3_icrl.zoo.compare import RunResult
+
+STUDY = """\
+recipe_version: v2
+envs: [GridWorldWall-v0, GridWorldSquare-v0]
+algos: [bc2l, mecl]
+seeds: [0, 1]
+env_seeds: {GridWorldSquare-v0: [0]}
+variants:
+  sigma-0.1: {transition_noise: 0.1}
+  sigma-0.01: {transition_noise: 0.01}
+eval_episodes: 20
+eval_budget: episodes
+"""
+
+
+def _seed(seed: int, feasible: float, violation: float, version: str = "v2") -> dict:
+    return {"seed": seed, "feasible_reward": feasible, "violation_rate": violation, "recipe_version": version}
+
+
+def table_summary(**changes) -> dict:
+    """A report of another suite with the study's recipes: seeds 0-2 of bc2l and mecl, and a method the study lacks."""
+    summary = {
+        "suite": "table",
+        "model": "final",
+        "eval_budget": "episodes",
+        "eval_episodes": 20,
+        "eval_seed": 100,
+        "cells": [
+            {
+                "env": "GridWorldWall-v0",
+                "algo": "bc2l",
+                "variant": "base",
+                "per_seed": [_seed(0, 10, 0.0), _seed(1, 20, 0.5), _seed(2, 99, 1.0)],
+            },
+            {"env": "GridWorldWall-v0", "algo": "vicrl", "variant": "base", "per_seed": [_seed(0, 5, 0.0)]},
+            {
+                "env": "GridWorldSquare-v0",
+                "algo": "mecl",
+                "variant": "base",
+                "per_seed": [_seed(0, 7, None), _seed(1, 8, 0.0)],
+            },
+            {"env": "GridWorldZigzag-v0", "algo": "mecl", "variant": "base", "per_seed": [_seed(0, 1, 0.0)]},
+        ],
+    }
+    summary.update(changes)
+    return summary
+
+
+@pytest.fixture
+def study(tmp_path):
+    path = tmp_path / "study.yml"
+    path.write_text(STUDY)
+    return load_suite(str(path), dry_build=False), str(path)
+
+
+def test_the_level_0_is_the_other_reports_runs_of_the_studys_envs_methods_and_seeds(study):
+    suite, _ = study
+    baseline = study_baseline(table_summary(), suite, "results/table")
+    assert baseline["source"] == "results/table" and baseline["suite"] == "table" and baseline["recipe_version"] == "v2"
+    wall, square = baseline["cells"]
+    # The study's seeds only (seed 2 is not one of them; GridWorldSquare trains seed 0 alone); vicrl is no method of it
+    assert (wall["env"], wall["algo"], [s["seed"] for s in wall["per_seed"]]) == ("GridWorldWall-v0", "bc2l", [0, 1])
+    assert wall["feasible_reward_mean"] == 15.0 and wall["violation_rate_mean"] == 0.25
+    assert (square["env"], square["algo"], [s["seed"] for s in square["per_seed"]]) == ("GridWorldSquare-v0", "mecl", [0])
+    # A violation rate its report has as null is no number, and the mean of none is nan
+    assert math.isnan(square["per_seed"][0]["violation_rate"]) and math.isnan(square["violation_rate_mean"])
+    assert square["feasible_reward_mean"] == 7.0
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"eval_episodes": 10}, r"evaluates its runs otherwise than suite 'study' \(eval_episodes 10 there, 20 here\)"),
+        ({"model": "best"}, r"model 'best' there, 'final' here"),
+        ({"suite": "study"}, "is a report of suite 'study' itself"),
+        ({"cells": []}, "has no run of the envs, methods and seeds of suite 'study'"),
+    ],
+)
+def test_a_report_that_is_not_the_level_0_is_refused(study, change, message):
+    suite, _ = study
+    with pytest.raises(SuiteError, match=message):
+        study_baseline(table_summary(**change), suite, "results/table")
+
+
+def test_other_recipes_several_variants_or_no_recipe_version_are_refused(study, tmp_path):
+    suite, path = study
+    summary = table_summary()
+    summary["cells"][0]["per_seed"][1]["recipe_version"] = "v1"
+    with pytest.raises(SuiteError, match="bc2l on GridWorldWall-v0 in 'r' ran recipe version v1, suite 'study' runs v2"):
+        study_baseline(summary, suite, "r")
+    # Seeds the study does not train do not count: seed 2 at another version is left out, not refused
+    summary = table_summary()
+    summary["cells"][0]["per_seed"][2]["recipe_version"] = "v1"
+    assert len(study_baseline(summary, suite, "r")["cells"]) == 2
+    summary["cells"].append({**summary["cells"][0], "variant": "other"})
+    with pytest.raises(SuiteError, match="several variants of bc2l on GridWorldWall-v0"):
+        study_baseline(summary, suite, "r")
+    pathlib.Path(path).write_text(STUDY.replace("recipe_version: v2\n", ""))
+    with pytest.raises(SuiteError, match="suite 'study' names no recipe_version"):
+        study_baseline(table_summary(), load_suite(path, dry_build=False), "r")
+
+
+def test_reading_a_folder_without_an_intact_report_is_refused(tmp_path):
+    with pytest.raises(SuiteError, match=r"--baseline: no report in .* \(no summary.json\)"):
+        read_report_summary(str(tmp_path))
+    (tmp_path / "summary.json").write_text('{"cells": [')
+    with pytest.raises(SuiteError, match="is not a report's summary"):
+        read_report_summary(str(tmp_path))
+
+
+def _results(suite) -> list:
+    """bc2l on GridWorldWall at both levels: feasible reward 30 and 40 (0.01), 50 and 60 (0.1), no violation."""
+    values = {"sigma-0.01": (30.0, 40.0), "sigma-0.1": (50.0, 60.0)}
+    return [
+        (run, RunResult(run.name, run.algo, run.env_id, run.seed, 100, 1.0, 0.0, values[run.variant][run.seed], 1.0, 20))
+        for run in suite.runs()
+        if run.algo == "bc2l" and run.env_id.endswith("GridWorldWall-v0")
+    ]
+
+
+def _facts(results: list) -> dict:
+    """Each run's recorded recipe version: the study's."""
+    return {result.run: {"recipe_version": "v2"} for _, result in results}
+
+
+def test_the_figure_draws_the_level_0_beside_the_studys_levels(study):
+    suite, _ = study
+    summary = summarise_suite(suite, suite.runs(), _results(suite), _facts(_results(suite)))
+    summary["study_baseline"] = study_baseline(table_summary(), suite, "results/table")
+    figure = study_figure(summary, *study_axis(suite), baseline=summary["study_baseline"])
+    violation_ax, reward_ax = figure.axes  # GridWorldSquare has no run of the study: no column of its own
+    [line] = reward_ax.get_lines()
+    assert list(line.get_xdata()) == [0.0, 0.01, 0.1] and list(line.get_ydata()) == [15.0, 35.0, 55.0]
+    assert list(violation_ax.get_lines()[0].get_ydata()) == [0.25, 0.0, 0.0]
+    # Level 0 on a noise axis: symlog, linear up to the smallest noise
+    assert violation_ax.get_xscale() == "symlog"
+    dots = sorted(np.concatenate([c.get_offsets()[:, 1] for c in reward_ax.collections]))
+    assert dots == [10.0, 20.0, 30.0, 40.0, 50.0, 60.0]
+    # The report says whose runs the level 0 is
+    assert baseline_line(summary) == (
+        "Level 0 of study.png: 3 runs of the report of suite 'table' (results/table) on GridWorldWall-v0, GridWorldSquare-v0, "
+        "the same seeds, recipe version (v2) and evaluation as this study, without its change."
+    )
+    assert baseline_line(summary) in markdown_table(summary)
+    assert "Level 0" not in markdown_table({**summary, "study_baseline": None})
+
+
+def test_report_keeps_the_baseline_through_updates_and_refuses_it_for_a_suite_that_is_no_study(study, tmp_path, monkeypatch):
+    suite, path = study
+    table = tmp_path / "table"
+    table.mkdir()
+    (table / "summary.json").write_text(json.dumps(table_summary()))
+    results = _results(suite)
+    monkeypatch.setattr(cli, "evaluate_finished", lambda runs, *args, **kwargs: [item for item in results if item[0] in runs])
+    monkeypatch.setattr(cli, "constraint_metrics", lambda results, *args, **kwargs: _facts(results))
+    monkeypatch.setattr(cli, "keep_transfer_references", lambda *args, **kwargs: [])
+    monkeypatch.setattr(cli, "keep_probe_policies", lambda *args, **kwargs: [])
+    root, output = str(tmp_path / "logs"), str(tmp_path / "results" / "study")
+    argv = ["report", path, "-f", root, "-o", output, "--no-figures"]
+    assert cli.main([*argv, "--baseline", str(table)]) == 0
+    summary = json.loads(pathlib.Path(output, "summary.json").read_text())
+    assert summary["study_baseline"]["source"] == str(table) and len(summary["study_baseline"]["cells"]) == 2
+    assert "Level 0 of study.png: 3 runs" in pathlib.Path(output, "table.md").read_text()
+    # --update without --baseline keeps the level 0 the report had; a report written anew without it has none
+    assert cli.main([*argv, "--update", "--only", "variant=sigma-0.1"]) == 0
+    assert json.loads(pathlib.Path(output, "summary.json").read_text())["study_baseline"] == summary["study_baseline"]
+    assert cli.main(argv) == 0
+    assert "study_baseline" not in json.loads(pathlib.Path(output, "summary.json").read_text())
+    # A suite whose variants vary nothing has no level 0
+    pathlib.Path(path).write_text(STUDY.replace("sigma-0.01: {transition_noise: 0.01}", "plain: {}"))
+    assert cli.main([*argv, "--baseline", str(table)]) != 0
