@@ -103,6 +103,9 @@ def test_other_recipes_several_variants_or_no_recipe_version_are_refused(study, 
     summary["cells"][0]["per_seed"][1]["recipe_version"] = "v1"
     with pytest.raises(SuiteError, match="bc2l on GridWorldWall-v0 in 'r' ran recipe version v1, suite 'study' runs v2"):
         study_baseline(summary, suite, "r")
+    del summary["cells"][0]["per_seed"][1]["recipe_version"]
+    with pytest.raises(SuiteError, match="ran recipe version none recorded, suite 'study' runs v2"):
+        study_baseline(summary, suite, "r")
     # Seeds the study does not train do not count: seed 2 at another version is left out, not refused
     summary = table_summary()
     summary["cells"][0]["per_seed"][2]["recipe_version"] = "v1"

@@ -81,7 +81,7 @@ def study_baseline(baseline: dict[str, Any], suite: Suite, source: str, model: s
             )
         seeds = suite.env_seeds.get(env_ids[cell["env"]], suite.seeds)
         per_seed = [seed for seed in cell["per_seed"] if seed["seed"] in seeds]
-        versions = sorted({str(seed.get("recipe_version")) for seed in per_seed} - {suite.recipe_version})
+        versions = sorted({seed.get("recipe_version") or "none recorded" for seed in per_seed} - {suite.recipe_version})
         if versions:
             raise SuiteError(
                 f"--baseline: {cell['algo']} on {cell['env']} in {source!r} ran recipe version {', '.join(versions)}, suite "
