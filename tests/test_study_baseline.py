@@ -154,6 +154,11 @@ def test_the_figure_draws_the_level_0_beside_the_studys_levels(study):
     assert violation_ax.get_xscale() == "symlog"
     dots = sorted(np.concatenate([c.get_offsets()[:, 1] for c in reward_ax.collections]))
     assert dots == [10.0, 20.0, 30.0, 40.0, 50.0, 60.0]
+    # While the study holds fewer seeds than its level 0, the level 0 takes the study's seeds only
+    partial = [(run, result) for run, result in _results(suite) if run.seed == 0]
+    summary_0 = summarise_suite(suite, suite.runs(), partial, _facts(partial))
+    reward_ax = study_figure(summary_0, *study_axis(suite), baseline=summary["study_baseline"]).axes[1]
+    assert list(reward_ax.get_lines()[0].get_ydata()) == [10.0, 30.0, 50.0]
     # The report says whose runs the level 0 is
     assert baseline_line(summary) == (
         "Level 0 of study.png: 3 runs of the report of suite 'table' (results/table) on GridWorldWall-v0, GridWorldSquare-v0, "

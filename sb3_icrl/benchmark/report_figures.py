@@ -285,6 +285,31 @@ def study_axis(suite: Suite) -> tuple[str, dict[str, float]] | None:
 BASELINE_VARIANT = "level 0"
 
 
+def baseline_cells(baseline: dict[str, Any], cells: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """
+    The level 0 a study figure draws: each baseline cell of a method the study has runs of on that env, on the seeds of
+    those runs only (while a study is under way its levels hold fewer seeds than the baseline: its level-0 mean over
+    other seeds would not compare with theirs), as a cell of variant :data:`BASELINE_VARIANT`.
+
+    :param baseline: The study's level 0 (:func:`~sb3_icrl.benchmark.study_baseline.study_baseline`)
+    :param cells: The study's cells
+    """
+    studied: dict[tuple[str, str], set[int]] = {}
+    for cell in cells:
+        studied.setdefault((cell["env"], cell["algo"]), set()).update(seed["seed"] for seed in cell["per_seed"])
+    drawn = []
+    for cell in baseline["cells"]:
+        per_seed = [seed for seed in cell["per_seed"] if seed["seed"] in studied.get((cell["env"], cell["algo"]), ())]
+        if not per_seed:
+            continue
+        means = {}
+        for metric in ("violation_rate", "feasible_reward"):
+            values = [seed[metric] for seed in per_seed if math.isfinite(seed[metric])]
+            means[f"{metric}_mean"] = float(np.mean(values)) if values else math.nan
+        drawn.append({**cell, **means, "per_seed": per_seed, "variant": BASELINE_VARIANT})
+    return drawn
+
+
 def study_figure(summary: dict[str, Any], key: str, levels: dict[str, float], baseline: dict[str, Any] | None = None) -> Any:
     """
     The paper's study figure from ours: one column per env, the violation rate (top) and the feasible reward (bottom)
@@ -294,15 +319,14 @@ def study_figure(summary: dict[str, Any], key: str, levels: dict[str, float], ba
     :param summary: A summary of :func:`~sb3_icrl.benchmark.report.summarise_suite`
     :param key: The setting varied (a key of :data:`STUDY_AXES`)
     :param levels: Each variant's level
-    :param baseline: The study's level 0 (:func:`~sb3_icrl.benchmark.study_baseline.study_baseline`): its cells are
-        drawn at level 0 beside the study's, on the envs where the study has cells
+    :param baseline: The study's level 0 (:func:`~sb3_icrl.benchmark.study_baseline.study_baseline`): drawn at level 0
+        beside the study's cells, on the seeds they hold (:func:`baseline_cells`)
     """
     cells = [cell for cell in summary["cells"] if cell["variant"] in levels]
     if not cells:
         return None
     if baseline:
-        studied = {cell["env"] for cell in cells}
-        cells += [{**cell, "variant": BASELINE_VARIANT} for cell in baseline["cells"] if cell["env"] in studied]
+        cells += baseline_cells(baseline, cells)
         levels = {**levels, BASELINE_VARIANT: 0.0}
     envs = list(dict.fromkeys(cell["env"] for cell in cells))
     algos = list(dict.fromkeys(cell["algo"] for cell in cells))
