@@ -45,11 +45,11 @@ from sb3_icrl.benchmark.report import (
     summarise_suite,
     write_report,
 )
-from sb3_icrl.benchmark.report_figures import STUDY_AXES, kept_figure_data, refresh_crossings, study_axis, write_figures
+from sb3_icrl.benchmark.report_figures import kept_figure_data, refresh_crossings, write_figures
 from sb3_icrl.benchmark.report_text import markdown_table
 from sb3_icrl.benchmark.runner import BACKENDS, RunOutcome, load_runtime_env, make_backend, run_all
 from sb3_icrl.benchmark.status import RunStatus, mark_reported, reported_runs, status_lines, suite_status
-from sb3_icrl.benchmark.study_baseline import read_report_summary, study_baseline
+from sb3_icrl.benchmark.study import STUDY_AXES, read_report_summary, study_axis, study_baseline
 from sb3_icrl.benchmark.suite import SUITES_DIR, RunSpec, Suite, SuiteError, load_suite
 from sb3_icrl.benchmark.transport import pack_runs, pack_summary, unpack_bundles
 from sb3_icrl.common.utils import check_writable_folder, plain_docstring, sigterm_interrupts, write_error_message

@@ -1,9 +1,9 @@
 """
 The figures of a suite's report: per env and variant the training curves and each method's learned cost over the
 constrained feature, ours against the paper, rliable's performance profile of the normalised scores and, for a study
-of a variant setting (:data:`STUDY_AXES`), the paper's study figure (:func:`write_figures`). What they draw of each run
-is kept in the report folder (:data:`FIGURE_DATA_FILE`, :func:`figure_data`), so that a report updated once some runs'
-folders are gone still draws them.
+of a variant setting (:data:`~sb3_icrl.benchmark.study.STUDY_AXES`), the paper's study figure (:func:`write_figures`).
+What they draw of each run is kept in the report folder (:data:`FIGURE_DATA_FILE`, :func:`figure_data`), so that a
+report updated once some runs' folders are gone still draws them.
 """
 
 import json
@@ -16,6 +16,7 @@ import numpy as np
 from matplotlib.lines import Line2D
 
 from sb3_icrl.benchmark.report_numbers import finite_or_null
+from sb3_icrl.benchmark.study import BASELINE_VARIANT, STUDY_AXES, baseline_cells, study_axis
 from sb3_icrl.benchmark.suite import RunSpec, Suite
 from sb3_icrl.common.statistics import performance_profile, performance_profile_ci
 from sb3_icrl.common.utils import atomic_write_json
@@ -260,67 +261,17 @@ def write_figures(summary: dict[str, Any], suite: Suite, root: str, output: str)
     return written
 
 
-#: The variant settings a study varies, with the axis label of its figure (the noise on a log scale)
-STUDY_AXES = {
-    "transition_noise": "transition noise sigma",
-    "violating_fraction": "share of violating demonstrations",
-}
-
-
-def study_axis(suite: Suite) -> tuple[str, dict[str, float]] | None:
-    """
-    The setting a study's variants vary (:data:`STUDY_AXES`) and each variant's level, when every variant of the
-    suite (two at least) sets it to a number; ``None`` for a suite that is not such a study.
-    """
-    if len(suite.variants) < 2:
-        return None
-    for key in STUDY_AXES:
-        levels = {variant: settings.get(key) for variant, settings in suite.variants.items()}
-        if all(isinstance(level, (int, float)) and not isinstance(level, bool) for level in levels.values()):
-            return key, {variant: float(level) for variant, level in levels.items()}  # type: ignore[arg-type]
-    return None
-
-
-#: The variant name a study's level 0 takes in :func:`study_figure` (the runs of another report, without the change)
-BASELINE_VARIANT = "level 0"
-
-
-def baseline_cells(baseline: dict[str, Any], cells: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """
-    The level 0 a study figure draws: each baseline cell of a method the study has runs of on that env, on the seeds of
-    those runs only (while a study is under way its levels hold fewer seeds than the baseline: its level-0 mean over
-    other seeds would not compare with theirs), as a cell of variant :data:`BASELINE_VARIANT`.
-
-    :param baseline: The study's level 0 (:func:`~sb3_icrl.benchmark.study_baseline.study_baseline`)
-    :param cells: The study's cells
-    """
-    studied: dict[tuple[str, str], set[int]] = {}
-    for cell in cells:
-        studied.setdefault((cell["env"], cell["algo"]), set()).update(seed["seed"] for seed in cell["per_seed"])
-    drawn = []
-    for cell in baseline["cells"]:
-        per_seed = [seed for seed in cell["per_seed"] if seed["seed"] in studied.get((cell["env"], cell["algo"]), ())]
-        if not per_seed:
-            continue
-        means = {}
-        for metric in ("violation_rate", "feasible_reward"):
-            values = [seed[metric] for seed in per_seed if math.isfinite(seed[metric])]
-            means[f"{metric}_mean"] = float(np.mean(values)) if values else math.nan
-        drawn.append({**cell, **means, "per_seed": per_seed, "variant": BASELINE_VARIANT})
-    return drawn
-
-
 def study_figure(summary: dict[str, Any], key: str, levels: dict[str, float], baseline: dict[str, Any] | None = None) -> Any:
     """
     The paper's study figure from ours: one column per env, the violation rate (top) and the feasible reward (bottom)
-    of each method against the study's level (:func:`study_axis`), its mean over seeds joined by a line and each
-    seed's value a dot; ``None`` when the summary has no cell of those variants.
+    of each method against the study's level (:func:`~sb3_icrl.benchmark.study.study_axis`), its mean over seeds joined
+    by a line and each seed's value a dot; ``None`` when the summary has no cell of those variants.
 
     :param summary: A summary of :func:`~sb3_icrl.benchmark.report.summarise_suite`
-    :param key: The setting varied (a key of :data:`STUDY_AXES`)
+    :param key: The setting varied (a key of :data:`~sb3_icrl.benchmark.study.STUDY_AXES`)
     :param levels: Each variant's level
-    :param baseline: The study's level 0 (:func:`~sb3_icrl.benchmark.study_baseline.study_baseline`): drawn at level 0
-        beside the study's cells, on the seeds they hold (:func:`baseline_cells`)
+    :param baseline: The study's level 0 (:func:`~sb3_icrl.benchmark.study.study_baseline`): drawn at level 0
+        beside the study's cells, on the seeds they hold (:func:`~sb3_icrl.benchmark.study.baseline_cells`)
     """
     cells = [cell for cell in summary["cells"] if cell["variant"] in levels]
     if not cells:

@@ -15,7 +15,7 @@ from typing import Any
 
 from sb3_icrl.benchmark.judgements import LAST_TRAINING_COLUMNS, ORACLE_ROW, spread
 from sb3_icrl.benchmark.report_numbers import format_hours, format_rate, format_reward, format_score
-from sb3_icrl.benchmark.study_baseline import baseline_line
+from sb3_icrl.benchmark.study import baseline_line
 from sb3_icrl.benchmark.suite import BEATS_COLUMNS
 from sb3_icrl.common.evaluation import CONSTRAINT_VIOLATION_PREFIX, OUTCOME_KEYS, OUTCOME_RATE_KEYS
 from sb3_icrl.common.statistics import MIN_PAIRS_FOR_WILCOXON

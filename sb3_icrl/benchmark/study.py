@@ -1,7 +1,8 @@
 """
-A study's level 0, read from another report: a study (transition noise, violating demonstrations) changes one setting
-of the fresh-seed table's runs, so that table's runs of the same recipes, seeds and evaluation are the study's runs
-without the change. ``report --baseline`` keeps them in the study's summary, and its figure draws them at level 0.
+A study: a suite whose variants vary one setting (transition noise, violating demonstrations) of the fresh-seed table's
+runs (:func:`study_axis`), and its level 0, read from another report: that table's runs of the same recipes, seeds and
+evaluation are the study's runs without the change. ``report --baseline`` keeps them in the study's summary, its
+figure draws them at level 0 and its table lists them beside the levels.
 """
 
 import json
@@ -9,8 +10,60 @@ import math
 import os
 from typing import Any
 
+import numpy as np
+
 from sb3_icrl.benchmark.suite import Suite, SuiteError
 from sb3_icrl.registry import env_name
+
+#: The variant settings a study varies, with the axis label of its figure (the noise on a log scale)
+STUDY_AXES = {
+    "transition_noise": "transition noise sigma",
+    "violating_fraction": "share of violating demonstrations",
+}
+
+
+def study_axis(suite: Suite) -> tuple[str, dict[str, float]] | None:
+    """
+    The setting a study's variants vary (:data:`STUDY_AXES`) and each variant's level, when every variant of the
+    suite (two at least) sets it to a number; ``None`` for a suite that is not such a study.
+    """
+    if len(suite.variants) < 2:
+        return None
+    for key in STUDY_AXES:
+        levels = {variant: settings.get(key) for variant, settings in suite.variants.items()}
+        if all(isinstance(level, (int, float)) and not isinstance(level, bool) for level in levels.values()):
+            return key, {variant: float(level) for variant, level in levels.items()}  # type: ignore[arg-type]
+    return None
+
+
+#: The variant name a study's level 0 takes in its figure and table (the runs of another report, without the change)
+BASELINE_VARIANT = "level 0"
+
+
+def baseline_cells(baseline: dict[str, Any], cells: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """
+    The level 0 a study figure draws: each baseline cell of a method the study has runs of on that env, on the seeds of
+    those runs only (while a study is under way its levels hold fewer seeds than the baseline: its level-0 mean over
+    other seeds would not compare with theirs), as a cell of variant :data:`BASELINE_VARIANT`.
+
+    :param baseline: The study's level 0 (:func:`~sb3_icrl.benchmark.study_baseline.study_baseline`)
+    :param cells: The study's cells
+    """
+    studied: dict[tuple[str, str], set[int]] = {}
+    for cell in cells:
+        studied.setdefault((cell["env"], cell["algo"]), set()).update(seed["seed"] for seed in cell["per_seed"])
+    drawn = []
+    for cell in baseline["cells"]:
+        per_seed = [seed for seed in cell["per_seed"] if seed["seed"] in studied.get((cell["env"], cell["algo"]), ())]
+        if not per_seed:
+            continue
+        means = {}
+        for metric in ("violation_rate", "feasible_reward"):
+            values = [seed[metric] for seed in per_seed if math.isfinite(seed[metric])]
+            means[f"{metric}_mean"] = float(np.mean(values)) if values else math.nan
+        drawn.append({**cell, **means, "per_seed": per_seed, "variant": BASELINE_VARIANT})
+    return drawn
+
 
 #: The summary keys a baseline report must share with the study's: the same held-out evaluation
 _SAME_EVALUATION = ("eval_budget", "eval_episodes", "eval_seed")

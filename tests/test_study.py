@@ -10,7 +10,7 @@ import pytest
 from sb3_icrl.benchmark import cli, load_suite, summarise_suite
 from sb3_icrl.benchmark.report_figures import study_axis, study_figure
 from sb3_icrl.benchmark.report_text import markdown_table
-from sb3_icrl.benchmark.study_baseline import baseline_line, read_report_summary, study_baseline
+from sb3_icrl.benchmark.study import baseline_line, read_report_summary, study_baseline
 from sb3_icrl.benchmark.suite import SuiteError
 from sb3_icrl.zoo.compare import RunResult
 
