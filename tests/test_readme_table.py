@@ -105,3 +105,26 @@ def test_rewards_keep_the_digits_their_size_needs():
     assert format_mean_std(3254.3, 576.2) == "3254 ± 576"
     assert format_mean_std(-19.14, 2.26) == "-19.1 ± 2.3"
     assert format_mean_std(0.462, 0.298) == "0.46 ± 0.30"  # a Pendulum cell, not "0 ± 0"
+
+
+def test_study_tables_come_from_the_study_summaries(tmp_path):
+    from sb3_icrl.benchmark.report_text import study_level_lines
+
+    cell = {
+        "env": "A-v0",
+        "algo": "mecl",
+        "variant": "sigma-0.1",
+        "per_seed": [{"seed": 0}],
+        "feasible_reward_mean": 12.5,
+        "violation_rate_mean": 0.25,
+    }
+    study = {"suite": "noise", "cells": [cell], "study": {"setting": "transition_noise", "levels": {"sigma-0.1": 0.1}}}
+    for name, summary in (("noise", study), ("table3", {"suite": "table3", "cells": [{**cell, "variant": "base"}]})):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "summary.json").write_text(json.dumps(summary))
+    text = readme_table.study_tables(tmp_path)
+    assert text.startswith("`noise` (`benchmarks/results/noise`): By level of transition_noise")
+    assert text.rstrip("\n").endswith("| A-v0 | mecl | 12.5 / 25% (1) |") and "table3" not in text
+    assert "\n".join(study_level_lines(study)[3:]) in text
+    (tmp_path / "noise" / "summary.json").unlink()
+    assert readme_table.study_tables(tmp_path) == "No study has reported yet.\n"

@@ -9,7 +9,7 @@ import pytest
 
 from sb3_icrl.benchmark import cli, load_suite, summarise_suite
 from sb3_icrl.benchmark.report_figures import study_axis, study_figure
-from sb3_icrl.benchmark.report_text import markdown_table
+from sb3_icrl.benchmark.report_text import markdown_table, study_level_lines
 from sb3_icrl.benchmark.study import baseline_line, read_report_summary, study_baseline
 from sb3_icrl.benchmark.suite import SuiteError
 from sb3_icrl.zoo.compare import RunResult
@@ -192,3 +192,34 @@ def test_report_keeps_the_baseline_through_updates_and_refuses_it_for_a_suite_th
     # A suite whose variants vary nothing has no level 0
     pathlib.Path(path).write_text(STUDY.replace("sigma-0.01: {transition_noise: 0.01}", "plain: {}"))
     assert cli.main([*argv, "--baseline", str(table)]) != 0
+
+
+def test_the_report_tables_each_method_by_level_with_its_level_0(study):
+    suite, _ = study
+    results = _results(suite)
+    summary = summarise_suite(suite, suite.runs(), results, _facts(results))
+    assert summary["study"] == {"setting": "transition_noise", "levels": {"sigma-0.1": 0.1, "sigma-0.01": 0.01}}
+    without = study_level_lines(summary)
+    assert without[-2:] == ["|---|---|---|---|", "| GridWorldWall-v0 | bc2l | 35.0 / 0% (2) | 55.0 / 0% (2) |"]
+    assert without[-3] == "| env | algo | sigma-0.01 | sigma-0.1 |"  # in order of the level
+    # With the level 0, as summary.json gives it back (a rate with no number is null there)
+    baseline = study_baseline(table_summary(), suite, "results/table")
+    summary["study_baseline"] = json.loads(json.dumps(baseline, allow_nan=True).replace("NaN", "null"))
+    lines = study_level_lines(summary)
+    assert "level 0: the same seeds' runs of suite 'table'" in lines[1]
+    assert lines[-3:] == [
+        "| env | algo | level 0 (table) | sigma-0.01 | sigma-0.1 |",
+        "|---|---|---|---|---|",
+        "| GridWorldWall-v0 | bc2l | 15.0 / 25% (2) | 35.0 / 0% (2) | 55.0 / 0% (2) |",
+    ]
+    assert "\n".join(lines) in markdown_table(summary)
+    # A method with runs at one level only, and one whose level-0 rate has no number: "-"
+    mecl = [(run, RunResult(run.name, "mecl", run.env_id, 0, 100, 1.0, 0.5, 7.0, 7.0, 20)) for run in suite.runs()]
+    mecl = [item for item in mecl if item[0].algo == "mecl" and item[0].variant == "sigma-0.1" and "Square" in item[0].env_id]
+    summary = summarise_suite(suite, suite.runs(), [*results, *mecl], _facts([*results, *mecl]))
+    summary["study_baseline"] = json.loads(json.dumps(baseline, allow_nan=True).replace("NaN", "null"))
+    assert "| GridWorldSquare-v0 | mecl | 7.00 / - (1) | - | 7.00 / 50% (1) |" in study_level_lines(summary)
+    # A suite that is no study has no such table
+    assert study_level_lines({**summary, "study": None}) == [] and "study" not in summarise_suite(
+        load_suite("smoke", dry_build=False), [], []
+    )

@@ -50,6 +50,7 @@ from sb3_icrl.benchmark.judgements import (
 from sb3_icrl.benchmark.report_figures import summary_run
 from sb3_icrl.benchmark.report_numbers import finite_or_null
 from sb3_icrl.benchmark.report_text import TRANSFER_REFERENCES, csv_rows, latex_table, markdown_table, transfer_compute
+from sb3_icrl.benchmark.study import study_axis
 from sb3_icrl.benchmark.suite import RunSpec, Suite, result_current
 from sb3_icrl.common.constraint_spec import get_constraint_spec
 from sb3_icrl.common.evaluation import CONSTRAINT_VIOLATION_PREFIX, OUTCOME_RATE_KEYS
@@ -1103,12 +1104,19 @@ def summarise_suite(
         "runs_missing_by_env": _missing_by_task(suite, [*runs, *(finished - set(runs))], unfinished),
         "transfer_tests_missing": untested,
         "others_sources": list(suite.others),
+        **_study_levels(suite),
         "core_hours": _core_hours(list(wall_time.values())),
         "core_hours_runs": sum(value is not None for value in wall_time.values()),
         **cpu_compute(metrics, wall_time),
         **transfer_compute(all_seeds),
         **judgements,
     }
+
+
+def _study_levels(suite: Suite) -> dict[str, Any]:
+    """For a study (:func:`~sb3_icrl.benchmark.study.study_axis`), the ``study`` key: the setting and each variant's level."""
+    axis = study_axis(suite)
+    return {} if axis is None else {"study": {"setting": axis[0], "levels": axis[1]}}
 
 
 def _count_runs(runs: Sequence[RunSpec], tasks: set[tuple[str, str]], algos: Sequence[str] | None = None) -> int:

@@ -15,7 +15,7 @@ from typing import Any
 
 from sb3_icrl.benchmark.judgements import LAST_TRAINING_COLUMNS, ORACLE_ROW, spread
 from sb3_icrl.benchmark.report_numbers import format_hours, format_rate, format_reward, format_score
-from sb3_icrl.benchmark.study import baseline_line
+from sb3_icrl.benchmark.study import BASELINE_VARIANT, baseline_cells, baseline_line
 from sb3_icrl.benchmark.suite import BEATS_COLUMNS
 from sb3_icrl.common.evaluation import CONSTRAINT_VIOLATION_PREFIX, OUTCOME_KEYS, OUTCOME_RATE_KEYS
 from sb3_icrl.common.statistics import MIN_PAIRS_FOR_WILCOXON
@@ -440,6 +440,7 @@ def markdown_table(summary: dict[str, Any]) -> str:
         lines += ["", not_finished_text(summary)]
     if summary.get("transfer_tests_missing"):
         lines += ["", untested_text(summary)]
+    lines += study_level_lines(summary)
     baseline = baseline_line(summary)
     if baseline is not None:
         lines += ["", baseline]
@@ -447,6 +448,55 @@ def markdown_table(summary: dict[str, Any]) -> str:
     if compute is not None:
         lines += ["", compute]
     return "\n".join(lines) + "\n"
+
+
+def study_level_lines(summary: dict[str, Any]) -> list[str]:
+    """
+    A study's table by level (none for a suite that is no study): per env and method, the mean held-out feasible
+    reward and violation rate of each level, level 0 first where the report has one (on the seeds of the study's own
+    runs: :func:`~sb3_icrl.benchmark.study.baseline_cells`), with how many seeds each mean takes.
+
+    :param summary: A summary of :func:`~sb3_icrl.benchmark.report.summarise_suite`
+    """
+    study = summary.get("study")
+    cells = [cell for cell in summary["cells"] if study and cell["variant"] in study["levels"]]
+    if not cells:
+        return []
+    levels = study["levels"]
+    variants = sorted(levels, key=lambda variant: levels[variant])
+    baseline = summary.get("study_baseline")
+    level_0 = baseline_cells(baseline, cells) if baseline else []
+    columns = ([f"{BASELINE_VARIANT} ({baseline['suite']})"] if level_0 else []) + variants
+    by_key = {(cell["env"], cell["algo"], cell["variant"]): cell for cell in [*cells, *level_0]}
+    keys = list(dict.fromkeys((cell["env"], cell["algo"]) for cell in cells))
+    lines = [
+        "",
+        f"By level of {study['setting']} (mean held-out feasible reward / violation rate over each cell's seeds, their "
+        "number in brackets"
+        + (f"; {BASELINE_VARIANT}: the same seeds' runs of suite {baseline['suite']!r}" if level_0 else "")
+        + "):",
+        "",
+        "| env | algo | " + " | ".join(columns) + " |",
+        "|---" * (len(columns) + 2) + "|",
+    ]
+    for env, algo in keys:
+        row = []
+        for variant in ([BASELINE_VARIANT] if level_0 else []) + variants:
+            cell = by_key.get((env, algo, variant))
+            row.append("-" if cell is None else _level_text(cell))
+        lines.append(f"| {env} | {algo} | " + " | ".join(row) + " |")
+    return lines
+
+
+def _level_text(cell: dict[str, Any]) -> str:
+    """One cell of a study's table by level: ``feasible / violation (seeds)``."""
+    reward, rate = cell["feasible_reward_mean"], cell["violation_rate_mean"]
+    shown = [format_reward(reward) if _finite(reward) else "-", format_rate(rate) if _finite(rate) else "-"]
+    return f"{shown[0]} / {shown[1]} ({len(cell['per_seed'])})"
+
+
+def _finite(value: Any) -> bool:
+    return isinstance(value, (int, float)) and math.isfinite(value)
 
 
 #: Up to this many runs of a list (those not finished, those without a transfer test) are named one by one; more are

@@ -42,11 +42,12 @@ BASELINE_VARIANT = "level 0"
 
 def baseline_cells(baseline: dict[str, Any], cells: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """
-    The level 0 a study figure draws: each baseline cell of a method the study has runs of on that env, on the seeds of
-    those runs only (while a study is under way its levels hold fewer seeds than the baseline: its level-0 mean over
-    other seeds would not compare with theirs), as a cell of variant :data:`BASELINE_VARIANT`.
+    The level 0 a study's figure and table show: each baseline cell of a method the study has runs of on that env, on
+    the seeds of those runs only (while a study is under way its levels hold fewer seeds than the baseline: its level-0
+    mean over other seeds would not compare with theirs), as a cell of variant :data:`BASELINE_VARIANT`. A value its
+    summary.json holds as ``null`` (no number) is ``nan`` there.
 
-    :param baseline: The study's level 0 (:func:`~sb3_icrl.benchmark.study_baseline.study_baseline`)
+    :param baseline: The study's level 0 (:func:`study_baseline`)
     :param cells: The study's cells
     """
     studied: dict[tuple[str, str], set[int]] = {}
@@ -54,7 +55,7 @@ def baseline_cells(baseline: dict[str, Any], cells: list[dict[str, Any]]) -> lis
         studied.setdefault((cell["env"], cell["algo"]), set()).update(seed["seed"] for seed in cell["per_seed"])
     drawn = []
     for cell in baseline["cells"]:
-        per_seed = [seed for seed in cell["per_seed"] if seed["seed"] in studied.get((cell["env"], cell["algo"]), ())]
+        per_seed = [_levels(seed) for seed in cell["per_seed"] if seed["seed"] in studied.get((cell["env"], cell["algo"]), ())]
         if not per_seed:
             continue
         means = {}
