@@ -207,18 +207,28 @@ def test_the_report_tables_each_method_by_level_with_its_level_0(study):
     summary["study_baseline"] = json.loads(json.dumps(baseline, allow_nan=True).replace("NaN", "null"))
     lines = study_level_lines(summary)
     assert "level 0: the same seeds' runs of suite 'table'" in lines[1]
-    assert lines[-3:] == [
+    by_level = lines.index("| env | algo | level 0 (table) | sigma-0.01 | sigma-0.1 |")
+    assert lines[by_level : by_level + 3] == [
         "| env | algo | level 0 (table) | sigma-0.01 | sigma-0.1 |",
         "|---|---|---|---|---|",
         "| GridWorldWall-v0 | bc2l | 15.0 / 25% (2) | 35.0 / 0% (2) | 55.0 / 0% (2) |",
     ]
     assert "\n".join(lines) in markdown_table(summary)
+    # Then each level's change from level 0, paired by seed: +20 and +20 in reward, -0.5 and 0 in rate, at sigma 1e-2
+    paired = lines.index("| env | algo | sigma-0.01 | sigma-0.1 |")
+    assert lines[paired - 2].startswith("Change from level 0, paired by seed")
+    assert lines[paired + 2] == (
+        "| GridWorldWall-v0 | bc2l | +20.0 / -25 pts (2 paired, 0 lower) | +40.0 / -25 pts (2 paired, 0 lower) |"
+    )
+    assert "Change from level 0" not in "\n".join(without)
     # A method with runs at one level only, and one whose level-0 rate has no number: "-"
     mecl = [(run, RunResult(run.name, "mecl", run.env_id, 0, 100, 1.0, 0.5, 7.0, 7.0, 20)) for run in suite.runs()]
     mecl = [item for item in mecl if item[0].algo == "mecl" and item[0].variant == "sigma-0.1" and "Square" in item[0].env_id]
     summary = summarise_suite(suite, suite.runs(), [*results, *mecl], _facts([*results, *mecl]))
     summary["study_baseline"] = json.loads(json.dumps(baseline, allow_nan=True).replace("NaN", "null"))
     assert "| GridWorldSquare-v0 | mecl | 7.00 / - (1) | - | 7.00 / 50% (1) |" in study_level_lines(summary)
+    # A pair without a level-0 rate changes the reward alone; a level without the method's runs has no pair
+    assert "| GridWorldSquare-v0 | mecl | - | +0.00 / - (1 paired, 0 lower) |" in study_level_lines(summary)
     # A suite that is no study has no such table
     assert study_level_lines({**summary, "study": None}) == [] and "study" not in summarise_suite(
         load_suite("smoke", dry_build=False), [], []

@@ -485,7 +485,45 @@ def study_level_lines(summary: dict[str, Any]) -> list[str]:
             cell = by_key.get((env, algo, variant))
             row.append("-" if cell is None else _level_text(cell))
         lines.append(f"| {env} | {algo} | " + " | ".join(row) + " |")
+    if level_0:
+        lines += [
+            "",
+            "Change from level 0, paired by seed (over the seeds a level and level 0 both hold: the mean of the level's "
+            "feasible reward minus level 0's / of its violation rate minus level 0's in points; then the seeds paired and "
+            "how many of them earned less):",
+            "",
+            "| env | algo | " + " | ".join(variants) + " |",
+            "|---" * (len(variants) + 2) + "|",
+        ]
+        for env, algo in keys:
+            base = by_key.get((env, algo, BASELINE_VARIANT))
+            row = [_paired_text(base, by_key.get((env, algo, variant))) for variant in variants]
+            lines.append(f"| {env} | {algo} | " + " | ".join(row) + " |")
     return lines
+
+
+def _paired_text(base: dict[str, Any] | None, cell: dict[str, Any] | None) -> str:
+    """One cell of the paired changes: ``+/-reward / +/-points (n paired, k lower)``, ``-`` without a pair."""
+    if base is None or cell is None:
+        return "-"
+    level_0 = {seed["seed"]: seed for seed in base["per_seed"]}
+    pairs = [
+        (seed["feasible_reward"] - level_0[seed["seed"]]["feasible_reward"], seed, level_0[seed["seed"]])
+        for seed in cell["per_seed"]
+        if seed["seed"] in level_0 and _finite(seed["feasible_reward"]) and _finite(level_0[seed["seed"]]["feasible_reward"])
+    ]
+    if not pairs:
+        return "-"
+    reward = sum(change for change, _, _ in pairs) / len(pairs)
+    rates = [
+        seed["violation_rate"] - zero["violation_rate"]
+        for _, seed, zero in pairs
+        if _finite(seed["violation_rate"]) and _finite(zero["violation_rate"])
+    ]
+    points = f"{100 * sum(rates) / len(rates):+.0f} pts" if rates else "-"
+    sign = "+" if reward >= 0 else "-"
+    lower = sum(change < 0 for change, _, _ in pairs)
+    return f"{sign}{format_reward(abs(reward))} / {points} ({len(pairs)} paired, {lower} lower)"
 
 
 def _level_text(cell: dict[str, Any]) -> str:
