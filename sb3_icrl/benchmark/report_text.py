@@ -458,13 +458,13 @@ def study_level_lines(summary: dict[str, Any]) -> list[str]:
 
     :param summary: A summary of :func:`~sb3_icrl.benchmark.report.summarise_suite`
     """
-    study = summary.get("study")
-    cells = [cell for cell in summary["cells"] if study and cell["variant"] in study["levels"]]
+    study: dict[str, Any] = summary.get("study") or {}
+    levels: dict[str, float] = study.get("levels", {})
+    cells = [cell for cell in summary["cells"] if cell["variant"] in levels]
     if not cells:
         return []
-    levels = study["levels"]
     variants = sorted(levels, key=lambda variant: levels[variant])
-    baseline = summary.get("study_baseline")
+    baseline: dict[str, Any] = summary.get("study_baseline") or {}
     level_0 = baseline_cells(baseline, cells) if baseline else []
     columns = ([f"{BASELINE_VARIANT} ({baseline['suite']})"] if level_0 else []) + variants
     by_key = {(cell["env"], cell["algo"], cell["variant"]): cell for cell in [*cells, *level_0]}
