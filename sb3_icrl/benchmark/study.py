@@ -10,8 +10,6 @@ import math
 import os
 from typing import Any
 
-import numpy as np
-
 from sb3_icrl.benchmark.suite import Suite, SuiteError
 from sb3_icrl.registry import env_name
 
@@ -58,11 +56,7 @@ def baseline_cells(baseline: dict[str, Any], cells: list[dict[str, Any]]) -> lis
         per_seed = [_levels(seed) for seed in cell["per_seed"] if seed["seed"] in studied.get((cell["env"], cell["algo"]), ())]
         if not per_seed:
             continue
-        means = {}
-        for metric in ("violation_rate", "feasible_reward"):
-            values = [seed[metric] for seed in per_seed if math.isfinite(seed[metric])]
-            means[f"{metric}_mean"] = float(np.mean(values)) if values else math.nan
-        drawn.append({**cell, **means, "per_seed": per_seed, "variant": BASELINE_VARIANT})
+        drawn.append({**cell, **_means(per_seed), "per_seed": per_seed, "variant": BASELINE_VARIANT})
     return drawn
 
 
@@ -149,9 +143,7 @@ def study_baseline(baseline: dict[str, Any], suite: Suite, source: str, model: s
             "the report of the runs it extends (the fresh-seed table's for the shipped studies)."
         )
     for cell in cells.values():
-        for metric in ("violation_rate", "feasible_reward"):
-            values = [seed[metric] for seed in cell["per_seed"] if math.isfinite(seed[metric])]
-            cell[f"{metric}_mean"] = sum(values) / len(values) if values else math.nan
+        cell.update(_means(cell["per_seed"]))
     return {
         "source": source,
         "suite": baseline.get("suite"),
@@ -166,6 +158,15 @@ def _levels(seed: dict[str, Any]) -> dict[str, Any]:
         "seed": seed["seed"],
         **{key: math.nan if seed.get(key) is None else float(seed[key]) for key in ("violation_rate", "feasible_reward")},
     }
+
+
+def _means(per_seed: list[dict[str, Any]]) -> dict[str, float]:
+    """The mean violation rate and feasible reward of baseline runs (:func:`_levels`), ``nan`` where none has a number."""
+    means = {}
+    for metric in ("violation_rate", "feasible_reward"):
+        values = [seed[metric] for seed in per_seed if math.isfinite(seed[metric])]
+        means[f"{metric}_mean"] = sum(values) / len(values) if values else math.nan
+    return means
 
 
 def baseline_line(summary: dict[str, Any]) -> str | None:
