@@ -233,3 +233,50 @@ def test_the_report_tables_each_method_by_level_with_its_level_0(study):
     assert study_level_lines({**summary, "study": None}) == [] and "study" not in summarise_suite(
         load_suite("smoke", dry_build=False), [], []
     )
+
+
+def test_the_study_tables_and_draws_each_learned_costs_identification_by_level(study):
+    suite, _ = study
+    results = _results(suite)
+    # bc2l's AUROC 0.9 / 0.6 at sigma 1e-2 and 0.7 / 0.8 at 1e-1 (seeds 0 / 1), its untrained nets 0.2-0.75 on every run
+    auroc = {("sigma-0.01", 0): 0.9, ("sigma-0.01", 1): 0.6, ("sigma-0.1", 0): 0.7, ("sigma-0.1", 1): 0.8}
+    facts = {
+        result.run: {
+            "recipe_version": "v2",
+            "identification_auroc": auroc[(run.variant, run.seed)],
+            "untrained_auroc_low": 0.2,
+            "untrained_auroc_high": 0.75,
+        }
+        for run, result in results
+    }
+    summary = summarise_suite(suite, suite.runs(), results, facts)
+    # Level 0: seed 0 above its untrained nets, seed 1 at their highest (not above); seed 2 is not the study's
+    table = table_summary()
+    for seed, value in zip(table["cells"][0]["per_seed"], (0.95, 0.5, 0.99), strict=True):
+        seed.update(identification_auroc=value, untrained_auroc_low=0.1, untrained_auroc_high=0.5)
+    baseline = study_baseline(table, suite, "results/table")
+    summary["study_baseline"] = json.loads(json.dumps(baseline, allow_nan=True).replace("NaN", "null"))
+    lines = study_level_lines(summary)
+    heading = next(index for index, line in enumerate(lines) if line.startswith("Identification by level"))
+    assert lines[heading + 2 :] == [
+        "| env | algo | level 0 (table) | sigma-0.01 | sigma-0.1 |",
+        "|---|---|---|---|---|",
+        "| GridWorldWall-v0 | bc2l | 0.72 (1 of 2 above untrained) | 0.75 (1 of 2 above untrained) | "
+        "0.75 (1 of 2 above untrained) |",
+    ]
+    # Untrained nets that all scored alike are named: above them is a low bar
+    for cell in summary["cells"]:
+        for seed in cell["per_seed"]:
+            seed.update(untrained_auroc_low=0.5, untrained_auroc_high=0.5)
+    assert "| 0.75 (2 of 2 above untrained, all 0.50) |" in study_level_lines(summary)[-1]
+    # The figure's third row: the mean AUROC per level, the seeds as dots, over the untrained nets' band
+    figure = study_figure(summary, *study_axis(suite), baseline=baseline)
+    auroc_ax = figure.axes[2]
+    assert list(auroc_ax.get_lines()[0].get_ydata()) == pytest.approx([0.725, 0.75, 0.75])
+    assert sorted(np.concatenate([c.get_offsets()[:, 1] for c in auroc_ax.collections])) == [0.5, 0.6, 0.7, 0.8, 0.9, 0.95]
+    [band] = auroc_ax.patches  # level 0's runs still have a range (0.1-0.5); the study's now score alike
+    assert band.get_y() == pytest.approx(0.1) and band.get_height() == pytest.approx(0.4)
+    # A study without identification keeps its two rows and no identification table
+    plain = summarise_suite(suite, suite.runs(), results, _facts(results))
+    assert len(study_figure(plain, *study_axis(suite)).axes) == 2
+    assert not any(line.startswith("Identification by level") for line in study_level_lines(plain))

@@ -263,9 +263,11 @@ def write_figures(summary: dict[str, Any], suite: Suite, root: str, output: str)
 
 def study_figure(summary: dict[str, Any], key: str, levels: dict[str, float], baseline: dict[str, Any] | None = None) -> Any:
     """
-    The paper's study figure from ours: one column per env, the violation rate (top) and the feasible reward (bottom)
+    The paper's study figure from ours: one column per env, the violation rate (top) and the feasible reward (middle)
     of each method against the study's level (:func:`~sb3_icrl.benchmark.study.study_axis`), its mean over seeds joined
-    by a line and each seed's value a dot; ``None`` when the summary has no cell of those variants.
+    by a line and each seed's value a dot; below them, where the learned costs were scored, their identification AUROC
+    the same way, over a grey band from the lowest to the highest AUROC of untrained nets (their mean over the env's
+    scored runs whose untrained nets did not all score alike). ``None`` when the summary has no cell of those variants.
 
     :param summary: A summary of :func:`~sb3_icrl.benchmark.report.summarise_suite`
     :param key: The setting varied (a key of :data:`~sb3_icrl.benchmark.study.STUDY_AXES`)
@@ -281,8 +283,11 @@ def study_figure(summary: dict[str, Any], key: str, levels: dict[str, float], ba
         levels = {**levels, BASELINE_VARIANT: 0.0}
     envs = list(dict.fromkeys(cell["env"] for cell in cells))
     algos = list(dict.fromkeys(cell["algo"] for cell in cells))
-    figure = new_figure(width=max(4.8, 3.6 * len(envs)), height=6.4)
-    axes = np.asarray(figure.subplots(2, len(envs), squeeze=False))
+    metrics = [("violation_rate", "violation rate"), ("feasible_reward", "feasible reward")]
+    if any(_finite_values(cell, "identification_auroc") for cell in cells):
+        metrics.append(("identification_auroc", "identification AUROC (grey: untrained)"))
+    figure = new_figure(width=max(4.8, 3.6 * len(envs)), height=3.2 * len(metrics))
+    axes = np.asarray(figure.subplots(len(metrics), len(envs), squeeze=False))
     colours = {algo: f"C{index % 10}" for index, algo in enumerate(algos)}
     # Noise levels a decade apart: a log axis; a level of 0 (no noise) needs the linear stretch of a symlog one
     scale: dict[str, Any] = {}
@@ -292,19 +297,24 @@ def study_figure(summary: dict[str, Any], key: str, levels: dict[str, float], ba
             {"value": "log"} if len(positive) == len(levels) else {"value": "symlog", "linthresh": min(positive, default=1.0)}
         )
     for column, env in enumerate(envs):
-        for row, (metric, title) in enumerate((("violation_rate", "violation rate"), ("feasible_reward", "feasible reward"))):
+        for row, (metric, title) in enumerate(metrics):
             ax = axes[row, column]
+            if metric == "identification_auroc":
+                _untrained_band(ax, [cell for cell in cells if cell["env"] == env])
             for algo in algos:
                 mine = sorted(
-                    ((levels[cell["variant"]], cell) for cell in cells if cell["env"] == env and cell["algo"] == algo),
+                    (
+                        (levels[cell["variant"]], _finite_values(cell, metric))
+                        for cell in cells
+                        if cell["env"] == env and cell["algo"] == algo
+                    ),
                     key=lambda pair: pair[0],
                 )
+                mine = [(level, values) for level, values in mine if values]
                 if not mine:
                     continue
-                xs = [level for level, _ in mine]
-                ax.plot(xs, [cell[f"{metric}_mean"] for _, cell in mine], marker="o", color=colours[algo])
-                for level, cell in mine:
-                    values = [seed[metric] for seed in cell["per_seed"] if math.isfinite(seed[metric])]
+                ax.plot([level for level, _ in mine], [np.mean(values) for _, values in mine], marker="o", color=colours[algo])
+                for level, values in mine:
                     ax.scatter([level] * len(values), values, s=8, color=colours[algo], alpha=0.35)
             if scale:
                 ax.set_xscale(**scale)
@@ -316,6 +326,30 @@ def study_figure(summary: dict[str, Any], key: str, levels: dict[str, float], ba
     handles = [Line2D([], [], marker="o", color=colours[algo], label=algo) for algo in algos]
     axes[0, 0].legend(handles=handles, fontsize=7)
     return figure
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and math.isfinite(value)
+
+
+def _finite_values(cell: dict[str, Any], metric: str) -> list[float]:
+    """A cell's per-seed values of ``metric`` that are numbers (none where its runs lack it: a reference row's AUROC)."""
+    return [float(seed[metric]) for seed in cell["per_seed"] if _is_number(seed.get(metric))]
+
+
+def _untrained_band(ax: Any, cells: list[dict[str, Any]]) -> None:
+    """Shade the untrained nets' AUROC range, its low and high each a mean over the runs with a range (not one value)."""
+    ranges = [
+        (seed["untrained_auroc_low"], seed["untrained_auroc_high"])
+        for cell in cells
+        for seed in cell["per_seed"]
+        if _is_number(seed.get("untrained_auroc_low"))
+        and _is_number(seed.get("untrained_auroc_high"))
+        and seed["untrained_auroc_low"] < seed["untrained_auroc_high"]
+    ]
+    if ranges:
+        low, high = np.mean(ranges, axis=0)
+        ax.axhspan(low, high, color="0.85", zorder=0)
 
 
 #: Thresholds of the performance profile: normalised scores from PPO's (0) to beyond the oracle's (1)

@@ -454,7 +454,9 @@ def study_level_lines(summary: dict[str, Any]) -> list[str]:
     """
     A study's table by level (none for a suite that is no study): per env and method, the mean held-out feasible
     reward and violation rate of each level, level 0 first where the report has one (on the seeds of the study's own
-    runs: :func:`~sb3_icrl.benchmark.study.baseline_cells`), with how many seeds each mean takes.
+    runs: :func:`~sb3_icrl.benchmark.study.baseline_cells`), with how many seeds each mean takes; with a level 0, each
+    level's change from it paired by seed; and where learned costs were scored, their identification by level (mean
+    AUROC, and how many seeds score above untrained nets).
 
     :param summary: A summary of :func:`~sb3_icrl.benchmark.report.summarise_suite`
     """
@@ -469,37 +471,68 @@ def study_level_lines(summary: dict[str, Any]) -> list[str]:
     columns = ([f"{BASELINE_VARIANT} ({baseline['suite']})"] if level_0 else []) + variants
     by_key = {(cell["env"], cell["algo"], cell["variant"]): cell for cell in [*cells, *level_0]}
     keys = list(dict.fromkeys((cell["env"], cell["algo"]) for cell in cells))
-    lines = [
-        "",
+    shown = ([BASELINE_VARIANT] if level_0 else []) + variants
+
+    def text(env: str, algo: str, variant: str, cell_text: Callable[[dict[str, Any]], str]) -> str:
+        cell = by_key.get((env, algo, variant))
+        return (cell_text(cell) if cell is not None else "") or "-"
+
+    intro = (
         f"By level of {study['setting']} (mean held-out feasible reward / violation rate over each cell's seeds, their "
         "number in brackets"
         + (f"; {BASELINE_VARIANT}: the same seeds' runs of suite {baseline['suite']!r}" if level_0 else "")
-        + "):",
-        "",
-        "| env | algo | " + " | ".join(columns) + " |",
-        "|---" * (len(columns) + 2) + "|",
-    ]
-    for env, algo in keys:
-        row = []
-        for variant in ([BASELINE_VARIANT] if level_0 else []) + variants:
-            cell = by_key.get((env, algo, variant))
-            row.append("-" if cell is None else _level_text(cell))
-        lines.append(f"| {env} | {algo} | " + " | ".join(row) + " |")
+        + "):"
+    )
+    lines = _table_by_level(intro, columns, {key: [text(*key, variant, _level_text) for variant in shown] for key in keys})
     if level_0:
-        lines += [
-            "",
+        paired = {
+            (env, algo): [
+                _paired_text(by_key.get((env, algo, BASELINE_VARIANT)), by_key.get((env, algo, v))) for v in variants
+            ]
+            for env, algo in keys
+        }
+        lines += _table_by_level(
             "Change from level 0, paired by seed (over the seeds a level and level 0 both hold: the mean of the level's "
             "feasible reward minus level 0's / of its violation rate minus level 0's in points; then the seeds paired and "
             "how many of them earned less):",
-            "",
-            "| env | algo | " + " | ".join(variants) + " |",
-            "|---" * (len(variants) + 2) + "|",
-        ]
-        for env, algo in keys:
-            base = by_key.get((env, algo, BASELINE_VARIANT))
-            row = [_paired_text(base, by_key.get((env, algo, variant))) for variant in variants]
-            lines.append(f"| {env} | {algo} | " + " | ".join(row) + " |")
+            variants,
+            paired,
+        )
+    identification = {key: [text(*key, variant, _level_identification_text) for variant in shown] for key in keys}
+    identification = {key: row for key, row in identification.items() if any(entry != "-" for entry in row)}
+    if identification:
+        lines += _table_by_level(
+            "Identification by level (the learned cost's mean identification AUROC over each cell's seeds; then how many of "
+            "them score above the highest AUROC of untrained nets of the same architecture, the range a cost that learned "
+            "nothing of the constraint can reach):",
+            columns,
+            identification,
+        )
     return lines
+
+
+def _table_by_level(intro: str, columns: list[str], rows: dict[tuple[str, str], list[str]]) -> list[str]:
+    """One of a study's tables: after a blank line its introduction, then a row per env and method, a column per level."""
+    lines = ["", intro, "", "| env | algo | " + " | ".join(columns) + " |", "|---" * (len(columns) + 2) + "|"]
+    return lines + [f"| {env} | {algo} | " + " | ".join(row) + " |" for (env, algo), row in rows.items()]
+
+
+def _level_identification_text(cell: dict[str, Any]) -> str:
+    """
+    One cell of a study's identification table: ``mean AUROC (k of n above untrained)`` over the seeds with an AUROC
+    (a seed without the untrained nets' range counts as not above; where the untrained nets of every seed scored one
+    value alike, that value is named); empty for a cell without one (a reference row).
+    """
+    scored = [seed for seed in cell["per_seed"] if _finite(seed.get("identification_auroc"))]
+    if not scored:
+        return ""
+    mean = sum(seed["identification_auroc"] for seed in scored) / len(scored)
+    highs = [seed.get("untrained_auroc_high") for seed in scored]
+    above = sum(_finite(high) and seed["identification_auroc"] > high for seed, high in zip(scored, highs, strict=True))
+    # Untrained nets that all score alike (a cost net that starts constant ranks nothing: 0.5) make "above" a low bar
+    alike = all(_finite(high) and seed.get("untrained_auroc_low") == high for seed, high in zip(scored, highs, strict=True))
+    value = f", all {highs[0]:.2f}" if alike and len(set(highs)) == 1 else ""
+    return f"{mean:.2f} ({above} of {len(scored)} above untrained{value})"
 
 
 def _paired_text(base: dict[str, Any] | None, cell: dict[str, Any] | None) -> str:

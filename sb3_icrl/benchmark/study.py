@@ -94,8 +94,9 @@ def study_baseline(baseline: dict[str, Any], suite: Suite, source: str, model: s
     :param suite: The study's suite
     :param source: Where that report lies, as the study's report names it
     :param model: The model the study's report evaluates (``final`` or ``best``)
-    :return: ``source``, ``suite``, ``recipe_version`` and ``cells`` (per env and method: its seeds' violation rate
-        and feasible reward, and their means), for the summary's ``study_baseline`` key
+    :return: ``source``, ``suite``, ``recipe_version`` and ``cells`` (per env and method: its seeds' violation rate,
+        feasible reward and identification values, and the means of the first two), for the summary's ``study_baseline``
+        key
     :raises SuiteError: When the two reports do not compare like with like, or share no run
     """
     if suite.recipe_version is None:
@@ -152,11 +153,19 @@ def study_baseline(baseline: dict[str, Any], suite: Suite, source: str, model: s
     }
 
 
+#: A baseline run's identification values, kept where its report has them (the ICRL rows)
+IDENTIFICATION_KEYS = ("identification_auroc", "untrained_auroc_low", "untrained_auroc_high")
+
+
 def _levels(seed: dict[str, Any]) -> dict[str, Any]:
-    """One baseline run: its seed, violation rate and feasible reward (``nan`` where its report has ``null``)."""
+    """
+    One baseline run: its seed, violation rate and feasible reward (``nan`` where its report has ``null``), and the
+    identification values (:data:`IDENTIFICATION_KEYS`) its report holds.
+    """
     return {
         "seed": seed["seed"],
         **{key: math.nan if seed.get(key) is None else float(seed[key]) for key in ("violation_rate", "feasible_reward")},
+        **{key: math.nan if seed[key] is None else float(seed[key]) for key in IDENTIFICATION_KEYS if key in seed},
     }
 
 
