@@ -224,3 +224,28 @@ def test_training_evaluations_log_each_constraint(tmp_path):
     model.logger.close()
     logged = (tmp_path / "progress.csv").read_text().splitlines()[0].split(",")
     assert {"eval/violation_rate", "eval/violation_rate_velocity", "eval/violation_rate_distance"} <= set(logged)
+
+
+def test_report_draws_each_constraint_the_feasible_reward_and_the_goal_rate_per_method(suite, tmp_path):
+    from sb3_icrl.benchmark.report_figures import multi_constraint_figure, write_figures
+
+    runs = suite.runs()
+    results = [(run, _result(run.algo, run.seed)) for run in runs]
+    for (_, result), goal in zip(results, (0.5, 1.0, 0.0, None), strict=True):  # vicrl's seed 1: no outcome flags
+        result.outcome_rates = {} if goal is None else {"goal_reached_rate": goal}
+    summary = summarise_suite(suite, runs, results)
+    figure = multi_constraint_figure(summary)
+    titles = [ax.get_title() for ax in figure.axes]
+    assert titles == ["velocity violation rate", "distance violation rate", "feasible reward", "goal reached (success)"]
+    heights = [[bar.get_height() for bar in ax.patches] for ax in figure.axes]
+    assert heights == [[0.25, 0.5], [0.25, 0.375], [15.0, 15.0], [0.75, 0.0]]
+    dots = [sorted(collection.get_offsets()[:, 1]) for collection in figure.axes[3].collections]
+    assert dots == [[0.5, 1.0], [0.0]]  # a seed without the outcome has no dot
+    assert [tick.get_text() for tick in figure.axes[0].get_xticklabels()] == ["mecl", "vicrl"]
+    written = write_figures(summary, suite, str(tmp_path / "logs"), str(tmp_path))
+    assert str(tmp_path / "multi_constraint.png") in written
+    # A suite of single-constraint envs has no such figure
+    assert (
+        multi_constraint_figure({"cells": [{**cell, "constraint_violation_rates_mean": {}} for cell in summary["cells"]]})
+        is None
+    )

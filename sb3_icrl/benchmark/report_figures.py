@@ -1,7 +1,8 @@
 """
 The figures of a suite's report: per env and variant the training curves and each method's learned cost over the
-constrained feature, ours against the paper, rliable's performance profile of the normalised scores and, for a study
-of a variant setting (:data:`~sb3_icrl.benchmark.study.STUDY_AXES`), the paper's study figure (:func:`write_figures`).
+constrained feature, ours against the paper, rliable's performance profile of the normalised scores, for a study of a
+variant setting (:data:`~sb3_icrl.benchmark.study.STUDY_AXES`) the paper's study figure and for envs with several
+constraints its figure of them (:func:`write_figures`).
 What they draw of each run is kept in the report folder (:data:`FIGURE_DATA_FILE`, :func:`figure_data`), so that a
 report updated once some runs' folders are gone still draws them.
 """
@@ -18,6 +19,7 @@ from matplotlib.lines import Line2D
 from sb3_icrl.benchmark.report_numbers import finite_or_null
 from sb3_icrl.benchmark.study import BASELINE_VARIANT, STUDY_AXES, baseline_cells, study_axis
 from sb3_icrl.benchmark.suite import RunSpec, Suite
+from sb3_icrl.common.evaluation import CONSTRAINT_VIOLATION_PREFIX, OUTCOME_RATE_KEYS
 from sb3_icrl.common.statistics import performance_profile, performance_profile_ci
 from sb3_icrl.common.utils import atomic_write_json
 from sb3_icrl.metrics.identification import headline_crossing, identification_file, learned_cost_curves, learned_cost_figure
@@ -195,7 +197,8 @@ def write_figures(summary: dict[str, Any], suite: Suite, root: str, output: str)
     """
     Per env and variant: training curves (mean +- std over the seeds of each method, from their ``evaluations.npz``)
     and each method's learned cost over the constrained feature (:func:`constraint_figures`); per suite: ours against
-    the paper, cell by cell. PNG files in ``output``, with the data they draw in :data:`FIGURE_DATA_FILE`: a report
+    the paper, cell by cell, the performance profile, a study's figure (:func:`study_figure`) and that of envs with
+    several constraints (:func:`multi_constraint_figure`). PNG files in ``output``, with the data they draw in :data:`FIGURE_DATA_FILE`: a report
     updated where some runs' folders are gone draws them from it.
 
     :return: The paths written
@@ -258,6 +261,9 @@ def write_figures(summary: dict[str, Any], suite: Suite, root: str, output: str)
         study = study_figure(summary, *axis, baseline=summary.get("study_baseline"))
         if study is not None:
             written.append(str(save_figure(study, os.path.join(output, "study.png"))))
+    multi = multi_constraint_figure(summary)
+    if multi is not None:
+        written.append(str(save_figure(multi, os.path.join(output, "multi_constraint.png"))))
     return written
 
 
@@ -325,6 +331,45 @@ def study_figure(summary: dict[str, Any], key: str, levels: dict[str, float], ba
     # One legend with every method, whichever env it has cells on
     handles = [Line2D([], [], marker="o", color=colours[algo], label=algo) for algo in algos]
     axes[0, 0].legend(handles=handles, fontsize=7)
+    return figure
+
+
+def multi_constraint_figure(summary: dict[str, Any]) -> Any:
+    """
+    The paper's figure of several constraints at once (its speed and distance study), from ours: a row per env and
+    variant with several constraints, and in it each method's held-out violation rate of each constraint, its feasible
+    reward and, where the episodes tell how they ended (the driving envs), its share that reached the goal (the paper's
+    success rate); a bar for the mean over seeds, a dot per seed. ``None`` without such cells.
+
+    :param summary: A summary of :func:`~sb3_icrl.benchmark.report.summarise_suite`
+    """
+    cells = [cell for cell in summary["cells"] if len(cell.get("constraint_violation_rates_mean") or {}) > 1]
+    if not cells:
+        return None
+    constraints = list(dict.fromkeys(key for cell in cells for key in cell["constraint_violation_rates_mean"]))
+    panels = [(key, f"{key.removeprefix(CONSTRAINT_VIOLATION_PREFIX)} violation rate") for key in constraints]
+    panels.append(("feasible_reward", "feasible reward"))
+    goal = OUTCOME_RATE_KEYS["goal_reached"]
+    if any(_finite_values(cell, goal) for cell in cells):
+        panels.append((goal, "goal reached (success)"))
+    tasks = list(dict.fromkeys((cell["env"], cell["variant"]) for cell in cells))
+    algos = list(dict.fromkeys(cell["algo"] for cell in cells))
+    figure = new_figure(width=3.2 * len(panels), height=3.4 * len(tasks))
+    axes = np.asarray(figure.subplots(len(tasks), len(panels), squeeze=False))
+    for row, (env, variant) in enumerate(tasks):
+        mine = [cell for cell in cells if (cell["env"], cell["variant"]) == (env, variant)]
+        positions = np.arange(len(mine))
+        for column, (key, title) in enumerate(panels):
+            ax = axes[row, column]
+            for position, cell in zip(positions, mine, strict=True):
+                values = _finite_values(cell, key)
+                if values:
+                    ax.bar(position, np.mean(values), color=f"C{algos.index(cell['algo']) % 10}")
+                    ax.scatter([position] * len(values), values, s=8, color="black", zorder=3)
+            ax.set_xticks(positions, [cell["algo"] for cell in mine], rotation=90, fontsize=7)
+            ax.set_title(title, fontsize=9)
+            if column == 0:
+                ax.set_ylabel(f"{env}\n({variant})", fontsize=8)
     return figure
 
 
