@@ -198,8 +198,8 @@ def write_figures(summary: dict[str, Any], suite: Suite, root: str, output: str)
     Per env and variant: training curves (mean +- std over the seeds of each method, from their ``evaluations.npz``)
     and each method's learned cost over the constrained feature (:func:`constraint_figures`); per suite: ours against
     the paper, cell by cell, the performance profile, a study's figure (:func:`study_figure`) and that of envs with
-    several constraints (:func:`multi_constraint_figure`). PNG files in ``output``, with the data they draw in :data:`FIGURE_DATA_FILE`: a report
-    updated where some runs' folders are gone draws them from it.
+    several constraints (:func:`multi_constraint_figure`). PNG files in ``output``, with the data they draw in
+    :data:`FIGURE_DATA_FILE`: a report updated where some runs' folders are gone draws them from it.
 
     :return: The paths written
     """
