@@ -72,6 +72,14 @@ def read_runs(report: str, env: str = ENV) -> dict[tuple[str, str], list[dict[st
     runs = {(cell["variant"], cell["algo"]): cell["per_seed"] for cell in summary["cells"] if cell["env"] == env}
     if not runs:
         raise RuleInputError(f"{path} has no run of {env}: pass the report of benchmarks/suites/multi_tuning.yml.")
+    for (variant, algo), seeds in runs.items():
+        for seed in seeds:
+            missing = [key for key in ("feasible_reward", "violation_rate", "episode_length") if seed.get(key) is None]
+            if missing:
+                raise RuleInputError(
+                    f"{path}: {algo} ({variant}) seed {seed.get('seed')} has no {', '.join(missing)}: write the report "
+                    "again with the current `benchmark report`."
+                )
     return runs
 
 

@@ -95,3 +95,10 @@ def test_a_report_the_rule_cannot_judge_is_refused_clearly(tmp_path, capsys):
     Path(tmp_path / "summary.json").write_text(json.dumps({"cells": []}))
     with pytest.raises(rule.RuleInputError, match="no run of HighwayVelocityDistance-v0"):
         rule.read_runs(str(tmp_path))
+    seeds = _seeds((1, 0.0, 80))
+    del seeds[0]["episode_length"]
+    Path(tmp_path / "summary.json").write_text(
+        json.dumps({"cells": [{"env": rule.ENV, "variant": "base", "algo": "mecl", "per_seed": seeds}]})
+    )
+    with pytest.raises(rule.RuleInputError, match=r"mecl \(base\) seed 0 has no episode_length"):
+        rule.read_runs(str(tmp_path))
