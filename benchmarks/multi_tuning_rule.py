@@ -38,6 +38,10 @@ PRIOR_MAX_EXTRA_VIOLATION = 0.05
 DESIGN_MAX_VIOLATION = 0.5
 #: Rules 2 and 3: on this many seeds or more a recipe "ends its episodes on purpose"
 ON_PURPOSE_SEEDS = 2
+#: The tuning seeds, the methods of ``base`` and the held-out evaluation the rule was written for
+TUNING_SEEDS = (0, 1, 2)
+METHODS = ("gacl", "bc2l", "mecl", "vicrl")
+EVALUATION = {"eval_episodes": 20, "eval_seed": 100, "eval_budget": "episodes"}
 
 
 class RuleInputError(ValueError):
@@ -69,6 +73,9 @@ def read_runs(report: str, env: str = ENV) -> dict[tuple[str, str], list[dict[st
         raise RuleInputError(f"No intact report at {path} ({error}): run `benchmark report` first.") from error
     if summary.get("model", "final") != "final":
         raise RuleInputError(f"{path} evaluates best models: the rule judges final models. Report without --model best.")
+    other = {key: summary.get(key) for key in EVALUATION if summary.get(key) != EVALUATION[key]}
+    if other:
+        raise RuleInputError(f"{path} evaluates otherwise than the rule says ({other}; the rule: {EVALUATION}).")
     runs = {(cell["variant"], cell["algo"]): cell["per_seed"] for cell in summary["cells"] if cell["env"] == env}
     if not runs:
         raise RuleInputError(f"{path} has no run of {env}: pass the report of benchmarks/suites/multi_tuning.yml.")
@@ -93,12 +100,14 @@ def _on_purpose(seeds: list[dict[str, Any]], threshold: float) -> int:
 
 
 def _needed(runs: dict[tuple[str, str], list[dict[str, Any]]], key: tuple[str, str], seeds: int) -> list[dict[str, Any]]:
-    found = runs.get(key, [])
-    if len(found) < seeds:
+    """A recipe's runs on exactly the tuning seeds (:data:`TUNING_SEEDS`; ``seeds``, their number)."""
+    found = sorted(runs.get(key, []), key=lambda seed: seed["seed"])
+    if tuple(seed["seed"] for seed in found) != TUNING_SEEDS[:seeds]:
         raise RuleInputError(
-            f"{key[1]} ({key[0]}) has {len(found)} of {seeds} seeds in the report: finish its runs and report again."
+            f"{key[1]} ({key[0]}) has seeds {[seed['seed'] for seed in found]} in the report, the rule judges "
+            f"{list(TUNING_SEEDS[:seeds])}: finish its runs and report again."
         )
-    return sorted(found, key=lambda seed: seed["seed"])
+    return found
 
 
 def decide(runs: dict[tuple[str, str], list[dict[str, Any]]], mean_length: float, seeds: int = 3) -> dict[str, Any]:
@@ -124,10 +133,8 @@ def decide(runs: dict[tuple[str, str], list[dict[str, Any]]], mean_length: float
         and _means(repeat)["feasible_reward"] > _means(zero)["feasible_reward"]
     )
     methods = {}
-    for (variant, algo), entries in runs.items():
-        if variant != "base":
-            continue
-        entries = _needed(runs, (variant, algo), seeds)
+    for algo in METHODS:  # every method, not those the report happens to hold
+        entries = _needed(runs, ("base", algo), seeds)
         means, on_purpose = _means(entries), _on_purpose(entries, threshold)
         fails = means["violation_rate"] > DESIGN_MAX_VIOLATION or on_purpose >= ON_PURPOSE_SEEDS
         methods[algo] = {**means, "seeds_on_purpose": on_purpose, "fails": fails}

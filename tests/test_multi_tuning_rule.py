@@ -70,7 +70,7 @@ def test_the_script_reads_a_report_and_the_shipped_demonstrations(tmp_path, caps
         {"env": rule.ENV, "variant": variant, "algo": algo, "per_seed": seeds} for (variant, algo), seeds in _runs().items()
     ]
     cells.append({"env": "HighwayVelocity-v0", "variant": "base", "algo": "vicrl", "per_seed": []})  # another env: left out
-    (tmp_path / "summary.json").write_text(json.dumps({"cells": cells, "model": "final"}))
+    (tmp_path / "summary.json").write_text(json.dumps({"cells": cells, "model": "final", **rule.EVALUATION}))
     out = tmp_path / "decision.json"
     assert rule.main([str(tmp_path), "--json", str(out)]) == 0
     decision = json.loads(out.read_text())
@@ -87,18 +87,28 @@ def test_a_report_the_rule_cannot_judge_is_refused_clearly(tmp_path, capsys):
     assert "run `benchmark report` first" in capsys.readouterr().err
     runs = _runs()
     del runs[("repeat", "gacl")][2]
-    with pytest.raises(rule.RuleInputError, match=r"gacl \(repeat\) has 2 of 3 seeds"):
+    with pytest.raises(
+        rule.RuleInputError, match=r"gacl \(repeat\) has seeds \[0, 1\] in the report, the rule judges \[0, 1, 2\]"
+    ):
         rule.decide(runs, MEAN_LENGTH)
     (tmp_path / "summary.json").write_text(json.dumps({"cells": [], "model": "best"}))
     with pytest.raises(rule.RuleInputError, match="evaluates best models"):
         rule.read_runs(str(tmp_path))
-    Path(tmp_path / "summary.json").write_text(json.dumps({"cells": []}))
+    Path(tmp_path / "summary.json").write_text(json.dumps({"cells": [], **rule.EVALUATION}))
     with pytest.raises(rule.RuleInputError, match="no run of HighwayVelocityDistance-v0"):
         rule.read_runs(str(tmp_path))
     seeds = _seeds((1, 0.0, 80))
     del seeds[0]["episode_length"]
     Path(tmp_path / "summary.json").write_text(
-        json.dumps({"cells": [{"env": rule.ENV, "variant": "base", "algo": "mecl", "per_seed": seeds}]})
+        json.dumps({"cells": [{"env": rule.ENV, "variant": "base", "algo": "mecl", "per_seed": seeds}], **rule.EVALUATION})
     )
     with pytest.raises(rule.RuleInputError, match=r"mecl \(base\) seed 0 has no episode_length"):
         rule.read_runs(str(tmp_path))
+    # Another evaluation, and a method missing from base, are refused too
+    Path(tmp_path / "summary.json").write_text(json.dumps({"cells": [], **rule.EVALUATION, "eval_seed": 7}))
+    with pytest.raises(rule.RuleInputError, match="evaluates otherwise"):
+        rule.read_runs(str(tmp_path))
+    runs = _runs()
+    del runs[("base", "bc2l")]
+    with pytest.raises(rule.RuleInputError, match=r"bc2l \(base\) has seeds \[\]"):
+        rule.decide(runs, MEAN_LENGTH)
