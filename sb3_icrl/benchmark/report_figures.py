@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 from matplotlib.lines import Line2D
 
-from sb3_icrl.benchmark.report_numbers import finite_or_null
+from sb3_icrl.benchmark.report_numbers import finite_or_null, is_finite_number
 from sb3_icrl.benchmark.study import BASELINE_VARIANT, STUDY_AXES, baseline_cells, study_axis
 from sb3_icrl.benchmark.suite import RunSpec, Suite
 from sb3_icrl.common.evaluation import CONSTRAINT_VIOLATION_PREFIX, OUTCOME_RATE_KEYS
@@ -373,13 +373,9 @@ def multi_constraint_figure(summary: dict[str, Any]) -> Any:
     return figure
 
 
-def _is_number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and math.isfinite(value)
-
-
 def _finite_values(cell: dict[str, Any], metric: str) -> list[float]:
     """A cell's per-seed values of ``metric`` that are numbers (none where its runs lack it: a reference row's AUROC)."""
-    return [float(seed[metric]) for seed in cell["per_seed"] if _is_number(seed.get(metric))]
+    return [float(seed[metric]) for seed in cell["per_seed"] if is_finite_number(seed.get(metric))]
 
 
 def _untrained_band(ax: Any, cells: list[dict[str, Any]]) -> None:
@@ -388,8 +384,8 @@ def _untrained_band(ax: Any, cells: list[dict[str, Any]]) -> None:
         (seed["untrained_auroc_low"], seed["untrained_auroc_high"])
         for cell in cells
         for seed in cell["per_seed"]
-        if _is_number(seed.get("untrained_auroc_low"))
-        and _is_number(seed.get("untrained_auroc_high"))
+        if is_finite_number(seed.get("untrained_auroc_low"))
+        and is_finite_number(seed.get("untrained_auroc_high"))
         and seed["untrained_auroc_low"] < seed["untrained_auroc_high"]
     ]
     if ranges:

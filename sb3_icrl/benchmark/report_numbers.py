@@ -44,6 +44,11 @@ def format_score(value: float) -> str:
     return f"{value:.2f}"
 
 
+def is_finite_number(value: Any) -> bool:
+    """Whether ``value`` is a finite int or float (a summary read back from JSON has ``None`` where it had none)."""
+    return isinstance(value, (int, float)) and math.isfinite(value)
+
+
 def finite_or_null(value: Any) -> Any:
     """
     A copy of a JSON-like value with every NaN or infinite float replaced by ``None``, so that strict JSON readers

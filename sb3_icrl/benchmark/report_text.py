@@ -14,7 +14,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from sb3_icrl.benchmark.judgements import LAST_TRAINING_COLUMNS, ORACLE_ROW, spread
-from sb3_icrl.benchmark.report_numbers import format_hours, format_rate, format_reward, format_score
+from sb3_icrl.benchmark.report_numbers import format_hours, format_rate, format_reward, format_score, is_finite_number
 from sb3_icrl.benchmark.study import BASELINE_VARIANT, baseline_cells, baseline_line
 from sb3_icrl.benchmark.suite import BEATS_COLUMNS
 from sb3_icrl.common.evaluation import CONSTRAINT_VIOLATION_PREFIX, OUTCOME_KEYS, OUTCOME_RATE_KEYS
@@ -523,14 +523,18 @@ def _level_identification_text(cell: dict[str, Any]) -> str:
     (a seed without the untrained nets' range counts as not above; where the untrained nets of every seed scored one
     value alike, that value is named); empty for a cell without one (a reference row).
     """
-    scored = [seed for seed in cell["per_seed"] if _finite(seed.get("identification_auroc"))]
+    scored = [seed for seed in cell["per_seed"] if is_finite_number(seed.get("identification_auroc"))]
     if not scored:
         return ""
     mean = sum(seed["identification_auroc"] for seed in scored) / len(scored)
     highs = [seed.get("untrained_auroc_high") for seed in scored]
-    above = sum(_finite(high) and seed["identification_auroc"] > high for seed, high in zip(scored, highs, strict=True))
+    above = sum(
+        is_finite_number(high) and seed["identification_auroc"] > high for seed, high in zip(scored, highs, strict=True)
+    )
     # Untrained nets that all score alike (a cost net that starts constant ranks nothing: 0.5) make "above" a low bar
-    alike = all(_finite(high) and seed.get("untrained_auroc_low") == high for seed, high in zip(scored, highs, strict=True))
+    alike = all(
+        is_finite_number(high) and seed.get("untrained_auroc_low") == high for seed, high in zip(scored, highs, strict=True)
+    )
     value = f", all {highs[0]:.2f}" if alike and len(set(highs)) == 1 else ""
     return f"{mean:.2f} ({above} of {len(scored)} above untrained{value})"
 
@@ -543,7 +547,9 @@ def _paired_text(base: dict[str, Any] | None, cell: dict[str, Any] | None) -> st
     pairs = [
         (seed["feasible_reward"] - level_0[seed["seed"]]["feasible_reward"], seed, level_0[seed["seed"]])
         for seed in cell["per_seed"]
-        if seed["seed"] in level_0 and _finite(seed["feasible_reward"]) and _finite(level_0[seed["seed"]]["feasible_reward"])
+        if seed["seed"] in level_0
+        and is_finite_number(seed["feasible_reward"])
+        and is_finite_number(level_0[seed["seed"]]["feasible_reward"])
     ]
     if not pairs:
         return "-"
@@ -551,7 +557,7 @@ def _paired_text(base: dict[str, Any] | None, cell: dict[str, Any] | None) -> st
     rates = [
         seed["violation_rate"] - zero["violation_rate"]
         for _, seed, zero in pairs
-        if _finite(seed["violation_rate"]) and _finite(zero["violation_rate"])
+        if is_finite_number(seed["violation_rate"]) and is_finite_number(zero["violation_rate"])
     ]
     points = f"{100 * sum(rates) / len(rates):+.0f} pts" if rates else "-"
     sign = "+" if reward >= 0 else "-"
@@ -562,12 +568,8 @@ def _paired_text(base: dict[str, Any] | None, cell: dict[str, Any] | None) -> st
 def _level_text(cell: dict[str, Any]) -> str:
     """One cell of a study's table by level: ``feasible / violation (seeds)``."""
     reward, rate = cell["feasible_reward_mean"], cell["violation_rate_mean"]
-    shown = [format_reward(reward) if _finite(reward) else "-", format_rate(rate) if _finite(rate) else "-"]
+    shown = [format_reward(reward) if is_finite_number(reward) else "-", format_rate(rate) if is_finite_number(rate) else "-"]
     return f"{shown[0]} / {shown[1]} ({len(cell['per_seed'])})"
-
-
-def _finite(value: Any) -> bool:
-    return isinstance(value, (int, float)) and math.isfinite(value)
 
 
 #: Up to this many runs of a list (those not finished, those without a transfer test) are named one by one; more are
