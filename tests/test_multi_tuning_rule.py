@@ -65,6 +65,22 @@ def test_each_part_of_the_rule_keeps_the_shipped_recipe_short_of_its_condition()
     assert rule.decide(_runs({("base", "vicrl"): vicrl}), MEAN_LENGTH)["design"]["carries_over"] is False
 
 
+def test_gacls_repeat_needs_each_of_its_three_conditions():
+    # Less often on purpose (1 seed against 2) but earning less (3 < 4): zero stays on reward alone
+    lower = _seeds((3, 0.0, 90), (3, 0.0, 30), (3, 0.0, 90))
+    assert rule.decide(_runs({("repeat", "gacl"): lower}), MEAN_LENGTH)["gacl_termination_reward"]["ships"] is False
+    # Earning as much as zero is not enough: higher, strictly
+    equal = _seeds((4, 0.0, 90), (4, 0.0, 30), (4, 0.0, 90))
+    assert rule.decide(_runs({("repeat", "gacl"): equal}), MEAN_LENGTH)["gacl_termination_reward"]["ships"] is False
+    # zero on purpose on one seed only (episodes of exactly 40 steps are not shorter than 40): zero stays
+    zero = _seeds((2, 0.0, 10), (4, 0.0, 40), (6, 0.0, 90))
+    decision = rule.decide(_runs({("base", "gacl"): zero}), MEAN_LENGTH)
+    assert decision["gacl_termination_reward"]["zero"]["seeds_on_purpose"] == 1
+    assert decision["gacl_termination_reward"]["ships"] is False
+    # GACL then passes rule 3 too (one seed on purpose, no violations)
+    assert decision["design"]["methods"]["gacl"]["fails"] is False
+
+
 def test_the_script_reads_a_report_and_the_shipped_demonstrations(tmp_path, capsys):
     cells = [
         {"env": rule.ENV, "variant": variant, "algo": algo, "per_seed": seeds} for (variant, algo), seeds in _runs().items()

@@ -9,7 +9,7 @@ import pytest
 
 from sb3_icrl.benchmark import cli, load_suite, summarise_suite
 from sb3_icrl.benchmark.report_figures import study_axis, study_figure
-from sb3_icrl.benchmark.report_text import markdown_table, study_level_lines
+from sb3_icrl.benchmark.report_text import _level_identification_text, markdown_table, study_level_lines
 from sb3_icrl.benchmark.study import baseline_line, read_report_summary, study_baseline
 from sb3_icrl.benchmark.suite import SuiteError
 from sb3_icrl.zoo.compare import RunResult
@@ -280,3 +280,24 @@ def test_the_study_tables_and_draws_each_learned_costs_identification_by_level(s
     plain = summarise_suite(suite, suite.runs(), results, _facts(results))
     assert len(study_figure(plain, *study_axis(suite)).axes) == 2
     assert not any(line.startswith("Identification by level") for line in study_level_lines(plain))
+
+
+def test_the_level_0_keeps_null_identification_as_nan_and_a_seed_without_untrained_nets_is_not_above(study):
+    suite, _ = study
+    table = table_summary()
+    # Seed 0 scored above its untrained nets; seed 1's AUROC is null in its report; seed 2 is not the study's
+    table["cells"][0]["per_seed"][0].update(identification_auroc=0.9, untrained_auroc_low=0.1, untrained_auroc_high=0.5)
+    table["cells"][0]["per_seed"][1].update(identification_auroc=None, untrained_auroc_low=None, untrained_auroc_high=None)
+    baseline = study_baseline(table, suite, "results/table")
+    wall = next(cell for cell in baseline["cells"] if cell["env"] == "GridWorldWall-v0")
+    assert wall["per_seed"][0]["identification_auroc"] == 0.9
+    assert all(math.isnan(wall["per_seed"][1][key]) for key in ("identification_auroc", "untrained_auroc_high"))
+    # A run whose report has no identification keys (a reference row) gains none
+    square = next(cell for cell in baseline["cells"] if cell["env"] == "GridWorldSquare-v0")
+    assert all("identification_auroc" not in seed for seed in square["per_seed"])
+    # In the table: the null seed is left out of the mean and the count; a seed with an AUROC but no untrained range
+    # counts, and is not above
+    assert _level_identification_text(wall) == "0.90 (1 of 1 above untrained)"
+    wall["per_seed"][1].update(identification_auroc=0.95)
+    assert _level_identification_text(wall) == "0.93 (1 of 2 above untrained)"
+    assert _level_identification_text(square) == ""
