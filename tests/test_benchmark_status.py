@@ -293,10 +293,10 @@ def test_a_report_at_another_recipe_version_or_of_another_suite_is_not_taken(sui
     assert set(reported_runs(report, suite.name, "v1")) == {("GridWorldWall-v0", "base", "bc2l", 4)}
     with pytest.raises(ValueError, match="a report of suite 'five', not of 'table3'"):
         reported_runs(report, "table3", None)
-    with pytest.raises(ValueError, match=r"no summary\.json there"):
+    with pytest.raises(ValueError, match=r"no report in .* \(no summary\.json\)"):
         reported_runs(str(tmp_path), suite.name, None)
     (tmp_path / "report" / "summary.json").write_text("{cut short")
-    with pytest.raises(ValueError, match="does not read"):
+    with pytest.raises(ValueError, match="is not a report's summary"):
         reported_runs(report, suite.name, None)
 
 
@@ -309,7 +309,7 @@ def test_cli_leaves_the_reported_runs_untrained(suite_in_five_states, tmp_path, 
     assert f"not trained again: 1 run that {report} holds" in capsys.readouterr().out
     assert not os.path.exists(suite.runs()[4].run_folder(root))  # nothing trained
     assert benchmark_main(["status", suite.path, "-f", root, "--reported", str(tmp_path)]) == 2
-    assert "no summary.json there" in capsys.readouterr().err
+    assert "--reported: no report in" in capsys.readouterr().err
 
 
 def test_a_reported_ppo_row_is_trained_again_before_its_seeds_icrl_runs(tmp_path, monkeypatch, capsys):
@@ -622,3 +622,75 @@ def test_a_report_keeps_the_transfer_references_and_run_reported_restores_them(s
     out = capsys.readouterr().out
     assert "transfer references: 1 restored from" in out and "not restored" in out
     assert os.path.isfile(os.path.join(fresh_root, suite.name, "base", "transfer_references", name))
+
+
+def _pace_report(folder, cells: list[tuple[str, str, list[tuple[float | None, int | None]]]]) -> str:
+    """A report of another suite: per (env, algo) its runs' (training seconds, steps)."""
+    os.makedirs(folder, exist_ok=True)
+    summary = {
+        "suite": "table",
+        "cells": [
+            {
+                "env": env,
+                "variant": "base",
+                "algo": algo,
+                "per_seed": [{"seed": i, "wall_time_s": wall, "timesteps": steps} for i, (wall, steps) in enumerate(runs)],
+            }
+            for env, algo, runs in cells
+        ],
+    }
+    with open(os.path.join(folder, "summary.json"), "w") as file:
+        json.dump(summary, file)
+    return str(folder)
+
+
+def test_a_report_lends_its_pace_to_runs_whose_env_has_no_finished_run(suite_in_five_states, tmp_path):
+    from sb3_icrl.benchmark.status import report_pace
+
+    _, root, runs = suite_in_five_states
+    report = _pace_report(
+        tmp_path / "table",
+        [
+            # 0.2 and 0.4 s a step (a run without a time is left out); bc2l on the wall at 5 s a step, not used: the
+            # suite's own finished run gives the wall's pace
+            ("GridWorldSquare-v0", "bc2l", [(200.0, 1000), (400.0, 1000), (None, 1000)]),
+            ("GridWorldWall-v0", "bc2l", [(5000.0, 1000)]),
+            ("GridWorldSquare-v0", "mecl", [(9000.0, 1000)]),
+        ],
+    )
+    pace = report_pace(report)
+    assert pace[("GridWorldSquare-v0", "bc2l")] == pytest.approx([0.2, 0.4])
+    statuses = suite_status(runs, root)
+    square = dataclasses.replace(runs[4], env_id="sb3_icrl/GridWorldSquare-v0")
+    statuses.append(RunStatus(square, "not started", None, 1000))
+    assert seconds_left(statuses) == (pytest.approx(1400.0), 1)
+    # The square run: 1000 steps at the report's mean 0.3 s a step
+    assert seconds_left(statuses, pace) == (pytest.approx(1400.0 + 300.0), 0)
+    assert status_lines(statuses, lent_pace=(report, pace))[-1].endswith(
+        "about 0.5 core-hours left at the finished runs' pace (0.1 of them for 1 run at the pace of the runs of the same "
+        f"env and algorithm in {report})"
+    )
+    # Where no run of the suite has a pace of its own, the estimate is the report's alone
+    alone = [status for status in statuses if status.run.env_id == square.env_id]
+    assert status_lines(alone, lent_pace=(report, pace))[-1].endswith(
+        f"about 0.1 core-hours left at the pace of the runs of the same env and algorithm in {report}"
+    )
+    # An algorithm the report lacks stays unknown
+    other = [RunStatus(dataclasses.replace(square, algo="vicrl"), "not started", None, 1000)]
+    assert seconds_left(other, pace) == (0.0, 1)
+
+
+def test_cli_status_takes_a_pace_from_a_report_and_refuses_a_folder_without_one(suite_in_five_states, tmp_path, capsys):
+    suite, root, _ = suite_in_five_states
+    shutil.rmtree(os.path.join(root, suite.name))  # no run has started: the suite's own pace is unknown
+    report = _pace_report(tmp_path / "table", [("GridWorldWall-v0", "bc2l", [(720.0, 1000)])])
+    assert benchmark_main(["status", suite.path, "-f", root, "--pace-from", report]) == 0
+    # Five runs of 1000 steps at 0.72 s a step
+    assert f"about 1.0 core-hours left at the pace of the runs of the same env and algorithm in {report}" in (
+        capsys.readouterr().out
+    )
+    assert benchmark_main(["status", suite.path, "-f", root, "--pace-from", str(tmp_path)]) == 2
+    assert f"--pace-from: no report in {str(tmp_path)!r} (no summary.json)" in capsys.readouterr().err
+    empty = _pace_report(tmp_path / "empty", [("GridWorldWall-v0", "bc2l", [(None, None)])])
+    assert benchmark_main(["status", suite.path, "-f", root, "--pace-from", empty]) == 2
+    assert "its runs have no training time and steps to take a pace from" in capsys.readouterr().err

@@ -48,7 +48,7 @@ from sb3_icrl.benchmark.report import (
 from sb3_icrl.benchmark.report_figures import kept_figure_data, refresh_crossings, write_figures
 from sb3_icrl.benchmark.report_text import markdown_table
 from sb3_icrl.benchmark.runner import BACKENDS, RunOutcome, load_runtime_env, make_backend, run_all
-from sb3_icrl.benchmark.status import RunStatus, mark_reported, reported_runs, status_lines, suite_status
+from sb3_icrl.benchmark.status import RunStatus, mark_reported, report_pace, reported_runs, status_lines, suite_status
 from sb3_icrl.benchmark.study import STUDY_AXES, read_report_summary, study_axis, study_baseline
 from sb3_icrl.benchmark.suite import SUITES_DIR, RunSpec, Suite, SuiteError, load_suite
 from sb3_icrl.benchmark.transport import pack_runs, pack_summary, unpack_bundles
@@ -161,6 +161,14 @@ def get_parser(prog: str | None = None) -> argparse.ArgumentParser:
             "policies (read by the identification of their seeds' ICRL runs) the report keeps",
         )
     status.add_argument("-v", "--verbose", action="store_true", help="list the finished and reported runs too")
+    status.add_argument(
+        "--pace-from",
+        default=None,
+        metavar="REPORT",
+        help="a report of any suite (the -o of `benchmark report`): runs whose variant and env have no finished run yet "
+        "are estimated at the pace of its runs of the same env and algorithm, to plan a suite by core-hours before it "
+        "starts (a study on the table's recipes at the table's pace: --pace-from benchmarks/results/table3)",
+    )
     report.add_argument(
         "-o", "--output", default=None, help="report folder (default: <root>/<suite>/report, report_best with --model best)"
     )
@@ -424,7 +432,8 @@ def status_command(args: argparse.Namespace) -> int:
     folder = os.path.join(args.log_folder, suite.name)
     print(f"suite {suite.name}: {len(runs)} runs in {folder}")
     statuses = _statuses(args, suite, runs)
-    print("\n".join(status_lines(statuses, verbose=args.verbose)))
+    lent_pace = (args.pace_from, report_pace(args.pace_from)) if args.pace_from else None
+    print("\n".join(status_lines(statuses, verbose=args.verbose, lent_pace=lent_pace)))
     probe_runs, missing = _probe_runs_by_state(args, suite, [status.run for status in statuses if status.state != "reported"])
     if probe_runs:
         print(f"`run --reported` also trains again {_probe_runs_text(probe_runs)}")

@@ -12,6 +12,7 @@ from typing import Any
 
 import yaml
 
+from sb3_icrl.benchmark.study import read_report_summary
 from sb3_icrl.benchmark.suite import RunSpec, result_current
 from sb3_icrl.common.saved import model_damage
 from sb3_icrl.common.utils import held_lock_inodes, lock_held
@@ -250,6 +251,27 @@ def suite_status(runs: list[RunSpec], root: str) -> list[RunStatus]:
     return [run_status(run, root, locked, recipes) for run in runs]
 
 
+def report_pace(report_folder: str) -> dict[tuple[str, str], list[float]]:
+    """
+    The pace of the runs a report holds, of any suite and variant: per env and algorithm, each run's training seconds
+    per step. ``status --pace-from`` lends it to the runs whose own variant and env have no finished run yet, to plan a
+    suite by core-hours before it starts (a study on the table's recipes, say, at the table's pace).
+
+    :param report_folder: The report's folder (``-o`` of ``benchmark report``)
+    :return: ``{(env name, algo): [seconds per step, ...]}``; runs without a training time or steps are left out
+    """
+    summary = read_report_summary(report_folder, "--pace-from")
+    pace: dict[tuple[str, str], list[float]] = {}
+    for cell in summary.get("cells", []):
+        for seed in cell.get("per_seed", []):
+            wall_time, steps = seed.get("wall_time_s"), seed.get("timesteps")
+            if wall_time and steps:
+                pace.setdefault((env_name(str(cell["env"])), str(cell["algo"])), []).append(float(wall_time) / float(steps))
+    if not pace:
+        raise ValueError(f"--pace-from {report_folder}: its runs have no training time and steps to take a pace from.")
+    return pace
+
+
 def reported_runs(report_folder: str, suite_name: str, recipe_version: str | None) -> dict[tuple[str, str, str, int], dict]:
     """
     The runs a committed report of the suite holds (its ``summary.json``), at the suite's recipe version: on a machine
@@ -262,19 +284,9 @@ def reported_runs(report_folder: str, suite_name: str, recipe_version: str | Non
         "transfer_reference_wall_time_s": {...}}}``, keyed as a run's :attr:`~sb3_icrl.benchmark.suite.RunSpec.cell`
         and seed
     """
-    path = os.path.join(report_folder, "summary.json")
-    if not os.path.isfile(path):
-        raise ValueError(
-            f"--reported {report_folder}: no summary.json there; give the folder a `benchmark report` wrote (its -o)."
-        )
-    try:
-        with open(path) as file:
-            summary = json.load(file)
-    except (OSError, ValueError) as error:
-        raise ValueError(f"--reported {report_folder}: its summary.json does not read ({error}).") from error
-    if not isinstance(summary, dict) or summary.get("suite") != suite_name:
-        found = summary.get("suite") if isinstance(summary, dict) else None
-        raise ValueError(f"--reported {report_folder}: a report of suite {found!r}, not of {suite_name!r}.")
+    summary = read_report_summary(report_folder, "--reported")
+    if summary.get("suite") != suite_name:
+        raise ValueError(f"--reported {report_folder}: a report of suite {summary.get('suite')!r}, not of {suite_name!r}.")
     runs: dict[tuple[str, str, str, int], dict] = {}
     for cell in summary.get("cells", []):
         for seed in cell.get("per_seed", []):
@@ -331,14 +343,16 @@ def own_pace(status: RunStatus) -> float | None:
     return status.wall_time_s / status.steps_done
 
 
-def seconds_left(statuses: list[RunStatus]) -> tuple[float, int]:
+def seconds_left(statuses: list[RunStatus], lent_pace: dict[tuple[str, str], list[float]] | None = None) -> tuple[float, int]:
     """
     The training time left, at the pace (seconds per step) of the finished runs of the same variant, env and
     algorithm, else of the same variant and env; a running run at its own pace so far (:func:`own_pace`). Variants can
     change the learner (a recipe at another throughput), so another variant's pace is not used.
 
+    :param lent_pace: For the runs none of the above estimates, a pace per env name and algorithm from elsewhere
+        (:func:`report_pace`)
     :return: ``(seconds, runs not estimated)``: runs whose steps are unknown or whose variant and env have no finished
-        run
+        run (nor a lent pace)
     """
     pace: dict[Any, list[float]] = {}
     for status in statuses:
@@ -356,6 +370,8 @@ def seconds_left(statuses: list[RunStatus]) -> tuple[float, int]:
         own = own_pace(status)
         if own is not None:
             rates = [own]
+        if not rates and lent_pace:
+            rates = lent_pace.get((env_name(run.env_id), run.algo))
         if status.steps_total is None or not rates:
             unknown += 1
             continue
@@ -415,10 +431,15 @@ def transfer_seconds(statuses: list[RunStatus]) -> tuple[float, float, int]:
     return spent, left, unknown
 
 
-def status_lines(statuses: list[RunStatus], verbose: bool = False) -> list[str]:
+def status_lines(
+    statuses: list[RunStatus], verbose: bool = False, lent_pace: tuple[str, dict[tuple[str, str], list[float]]] | None = None
+) -> list[str]:
     """
     One line per run that is neither finished nor reported or has a note (every run with ``verbose``), then the counts,
     the core-hours spent and the estimate of those left.
+
+    :param lent_pace: ``(its source, the pace)``: a pace per env name and algorithm (:func:`report_pace`) for the runs
+        whose variant and env have no finished run; the summary says how many runs and hours it estimates
     """
     lines = []
     shown = [status for status in statuses if verbose or status.state not in DONE_STATES or status.note]
@@ -452,14 +473,22 @@ def status_lines(statuses: list[RunStatus], verbose: bool = False) -> list[str]:
     if transfers:
         summary += f" and {transfer_spent / 3600:.1f} in their transfer tests"
     if n_done < len(statuses) or tests_left:
-        left, unknown = seconds_left(statuses)
+        own_left, own_unknown = seconds_left(statuses)
+        left, unknown = seconds_left(statuses, lent_pace[1]) if lent_pace else (own_left, own_unknown)
         if n_done < len(statuses) and unknown == len(statuses) - n_done:
             estimate = "time left unknown until a run of an env finishes"
         else:
-            estimate = f"about {(left + transfer_left) / 3600:.1f} core-hours left at the finished runs' pace"
+            lent = own_unknown - unknown  # the runs only the lent pace estimates
+            lent_words = f"the pace of the runs of the same env and algorithm in {lent_pace[0]}" if lent_pace else ""
+            if lent and own_unknown == len(statuses) - n_done:  # no run left has a pace of its own suite
+                estimate = f"about {(left + transfer_left) / 3600:.1f} core-hours left at {lent_words}"
+            else:
+                estimate = f"about {(left + transfer_left) / 3600:.1f} core-hours left at the finished runs' pace"
             if any(own_pace(status) is not None for status in statuses):
                 estimate += ", the running runs' at their own so far"
             parts = [f"{left / 3600:.1f} training, {transfer_left / 3600:.1f} transfer tests"] if transfers else []
+            if lent and own_unknown < len(statuses) - n_done:
+                parts.append(f"{(left - own_left) / 3600:.1f} of them for {lent} run{'s' if lent > 1 else ''} at {lent_words}")
             skipped = [f"{unknown} run{'s' if unknown > 1 else ''} of unknown pace or steps"] if unknown else []
             if transfer_unknown:
                 skipped.append(f"{transfer_unknown} transfer test{'s' if transfer_unknown > 1 else ''} of unknown pace")
