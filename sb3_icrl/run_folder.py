@@ -512,10 +512,13 @@ def training_progress(run: str | os.PathLike, now: float | None = None) -> tuple
     How far a run still training has come, read from its training envs' Monitor files (as the files are written, at
     each episode's end): the env steps of the episodes they hold, and its training time so far.
 
-    A Monitor records each episode's end as seconds since it was made, so a resumed run's file holds one stretch per
-    attempt (the times start again from zero; the episodes after the checkpoint it resumed from were trimmed). The
-    training time is the sum of each stretch's last time, plus the time since the file was last written: it leaves
-    out each attempt's start before its first episode ended (seconds), and counts a stopped run's idle time since then.
+    A Monitor records each episode's end as seconds since it was made. Where a resumed run's file holds one stretch per
+    attempt (times that start again from zero, as SB3's own appended Monitors write them; the episodes after the
+    checkpoint it resumed from were trimmed), the training time is the sum of each stretch's last time, plus the time
+    since the file was last written: it leaves out each attempt's start before its first episode ended (seconds), and
+    counts a stopped run's idle time since then. This library's resumed runs carry their first attempt's clock on, so
+    their times hold the idle time between attempts too: :func:`training_time_so_far` tells those runs' time from their
+    checkpoints.
 
     :param run: The run folder
     :param now: The time to count to (default: now)
@@ -549,6 +552,39 @@ def training_progress(run: str | os.PathLike, now: float | None = None) -> tuple
     if seconds is None or steps == 0:
         return None
     return steps, seconds
+
+
+def training_time_so_far(run: str, now: float | None = None) -> float | None:
+    """
+    The training time so far of a run that trains now, over all its attempts and without the time it lay stopped
+    between them: the training time its newest checkpoint's training state saved, plus the time since that state was
+    written, or since the current attempt started (its ``command.txt`` written) where the checkpoint is the one an
+    earlier attempt left and this one resumed from. It counts the current attempt's setup before its first step.
+
+    :param run: The run folder
+    :param now: The time to count to (default: now)
+    :return: Seconds, or ``None`` without a checkpoint whose training state saved its time (a run before its first
+        checkpoint: :func:`training_progress` tells its time)
+    """
+    now = time.time() if now is None else now
+    saved = checkpoints(run)
+    if not saved:
+        return None
+    state_path = os.path.join(run, f"rl_model_training_state_{saved[0][0]}_steps.pkl")
+    try:
+        with open(state_path, "rb") as file:
+            state = pickle.load(file)  # the run's own file, written by this library
+        saved_at = os.path.getmtime(state_path)
+    except Exception:  # missing, or being replaced, truncated or of another kind: no time to tell
+        return None
+    seconds = state.get("wall_time_s") if isinstance(state, dict) else None
+    if not _is_seconds(seconds):
+        return None
+    try:
+        attempt_start = os.path.getmtime(os.path.join(run, "command.txt"))
+    except OSError:
+        attempt_start = saved_at
+    return float(seconds) + max(now - max(saved_at, attempt_start), 0.0)
 
 
 def monitor_row_counts(run: str | os.PathLike) -> dict[str, int]:

@@ -6,6 +6,7 @@ import io
 import json
 import os
 import pathlib
+import pickle
 import shutil
 import textwrap
 import time
@@ -27,7 +28,7 @@ from sb3_icrl.benchmark.status import (
     suite_status,
     transfer_seconds,
 )
-from sb3_icrl.run_folder import training_progress
+from sb3_icrl.run_folder import training_progress, training_time_so_far
 from sb3_icrl.zoo.hyperparams import load_hyperparams
 from sb3_icrl.zoo.runs import FAILED_FILE, FINISHED_FILE
 
@@ -143,6 +144,50 @@ def test_a_running_run_shows_its_steps_time_and_pace_from_its_monitor(suite_in_f
     # (800 + 600 + 1000) steps at the finished run's 0.5 s a step, and 300 at the running run's
     assert seconds_left(statuses) == (pytest.approx(1200.0 + 300 * running.wall_time_s / 700), 0)
     assert "core-hours in the finished runs" in lines[-1]  # the running run's time is not counted as spent
+
+
+def _write_training_state(folder: str, steps: int, state: object, written: float) -> None:
+    path = os.path.join(folder, f"rl_model_training_state_{steps}_steps.pkl")
+    with open(path, "wb") as file:
+        pickle.dump(state, file)
+    os.utime(path, (written, written))
+
+
+def test_a_resumed_runs_time_so_far_leaves_out_the_time_it_lay_stopped(tmp_path):
+    run = str(tmp_path)
+    assert training_time_so_far(run) is None  # no checkpoint yet: the Monitor tells the time
+    write_whole_zip(os.path.join(run, "rl_model_600_steps.zip"))
+    # The checkpoint an earlier attempt left at 300 s of training (written at t=1000); this attempt started at t=5000
+    _write_training_state(run, 600, {"wall_time_s": 300.0}, written=1000.0)
+    (tmp_path / "command.txt").write_text("python train.py ...\npython train.py ...\n")
+    os.utime(tmp_path / "command.txt", (5000.0, 5000.0))
+    assert training_time_so_far(run, now=5030.0) == pytest.approx(330.0)  # not the 4000 s it lay stopped
+    # A checkpoint of this attempt (written at t=5100, 400 s of training): its time and the time since
+    write_whole_zip(os.path.join(run, "rl_model_800_steps.zip"))
+    _write_training_state(run, 800, {"wall_time_s": 400.0}, written=5100.0)
+    assert training_time_so_far(run, now=5160.0) == pytest.approx(460.0)
+    # A state without a time (an earlier version), or one that does not read, tells none
+    _write_training_state(run, 800, {"num_timesteps": 800}, written=5100.0)
+    assert training_time_so_far(run, now=5160.0) is None
+    with open(os.path.join(run, "rl_model_training_state_800_steps.pkl"), "wb") as file:
+        file.write(b"cut")
+    assert training_time_so_far(run, now=5160.0) is None
+
+
+@LINUX_LOCKS
+def test_a_running_resumed_run_takes_its_time_from_its_checkpoint_not_its_monitor_clock(suite_in_five_states):
+    _, root, runs = suite_in_five_states
+    folder = runs[3].run_folder(root)  # its last checkpoint is at 600 steps
+    now = time.time()
+    # An earlier attempt to 600 steps in 300 s; this one started 60 s ago, the Monitor clock carried on over the
+    # 10,000 s between them
+    _write_training_state(folder, 600, {"wall_time_s": 300.0}, written=now - 10_060.0)
+    pathlib.Path(folder, "command.txt").write_text("python train.py ...\n")
+    os.utime(os.path.join(folder, "command.txt"), (now - 60.0, now - 60.0))
+    _write_monitor(folder, [(350, 100.0), (350, 10_350.0)], written=now - 10.0)
+    with run_lock(folder):
+        running = suite_status(runs, root)[3]
+    assert running.steps_done == 700 and running.wall_time_s == pytest.approx(360.0, abs=5.0)
 
 
 def test_lock_table_parsing(tmp_path):

@@ -26,6 +26,7 @@ from sb3_icrl.run_folder import (
     is_finished,
     read_finished,
     training_progress,
+    training_time_so_far,
     unreadable_finished,
 )
 
@@ -189,12 +190,14 @@ def _training_status(
     # The lock first: a failed run that a suite tries again keeps its failed.json until its training starts
     if lock_held(folder + ".lock", locked_inodes):
         progress = training_progress(folder)
+        # A resumed run's Monitor clock runs on through the time it lay stopped: its checkpoints tell its time
+        so_far = training_time_so_far(folder)
         if progress is None:
-            return RunStatus(run, "running", newest, total)
+            return RunStatus(run, "running", newest, total, wall_time_s=so_far)
         steps, seconds = progress
         # Episodes end between checkpoints, so the Monitor files are the newer count; a checkpoint can be newer only
         # in the middle of a long episode
-        return RunStatus(run, "running", max(steps, newest or 0), total, wall_time_s=seconds)
+        return RunStatus(run, "running", max(steps, newest or 0), total, wall_time_s=so_far if so_far is not None else seconds)
     resumed, damaged = _resumable_checkpoint(saved)
     error = failure(folder)
     if error is not None:
