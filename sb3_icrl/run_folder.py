@@ -25,7 +25,7 @@ import yaml
 from stable_baselines3.common.save_util import load_from_zip_file
 
 from sb3_icrl.common.saved import first_sentence, model_damage
-from sb3_icrl.common.utils import atomic_write_text
+from sb3_icrl.common.utils import atomic_write_json, atomic_write_text
 from sb3_icrl.hyperparams import preprocess_hyperparams
 from sb3_icrl.registry import ALGOS, ICRL_ALGOS, env_name, import_gym_packages, resolve_env_id
 
@@ -518,7 +518,7 @@ def training_progress(run: str | os.PathLike, now: float | None = None) -> tuple
     since the file was last written: it leaves out each attempt's start before its first episode ended (seconds), and
     counts a stopped run's idle time since then. This library's resumed runs carry their first attempt's clock on, so
     their times hold the idle time between attempts too: :func:`training_time_so_far` tells those runs' time from their
-    checkpoints.
+    attempt record.
 
     :param run: The run folder
     :param now: The time to count to (default: now)
@@ -554,37 +554,46 @@ def training_progress(run: str | os.PathLike, now: float | None = None) -> tuple
     return steps, seconds
 
 
-def training_time_so_far(run: str, now: float | None = None) -> float | None:
+#: A run's record of its current attempt, written as the attempt's training clock starts: when, and the training time
+#: the run had then (0 for a fresh run; the time saved with the checkpoint a resumed run goes on from)
+ATTEMPT_FILE = "attempt.json"
+
+
+def write_attempt(run: str, started: float, resumed_wall_time_s: float) -> None:
+    """
+    Record the current attempt of a run (:data:`ATTEMPT_FILE`), for :func:`training_time_so_far`.
+
+    :param run: The run folder
+    :param started: When the attempt's training clock started (seconds since the epoch)
+    :param resumed_wall_time_s: The training time the run had at that moment
+    """
+    atomic_write_json(os.path.join(run, ATTEMPT_FILE), {"started": started, "resumed_wall_time_s": resumed_wall_time_s})
+
+
+def training_time_so_far(run: str, now: float | None = None, not_before: float | None = None) -> float | None:
     """
     The training time so far of a run that trains now, over all its attempts and without the time it lay stopped
-    between them: the training time its newest checkpoint's training state saved, plus the time since that state was
-    written, or since the current attempt started (its ``command.txt`` written) where the checkpoint is the one an
-    earlier attempt left and this one resumed from. It counts the current attempt's setup before its first step.
+    between them (a resumed run's Monitor clock runs on through that time): from its attempt record
+    (:data:`ATTEMPT_FILE`), the training time it had when the current attempt's clock started plus the time since.
 
     :param run: The run folder
     :param now: The time to count to (default: now)
-    :return: Seconds, or ``None`` without a checkpoint whose training state saved its time (a run before its first
-        checkpoint: :func:`training_progress` tells its time)
+    :param not_before: When the current attempt began at the latest (its lock taken): a record from before is the
+        previous attempt's, the current one still setting up
+    :return: Seconds, or ``None`` without a current record (a run of an earlier version, or an attempt still setting
+        up: :func:`training_progress` tells the time of a run that never stopped)
     """
     now = time.time() if now is None else now
-    saved = checkpoints(run)
-    if not saved:
-        return None
-    state_path = os.path.join(run, f"rl_model_training_state_{saved[0][0]}_steps.pkl")
     try:
-        with open(state_path, "rb") as file:
-            state = pickle.load(file)  # the run's own file, written by this library
-        saved_at = os.path.getmtime(state_path)
-    except Exception:  # missing, or being replaced, truncated or of another kind: no time to tell
+        with open(os.path.join(run, ATTEMPT_FILE)) as file:
+            record = json.load(file)
+    except (OSError, ValueError):
         return None
-    seconds = state.get("wall_time_s") if isinstance(state, dict) else None
-    if not _is_seconds(seconds):
+    started = record.get("started") if isinstance(record, dict) else None
+    resumed = record.get("resumed_wall_time_s") if isinstance(record, dict) else None
+    if not (_is_seconds(started) and _is_seconds(resumed)) or (not_before is not None and started < not_before):
         return None
-    try:
-        attempt_start = os.path.getmtime(os.path.join(run, "command.txt"))
-    except OSError:
-        attempt_start = saved_at
-    return float(seconds) + max(now - max(saved_at, attempt_start), 0.0)
+    return float(resumed) + max(now - float(started), 0.0)
 
 
 def monitor_row_counts(run: str | os.PathLike) -> dict[str, int]:

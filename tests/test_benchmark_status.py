@@ -6,7 +6,6 @@ import io
 import json
 import os
 import pathlib
-import pickle
 import shutil
 import textwrap
 import time
@@ -28,7 +27,7 @@ from sb3_icrl.benchmark.status import (
     suite_status,
     transfer_seconds,
 )
-from sb3_icrl.run_folder import training_progress, training_time_so_far
+from sb3_icrl.run_folder import training_progress, training_time_so_far, write_attempt
 from sb3_icrl.zoo.hyperparams import load_hyperparams
 from sb3_icrl.zoo.runs import FAILED_FILE, FINISHED_FILE
 
@@ -146,46 +145,36 @@ def test_a_running_run_shows_its_steps_time_and_pace_from_its_monitor(suite_in_f
     assert "core-hours in the finished runs" in lines[-1]  # the running run's time is not counted as spent
 
 
-def _write_training_state(folder: str, steps: int, state: object, written: float) -> None:
-    path = os.path.join(folder, f"rl_model_training_state_{steps}_steps.pkl")
-    with open(path, "wb") as file:
-        pickle.dump(state, file)
-    os.utime(path, (written, written))
-
-
 def test_a_resumed_runs_time_so_far_leaves_out_the_time_it_lay_stopped(tmp_path):
     run = str(tmp_path)
-    assert training_time_so_far(run) is None  # no checkpoint yet: the Monitor tells the time
-    write_whole_zip(os.path.join(run, "rl_model_600_steps.zip"))
-    # The checkpoint an earlier attempt left at 300 s of training (written at t=1000); this attempt started at t=5000
-    _write_training_state(run, 600, {"wall_time_s": 300.0}, written=1000.0)
-    (tmp_path / "command.txt").write_text("python train.py ...\npython train.py ...\n")
-    os.utime(tmp_path / "command.txt", (5000.0, 5000.0))
-    assert training_time_so_far(run, now=5030.0) == pytest.approx(330.0)  # not the 4000 s it lay stopped
-    # A checkpoint of this attempt (written at t=5100, 400 s of training): its time and the time since
-    write_whole_zip(os.path.join(run, "rl_model_800_steps.zip"))
-    _write_training_state(run, 800, {"wall_time_s": 400.0}, written=5100.0)
-    assert training_time_so_far(run, now=5160.0) == pytest.approx(460.0)
-    # A state without a time (an earlier version), or one that does not read, tells none
-    _write_training_state(run, 800, {"num_timesteps": 800}, written=5100.0)
-    assert training_time_so_far(run, now=5160.0) is None
-    with open(os.path.join(run, "rl_model_training_state_800_steps.pkl"), "wb") as file:
-        file.write(b"cut")
-    assert training_time_so_far(run, now=5160.0) is None
+    assert training_time_so_far(run) is None  # no attempt record: the Monitor tells the time
+    # The current attempt's clock started at t=5000, the run having trained 300 s before it stopped
+    write_attempt(run, started=5000.0, resumed_wall_time_s=300.0)
+    assert training_time_so_far(run, now=5030.0) == pytest.approx(330.0)
+    # A record from before the attempt began (its lock taken at t=6000) is the previous attempt's: no time yet
+    assert training_time_so_far(run, now=6010.0, not_before=6000.0) is None
+    # A record that does not read, or holds no times, tells none
+    (tmp_path / "attempt.json").write_text('{"started": "soon"}')
+    assert training_time_so_far(run, now=5030.0) is None
+    (tmp_path / "attempt.json").write_text("{cut")
+    assert training_time_so_far(run, now=5030.0) is None
 
 
 @LINUX_LOCKS
-def test_a_running_resumed_run_takes_its_time_from_its_checkpoint_not_its_monitor_clock(suite_in_five_states):
+def test_a_running_resumed_run_takes_its_time_from_its_attempt_record_not_its_monitor_clock(suite_in_five_states):
     _, root, runs = suite_in_five_states
     folder = runs[3].run_folder(root)  # its last checkpoint is at 600 steps
     now = time.time()
-    # An earlier attempt to 600 steps in 300 s; this one started 60 s ago, the Monitor clock carried on over the
+    # An earlier attempt trained 300 s; this one's clock started 60 s ago, the Monitor clock carried on over the
     # 10,000 s between them
-    _write_training_state(folder, 600, {"wall_time_s": 300.0}, written=now - 10_060.0)
-    pathlib.Path(folder, "command.txt").write_text("python train.py ...\n")
-    os.utime(os.path.join(folder, "command.txt"), (now - 60.0, now - 60.0))
     _write_monitor(folder, [(350, 100.0), (350, 10_350.0)], written=now - 10.0)
-    with run_lock(folder):
+    write_attempt(folder, started=now - 20_000.0, resumed_wall_time_s=0.0)  # the earlier attempt's record
+    with run_lock(folder):  # taking the lock marks when this attempt began: now, after that record
+        setting_up = suite_status(runs, root)[3]
+        assert setting_up.wall_time_s == pytest.approx(10_360.0, abs=5.0)  # no record of its own yet: the Monitor's
+        # As if the lock was taken 70 s ago and the attempt's clock started 60 s ago
+        os.utime(folder + ".lock", (now - 70.0, now - 70.0))
+        write_attempt(folder, started=now - 60.0, resumed_wall_time_s=300.0)
         running = suite_status(runs, root)[3]
     assert running.steps_done == 700 and running.wall_time_s == pytest.approx(360.0, abs=5.0)
 
@@ -720,6 +709,11 @@ def test_a_report_lends_its_pace_to_runs_whose_env_has_no_finished_run(suite_in_
     assert status_lines(alone, lent_pace=(report, pace))[-1].endswith(
         f"about 0.1 core-hours left at the pace of the runs of the same env and algorithm in {report}"
     )
+    # A finished run of another algorithm of the same variant and env (PPO at 10 s a step) does not price the square
+    # bc2l run: the report's bc2l pace comes first
+    ppo = dataclasses.replace(square, algo="ppo")
+    priced = [*statuses, RunStatus(ppo, "finished", 1000, 1000, wall_time_s=10_000.0)]
+    assert seconds_left(priced, pace) == (pytest.approx(1400.0 + 300.0), 0)
     # An algorithm the report lacks stays unknown
     other = [RunStatus(dataclasses.replace(square, algo="vicrl"), "not started", None, 1000)]
     assert seconds_left(other, pace) == (0.0, 1)
@@ -736,6 +730,13 @@ def test_cli_status_takes_a_pace_from_a_report_and_refuses_a_folder_without_one(
     )
     assert benchmark_main(["status", suite.path, "-f", root, "--pace-from", str(tmp_path)]) == 2
     assert f"--pace-from: no report in {str(tmp_path)!r} (no summary.json)" in capsys.readouterr().err
-    empty = _pace_report(tmp_path / "empty", [("GridWorldWall-v0", "bc2l", [(None, None)])])
+    # Times that are no number of seconds are left out; a cell without an algorithm is refused by name
+    unusable = [(None, None), (float("nan"), 1000), (-5.0, 1000)]
+    empty = _pace_report(tmp_path / "empty", [("GridWorldWall-v0", "bc2l", unusable)])
     assert benchmark_main(["status", suite.path, "-f", root, "--pace-from", empty]) == 2
     assert "its runs have no training time and steps to take a pace from" in capsys.readouterr().err
+    nameless = tmp_path / "nameless"
+    nameless.mkdir()
+    (nameless / "summary.json").write_text(json.dumps({"suite": "table", "cells": [{"env": "GridWorldWall-v0"}]}))
+    assert benchmark_main(["status", suite.path, "-f", root, "--pace-from", str(nameless)]) == 2
+    assert "a cell of its summary.json names no env and algo" in capsys.readouterr().err

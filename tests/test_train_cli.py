@@ -577,6 +577,10 @@ def test_a_resumed_run_counts_the_wall_and_cpu_time_of_its_earlier_segments(tmp_
     assert finished["resumed_from"].endswith("rl_model_256_steps.zip")
     assert finished["wall_time_total_s"] == pytest.approx(saved[1] + finished["wall_time_s"], abs=0.5)
     assert finished["wall_time_total_s"] > finished["wall_time_s"]
+    # The attempt record `benchmark status` reads: the resumed attempt's clock started with the checkpoint's time
+    attempt = json.loads((run / "attempt.json").read_text())
+    assert attempt["resumed_wall_time_s"] == pytest.approx(saved[1])
+    assert attempt["started"] + finished["wall_time_s"] == pytest.approx(os.path.getmtime(run / "finished.json"), abs=2.0)
     # CPU time the same way
     assert 0 < saved_cpu[0] < saved_cpu[1] < saved_cpu[2]
     assert finished["cpu_time_total_s"] == pytest.approx(saved_cpu[1] + finished["cpu_time_s"], abs=0.5)

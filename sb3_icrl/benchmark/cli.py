@@ -429,10 +429,10 @@ def status_command(args: argparse.Namespace) -> int:
     """Print where the selected runs stand; reads the run folders only, so it is safe while the suite runs."""
     suite = _load_suite(args)
     runs = suite.select(_only(args.only))
+    lent_pace = (args.pace_from, report_pace(args.pace_from)) if args.pace_from else None
     folder = os.path.join(args.log_folder, suite.name)
     print(f"suite {suite.name}: {len(runs)} runs in {folder}")
     statuses = _statuses(args, suite, runs)
-    lent_pace = (args.pace_from, report_pace(args.pace_from)) if args.pace_from else None
     print("\n".join(status_lines(statuses, verbose=args.verbose, lent_pace=lent_pace)))
     probe_runs, missing = _probe_runs_by_state(args, suite, [status.run for status in statuses if status.state != "reported"])
     if probe_runs:

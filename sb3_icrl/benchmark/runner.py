@@ -83,6 +83,8 @@ def run_lock(run_folder: str) -> Iterator[bool]:
     """
     os.makedirs(os.path.dirname(run_folder), exist_ok=True)
     with file_lock(run_folder + ".lock") as taken:
+        if taken:  # when the attempt began: `benchmark status` tells a record of an earlier attempt by it
+            os.utime(run_folder + ".lock")
         yield taken
 
 

@@ -12,6 +12,7 @@ from typing import Any
 
 import yaml
 
+from sb3_icrl.benchmark.report_numbers import is_finite_number
 from sb3_icrl.benchmark.study import read_report_summary
 from sb3_icrl.benchmark.suite import RunSpec, result_current
 from sb3_icrl.common.saved import model_damage
@@ -50,8 +51,9 @@ class RunStatus:
     :param steps_done: Env steps of its final model or last checkpoint (``None`` before the first checkpoint); of a
         running run, of its last episode's end where that is newer
     :param steps_total: The steps it trains for (``None`` when they cannot be told)
-    :param wall_time_s: Training time of a finished run; of a running run, its training time so far as its Monitor
-        files tell it (:func:`~sb3_icrl.run_folder.training_progress`)
+    :param wall_time_s: Training time of a finished run; of a running run, its training time so far as its attempt
+        record tells it (:func:`~sb3_icrl.run_folder.training_time_so_far`), else its Monitor files
+        (:func:`~sb3_icrl.run_folder.training_progress`)
     :param error: The error of a failed run
     :param note: What is wrong with a run's files that its state does not tell: a finished run whose final model is
         missing or damaged (the report leaves it out), a ``finished.json`` that does not read; a finished run's transfer
@@ -190,8 +192,8 @@ def _training_status(
     # The lock first: a failed run that a suite tries again keeps its failed.json until its training starts
     if lock_held(folder + ".lock", locked_inodes):
         progress = training_progress(folder)
-        # A resumed run's Monitor clock runs on through the time it lay stopped: its checkpoints tell its time
-        so_far = training_time_so_far(folder)
+        # A resumed run's Monitor clock runs on through the time it lay stopped: its attempt record tells its time
+        so_far = training_time_so_far(folder, not_before=_mtime(folder + ".lock"))
         if progress is None:
             return RunStatus(run, "running", newest, total, wall_time_s=so_far)
         steps, seconds = progress
@@ -209,6 +211,14 @@ def _training_status(
         note = f"{folder} is a file, not a run folder: move it away, or the suite cannot train the run"
         return RunStatus(run, "not started", None, total, note=note)
     return RunStatus(run, "not started", None, total)
+
+
+def _mtime(path: str) -> float | None:
+    """A file's modification time, ``None`` where it cannot be read."""
+    try:
+        return os.path.getmtime(path)
+    except OSError:
+        return None
 
 
 def _resumable_checkpoint(saved: list[tuple[int, str]]) -> tuple[int | None, str | None]:
@@ -261,15 +271,19 @@ def report_pace(report_folder: str) -> dict[tuple[str, str], list[float]]:
     suite by core-hours before it starts (a study on the table's recipes, say, at the table's pace).
 
     :param report_folder: The report's folder (``-o`` of ``benchmark report``)
-    :return: ``{(env name, algo): [seconds per step, ...]}``; runs without a training time or steps are left out
+    :return: ``{(env name, algo): [seconds per step, ...]}``; runs without a positive training time and steps are left
+        out
+    :raises ValueError: When the report cannot be read, names no env or algo for a cell, or has no run to go by
     """
     summary = read_report_summary(report_folder, "--pace-from")
     pace: dict[tuple[str, str], list[float]] = {}
-    for cell in summary.get("cells", []):
+    for cell in summary["cells"]:
+        if not isinstance(cell, dict) or not isinstance(cell.get("env"), str) or not isinstance(cell.get("algo"), str):
+            raise ValueError(f"--pace-from {report_folder}: a cell of its summary.json names no env and algo: {cell!r:.200}")
         for seed in cell.get("per_seed", []):
             wall_time, steps = seed.get("wall_time_s"), seed.get("timesteps")
-            if wall_time and steps:
-                pace.setdefault((env_name(str(cell["env"])), str(cell["algo"])), []).append(float(wall_time) / float(steps))
+            if is_finite_number(wall_time) and wall_time > 0 and is_finite_number(steps) and steps > 0:
+                pace.setdefault((env_name(cell["env"]), cell["algo"]), []).append(float(wall_time) / float(steps))
     if not pace:
         raise ValueError(f"--pace-from {report_folder}: its runs have no training time and steps to take a pace from.")
     return pace
@@ -339,7 +353,7 @@ def mark_reported(statuses: list[RunStatus], reported: dict[tuple[str, str, str,
 def own_pace(status: RunStatus) -> float | None:
     """
     A running run's own pace so far, in seconds per step (it trains on this machine, at its load, now); ``None`` for
-    a run that is not running or whose Monitor files tell no time yet.
+    a run that is not running or whose attempt record and Monitor files tell no time yet.
     """
     if status.state != "running" or not status.wall_time_s or not status.steps_done:
         return None
@@ -352,8 +366,8 @@ def seconds_left(statuses: list[RunStatus], lent_pace: dict[tuple[str, str], lis
     algorithm, else of the same variant and env; a running run at its own pace so far (:func:`own_pace`). Variants can
     change the learner (a recipe at another throughput), so another variant's pace is not used.
 
-    :param lent_pace: For the runs none of the above estimates, a pace per env name and algorithm from elsewhere
-        (:func:`report_pace`)
+    :param lent_pace: A pace per env name and algorithm from elsewhere (:func:`report_pace`), for the runs with no
+        finished run of their own variant, env and algorithm: before the pace of their variant and env's other runs
     :return: ``(seconds, runs not estimated)``: runs whose steps are unknown or whose variant and env have no finished
         run (nor a lent pace)
     """
@@ -369,12 +383,12 @@ def seconds_left(statuses: list[RunStatus], lent_pace: dict[tuple[str, str], lis
         if status.state in DONE_STATES:
             continue
         run = status.run
-        rates = pace.get((run.variant, run.env_id, run.algo)) or pace.get((run.variant, run.env_id))
+        lent = lent_pace.get((env_name(run.env_id), run.algo)) if lent_pace else None
+        # The same algorithm's pace first, this suite's or else the report's; then this variant and env's other runs'
+        rates = pace.get((run.variant, run.env_id, run.algo)) or lent or pace.get((run.variant, run.env_id))
         own = own_pace(status)
         if own is not None:
             rates = [own]
-        if not rates and lent_pace:
-            rates = lent_pace.get((env_name(run.env_id), run.algo))
         if status.steps_total is None or not rates:
             unknown += 1
             continue

@@ -77,6 +77,8 @@ def read_report_summary(folder: str, option: str = "--baseline") -> dict[str, An
     try:
         with open(path) as file:
             summary = json.load(file)
+    except OSError as error:
+        raise SuiteError(f"{option}: {path} cannot be read ({error}).") from error
     except ValueError:
         summary = None
     if not isinstance(summary, dict) or not isinstance(summary.get("cells"), list):

@@ -91,6 +91,7 @@ from sb3_icrl.run_folder import (
     latest_checkpoint,
     load_run_yaml,
     trim_monitors,
+    write_attempt,
 )
 from sb3_icrl.zoo.arguments import (
     StoreDict,
@@ -477,11 +478,14 @@ def _go_on(args: argparse.Namespace, model: BaseAlgorithm, callbacks: list[BaseC
             callbacks.insert(0, refill)  # first: the checkpoints then save the model's own gradient_steps
 
 
-def _wall_clock(args: argparse.Namespace, callbacks: list[BaseCallback], name: str, resuming: bool) -> WallClock:
+def _wall_clock(
+    args: argparse.Namespace, callbacks: list[BaseCallback], name: str, resuming: bool, save_path: str
+) -> WallClock:
     """
     The run's clock, given to its checkpoints: a resumed run counts on from the wall and CPU times saved with the
     checkpoint it resumed from, so that ``finished.json`` holds the whole run's (``wall_time_total_s``,
-    ``cpu_time_total_s``).
+    ``cpu_time_total_s``). The attempt is recorded in the run folder (:func:`~sb3_icrl.run_folder.write_attempt`), for
+    ``benchmark status`` to tell a running run's training time.
     """
     earlier: float = 0.0
     earlier_cpu: float | None = 0.0
@@ -489,6 +493,7 @@ def _wall_clock(args: argparse.Namespace, callbacks: list[BaseCallback], name: s
         state = training_state_path(args.trained_agent, name)
         earlier, earlier_cpu = training_state_wall_time(state), training_state_cpu_time(state)
     clock = WallClock(earlier, earlier_cpu)
+    write_attempt(save_path, clock.start, clock.offset)
     for callback in callbacks:
         if isinstance(callback, AtomicCheckpointCallback):
             callback.wall_clock = clock
@@ -879,7 +884,7 @@ def train(args: argparse.Namespace, argv: list[str] | None = None) -> str:
         evaluation = _evaluation(callbacks)
         _go_on(args, model, callbacks, name, resuming)
         _pin_tensorboard(args, model, params_path, name, resuming)
-        clock = _wall_clock(args, callbacks, name, resuming)
+        clock = _wall_clock(args, callbacks, name, resuming, save_path)
         finished = False
         try:
             learn_function(model, solver, params.get("planner_kwargs"))(
