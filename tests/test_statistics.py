@@ -18,6 +18,7 @@ from sb3_icrl.common.statistics import (
     probability_of_improvement,
     probability_of_improvement_ci,
     sample_std,
+    sign_test_p,
     stratified_bootstrap_ci,
     stratified_bootstrap_ci_of_task_means,
     wilcoxon_p,
@@ -105,6 +106,18 @@ def test_wilcoxon_needs_differences_and_the_labels_have_their_thresholds() -> No
     assert math.isnan(wilcoxon_p([])) and math.isnan(wilcoxon_p([0.0, 0.0]))
     assert 2 / 2**MIN_PAIRS_FOR_WILCOXON < 0.05 <= 2 / 2 ** (MIN_PAIRS_FOR_WILCOXON - 1)
     assert MIN_SEEDS_FOR_INTERVAL == 5
+
+
+def test_sign_test_against_the_binomial_by_hand() -> None:
+    # all of 5 pairs one way: 2 * (1/2)^5; 4 of 5: 2 * (1 + 5) / 2^5; an even split: 1
+    assert sign_test_p([-3.0, -1.0, -2.0, -0.5, -9.0]) == pytest.approx(2 / 32)
+    assert sign_test_p([-3.0, -1.0, -2.0, -0.5, 9.0]) == pytest.approx(2 * 6 / 32)
+    assert sign_test_p([1.0, -1.0]) == pytest.approx(1.0)
+    # the sizes do not matter, the signs do: a huge rise counts as one sign like a small one
+    assert sign_test_p([-1.0, -1.0, -1.0, -1.0, 1e9]) == sign_test_p([-1.0, -1.0, -1.0, -1.0, 1e-9])
+    # zero and non-finite differences carry no sign: 4 of 4 signed pairs lower
+    assert sign_test_p([-1.0, -2.0, 0.0, -3.0, float("nan"), -4.0]) == pytest.approx(2 / 16)
+    assert math.isnan(sign_test_p([])) and math.isnan(sign_test_p([0.0, 0.0]))
 
 
 def test_mean_of_task_means_and_its_interval():

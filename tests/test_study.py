@@ -218,7 +218,8 @@ def test_the_report_tables_each_method_by_level_with_its_level_0(study):
     paired = lines.index("| env | algo | sigma-0.01 | sigma-0.1 |")
     assert lines[paired - 2].startswith("Change from level 0, paired by seed")
     assert lines[paired + 2] == (
-        "| GridWorldWall-v0 | bc2l | +20.0 / -25 pts (2 paired, 0 lower) | +40.0 / -25 pts (2 paired, 0 lower) |"
+        "| GridWorldWall-v0 | bc2l | +20.0 / -25 pts (2 paired, 0 lower, sign test p = 0.5) "
+        "| +40.0 / -25 pts (2 paired, 0 lower, sign test p = 0.5) |"
     )
     assert "Change from level 0" not in "\n".join(without)
     # A method with runs at one level only, and one whose level-0 rate has no number: "-"
@@ -228,7 +229,7 @@ def test_the_report_tables_each_method_by_level_with_its_level_0(study):
     summary["study_baseline"] = json.loads(json.dumps(baseline, allow_nan=True).replace("NaN", "null"))
     assert "| GridWorldSquare-v0 | mecl | 7.00 / - (1) | - | 7.00 / 50% (1) |" in study_level_lines(summary)
     # A pair without a level-0 rate changes the reward alone; a level without the method's runs has no pair
-    assert "| GridWorldSquare-v0 | mecl | - | +0.00 / - (1 paired, 0 lower) |" in study_level_lines(summary)
+    assert "| GridWorldSquare-v0 | mecl | - | +0.00 / - (1 paired, 0 lower, no seed changed) |" in study_level_lines(summary)
     # A suite that is no study has no such table
     assert study_level_lines({**summary, "study": None}) == [] and "study" not in summarise_suite(
         load_suite("smoke", dry_build=False), [], []

@@ -306,6 +306,20 @@ def normalised_score(value: float, low: float, high: float) -> float:
     return (value - low) / (high - low)
 
 
+def sign_test_p(differences: Sequence[float]) -> float:
+    """
+    Exact two-sided sign-test p-value of paired differences: the binomial chance, at one half each way, of a split of
+    signs at least as uneven as the one seen; zero differences carry no sign and are left out (``nan`` without a
+    signed pair). It assumes nothing of the differences' sizes, and with few pairs it cannot get small: with 5 pairs
+    all of one sign it is 2 / 2^5 = 0.0625, with 4, 0.125.
+    """
+    values = np.asarray(differences, dtype=float).ravel()
+    signed = values[np.isfinite(values) & (values != 0)]
+    if not signed.size:
+        return float("nan")
+    return float(scipy.stats.binomtest(int(np.sum(signed < 0)), int(signed.size), 0.5).pvalue)
+
+
 def wilcoxon_p(differences: Sequence[float]) -> float:
     """
     Two-sided Wilcoxon signed-rank p-value of paired differences (``nan`` with no pair or all differences zero).
