@@ -298,12 +298,17 @@ def read_finished(run: str | os.PathLike) -> dict[str, Any] | None:
     :param run: A run folder
     :return: Its ``finished.json`` (step count, wall times), or ``None`` when it is missing, unreadable or not a mapping
     """
+    return _read_json_mapping(os.path.join(run, FINISHED_FILE))
+
+
+def _read_json_mapping(path: str) -> dict[str, Any] | None:
+    """A JSON file's mapping; ``None`` when the file is missing, unreadable, cut short or holds something else."""
     try:
-        with open(os.path.join(run, FINISHED_FILE)) as file:
-            finished = json.load(file)
+        with open(path) as file:
+            content = json.load(file)
     except (OSError, ValueError):
         return None
-    return finished if isinstance(finished, dict) else None
+    return content if isinstance(content, dict) else None
 
 
 def unreadable_finished(run: str | os.PathLike) -> str | None:
@@ -584,13 +589,8 @@ def training_time_so_far(run: str, now: float | None = None, not_before: float |
         up: :func:`training_progress` tells the time of a run that never stopped)
     """
     now = time.time() if now is None else now
-    try:
-        with open(os.path.join(run, ATTEMPT_FILE)) as file:
-            record = json.load(file)
-    except (OSError, ValueError):
-        return None
-    started = record.get("started") if isinstance(record, dict) else None
-    resumed = record.get("resumed_wall_time_s") if isinstance(record, dict) else None
+    record = _read_json_mapping(os.path.join(run, ATTEMPT_FILE)) or {}
+    started, resumed = record.get("started"), record.get("resumed_wall_time_s")
     if not (_is_seconds(started) and _is_seconds(resumed)) or (not_before is not None and started < not_before):
         return None
     return float(resumed) + max(now - float(started), 0.0)
