@@ -277,11 +277,8 @@ def failure(run: str) -> str | None:
     path = os.path.join(run, FAILED_FILE)
     if not os.path.isfile(path):
         return None
-    try:
-        with open(path) as file:
-            return str(json.load(file).get("error", "unknown error"))
-    except (OSError, ValueError, AttributeError):
-        return "unknown error (unreadable failed.json)"
+    record = _read_json_mapping(path)
+    return "unknown error (unreadable failed.json)" if record is None else str(record.get("error", "unknown error"))
 
 
 def is_finished(run: str) -> bool:
