@@ -168,6 +168,18 @@ def test_report_gives_each_constraint_beside_the_overall_rate(suite):
     assert not any(key.startswith("violation_rate_") for entry in metrics.values() for key in entry)
 
 
+def test_constraint_columns_keep_the_env_order_through_summary_json(suite):
+    from sb3_icrl.benchmark.report_text import constraint_columns
+
+    runs = suite.runs()
+    summary = summarise_suite(suite, runs, [(run, _result(run.algo, run.seed)) for run in runs])
+    # summary.json sorts its keys (distance before velocity); the columns follow the env's registered order all the same
+    reread = json.loads(json.dumps(summary, sort_keys=True))
+    expected = ["violation_rate_velocity", "violation_rate_distance"]
+    assert constraint_columns(summary) == constraint_columns(reread) == expected
+    assert markdown_table(summary) == markdown_table(reread)
+
+
 def test_report_of_envs_with_one_constraint_has_no_such_table(suite):
     runs = suite.runs()
     results = [
@@ -249,3 +261,18 @@ def test_report_draws_each_constraint_the_feasible_reward_and_the_goal_rate_per_
         multi_constraint_figure({"cells": [{**cell, "constraint_violation_rates_mean": {}} for cell in summary["cells"]]})
         is None
     )
+
+
+@pytest.mark.parametrize(
+    "env, names",
+    [
+        ("HighwayVelocityDistance-v0", ("velocity", "distance")),
+        (MULTI, ("velocity", "distance")),
+        ("GridWorldWall-v0", ()),
+        ("NotAnEnv-v0", ()),
+    ],
+)
+def test_registered_constraints_in_their_order(env, names):
+    from sb3_icrl.common.env_ids import registered_constraints
+
+    assert registered_constraints(env) == names

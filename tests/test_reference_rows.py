@@ -406,3 +406,15 @@ def test_a_report_refuses_runs_of_another_recipe_version_than_its_suites(tmp_pat
     # A suite without a version takes what its runs recorded, one version a cell
     plain = load_suite(write(tmp_path, SUITE))
     assert summarise_suite(plain, plain.runs(), results, metrics)["cells"]
+
+
+def test_aggregates_of_few_runs_are_labelled_rough(tmp_path) -> None:
+    suite = load_suite(write(tmp_path, SUITE))
+    values = {("GridWorldWall-v0", "ppo"): 0.0, ("GridWorldWall-v0", "ppolag"): 10.0, ("GridWorldWall-v0", "mecl"): 6.0}
+    summary = summarise_suite(suite, suite.runs(), _suite_results(suite, values))
+    assert {entry["n_runs"] for entry in summary["normalised_aggregates"]} == {3}
+    table = markdown_table(summary)
+    assert "Few runs: 3 per method in these aggregates (under 10)." in table
+    # Ten seeds a method: no such label
+    many = load_suite(write(tmp_path, SUITE.replace("[0, 1, 2]", str(list(range(10))))))
+    assert "Few runs" not in markdown_table(summarise_suite(many, many.runs(), _suite_results(many, values)))

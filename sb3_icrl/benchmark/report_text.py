@@ -17,7 +17,13 @@ from sb3_icrl.benchmark.judgements import LAST_TRAINING_COLUMNS, ORACLE_ROW, spr
 from sb3_icrl.benchmark.report_numbers import format_hours, format_rate, format_reward, format_score, is_finite_number
 from sb3_icrl.benchmark.study import BASELINE_VARIANT, baseline_cells, baseline_line
 from sb3_icrl.benchmark.suite import BEATS_COLUMNS
-from sb3_icrl.common.evaluation import CONSTRAINT_VIOLATION_PREFIX, OUTCOME_KEYS, OUTCOME_RATE_KEYS
+from sb3_icrl.common.env_ids import registered_constraints
+from sb3_icrl.common.evaluation import (
+    CONSTRAINT_VIOLATION_PREFIX,
+    OUTCOME_KEYS,
+    OUTCOME_RATE_KEYS,
+    constraint_violation_key,
+)
 from sb3_icrl.common.statistics import MIN_PAIRS_FOR_WILCOXON, sign_test_p
 from sb3_icrl.metrics.identification import SAFE_END_CROSSINGS
 from sb3_icrl.metrics.transfer import transfer_spent_seconds
@@ -626,6 +632,11 @@ def _success_text(cell: dict[str, Any]) -> str:
     return f"{cell['success_count']}/{cell['n_seeds']} [{low:.2f}, {high:.2f}]"
 
 
+#: Below this many runs of a method in the cross-env aggregates, the report says their intervals are rough (the
+#: fresh-seed protocol reports 10 seeds of an env)
+FEW_AGGREGATED_RUNS = 10
+
+
 def aggregate_lines(summary: dict[str, Any]) -> list[str]:
     """
     The cross-env aggregates of the normalised score (IQM, mean, optimality gap, each with its stratified bootstrap 95%
@@ -671,6 +682,16 @@ def aggregate_lines(summary: dict[str, Any]) -> list[str]:
             )
     if any(entry.get("normalised_score_iqm_ci95") is None for entry in aggregates):
         lines += ["", "A value without [95% CI]: no interval: one run per env (the bootstrap would draw the same runs)."]
+    few = sorted({entry["n_runs"] for entry in aggregates if entry["n_runs"] < FEW_AGGREGATED_RUNS})
+    if few:
+        counts = f"{few[0]}" if len(few) == 1 else f"{few[0]}-{few[-1]}"
+        lines += [
+            "",
+            f"Few runs: {counts} per method in these aggregates (under {FEW_AGGREGATED_RUNS}). Percentile bootstrap "
+            "intervals from so few runs tend to be too narrow, and a probability of improvement of 0 or 1 then has a "
+            "zero-width interval however few runs agree: read them as rough; the per-seed values in the table are the "
+            "evidence.",
+        ]
     return lines
 
 
@@ -710,12 +731,20 @@ OUTCOME_COLUMNS = tuple(OUTCOME_RATE_KEYS[key] for key in OUTCOME_KEYS)
 
 
 def constraint_columns(summary: dict[str, Any]) -> list[str]:
-    """The per-seed keys of each constraint's violation rate in a summary, in the order the cells first give them."""
-    columns: list[str] = []
+    """
+    The per-seed keys of each constraint's violation rate in a summary: in the order its envs are registered with
+    them (velocity before distance), then by name; the same whether the cells come from runs or from a summary.json,
+    which keeps its keys sorted.
+    """
+    columns: set[str] = set()
     for cell in summary["cells"]:
         for seed in cell["per_seed"]:
-            columns += [key for key in seed if key.startswith(CONSTRAINT_VIOLATION_PREFIX) and key not in columns]
-    return columns
+            columns.update(key for key in seed if key.startswith(CONSTRAINT_VIOLATION_PREFIX))
+    declared = dict.fromkeys(
+        constraint_violation_key(name) for cell in summary["cells"] for name in registered_constraints(cell["env"])
+    )
+    rank = {key: position for position, key in enumerate(declared)}
+    return sorted(columns, key=lambda key: (rank.get(key, len(rank)), key))
 
 
 def constraint_lines(summary: dict[str, Any]) -> list[str]:

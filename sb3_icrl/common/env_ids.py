@@ -73,6 +73,20 @@ def resolve_env_id(env_id: str) -> str:
     )
 
 
+def registered_constraints(env: str) -> tuple[str, ...]:
+    """
+    The names of the constraints an env is registered with (its ``constraints`` keyword, in the order it gives them),
+    e.g. ``("velocity", "distance")``; empty for an env registered without one or not registered here.
+
+    :param env: A registered id, or an sb3-icrl env's name without its namespace
+    """
+    for env_id in (env, f"{NAMESPACE}/{env}"):
+        if env_id in gym.registry:
+            constraints = gym.registry[env_id].kwargs.get("constraints")
+            return tuple(constraints) if isinstance(constraints, (list, tuple)) else ()
+    return ()
+
+
 def _resolve_module_env_id(text: str) -> str:
     """:func:`resolve_env_id` of gymnasium's ``MODULE:EnvId``: errors that name the module and the id as written."""
     module, _, env_id = text.partition(":")
