@@ -292,7 +292,7 @@ def study_figure(summary: dict[str, Any], key: str, levels: dict[str, float], ba
     algos = list(dict.fromkeys(cell["algo"] for cell in cells))
     metrics = [("violation_rate", "violation rate"), ("feasible_reward", "feasible reward")]
     if any(_finite_values(cell, "identification_auroc") for cell in cells):
-        metrics.append(("identification_auroc", "identification AUROC (grey: mean untrained range)"))
+        metrics.append(("identification_auroc", "AUROC (grey: untrained range)"))
     figure = new_figure(width=max(4.8, 3.6 * len(envs)), height=3.2 * len(metrics))
     axes = np.asarray(figure.subplots(len(metrics), len(envs), squeeze=False))
     colours = {algo: f"C{index % 10}" for index, algo in enumerate(algos)}
