@@ -13,7 +13,8 @@ import pytest
 
 from sb3_icrl.benchmark import report, summarise_suite
 from sb3_icrl.benchmark.report import HELDOUT_FILE, evaluate_finished, previous_results
-from sb3_icrl.benchmark.report_text import csv_rows, markdown_table
+from sb3_icrl.benchmark.report_text import constraint_columns, csv_rows, markdown_table
+from sb3_icrl.common.env_ids import registered_constraints
 from sb3_icrl.common.evaluation import EpisodeAccumulator, evaluate_constraint
 from sb3_icrl.zoo.compare import RunResult
 from sb3_icrl.zoo.runs import FINISHED_FILE
@@ -169,8 +170,6 @@ def test_report_gives_each_constraint_beside_the_overall_rate(suite):
 
 
 def test_constraint_columns_keep_the_env_order_through_summary_json(suite):
-    from sb3_icrl.benchmark.report_text import constraint_columns
-
     runs = suite.runs()
     summary = summarise_suite(suite, runs, [(run, _result(run.algo, run.seed)) for run in runs])
     # summary.json sorts its keys (distance before velocity); the columns follow the env's registered order all the same
@@ -273,6 +272,4 @@ def test_report_draws_each_constraint_the_feasible_reward_and_the_goal_rate_per_
     ],
 )
 def test_registered_constraints_in_their_order(env, names):
-    from sb3_icrl.common.env_ids import registered_constraints
-
     assert registered_constraints(env) == names

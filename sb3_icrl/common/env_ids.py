@@ -80,11 +80,12 @@ def registered_constraints(env: str) -> tuple[str, ...]:
 
     :param env: A registered id, or an sb3-icrl env's name without its namespace
     """
-    for env_id in (env, f"{NAMESPACE}/{env}"):
-        if env_id in gym.registry:
-            constraints = gym.registry[env_id].kwargs.get("constraints")
-            return tuple(constraints) if isinstance(constraints, (list, tuple)) else ()
-    return ()
+    try:
+        env_id = resolve_env_id(env)
+    except ValueError:
+        return ()
+    constraints = gym.registry[env_id].kwargs.get("constraints")
+    return tuple(constraints) if isinstance(constraints, (list, tuple)) else ()
 
 
 def _resolve_module_env_id(text: str) -> str:
