@@ -21,7 +21,7 @@ from sb3_icrl.benchmark import judgements, load_suite, report, report_numbers, r
 from sb3_icrl.benchmark import suite as suite_module
 from sb3_icrl.benchmark.report import constraint_metrics, run_facts, write_report
 from sb3_icrl.benchmark.report_text import csv_rows, latex_table, markdown_table
-from sb3_icrl.benchmark.suite import SuiteError
+from sb3_icrl.benchmark.suite import RunSpec, SuiteError
 from sb3_icrl.data import Trajectory, save
 from sb3_icrl.registry import env_name
 from sb3_icrl.zoo.compare import RunResult
@@ -154,6 +154,19 @@ def finished_suite(tmp_path, monkeypatch):
 
 def _cell(summary: dict, env: str, algo: str) -> dict:
     return next(cell for cell in summary["cells"] if cell["env"] == env and cell["algo"] == algo)
+
+
+def test_an_imperfect_run_is_measured_against_the_clean_expert(tmp_path):
+    # The shipped GridWorldWall mix with 80% violating trajectories returns 0.98 on average, the clean expert 1.0
+    assert report.expert_return("GridWorldWall-v0", 0.8) == pytest.approx(0.98)
+    run = RunSpec("imperfect", "violating-0.8", "bc2l", "sb3_icrl/GridWorldWall-v0", 0, 512)
+    folder = run.run_folder(str(tmp_path))
+    _finish(folder, wall_time_s=60.0)
+    _args(folder, "GridWorldWall-v0", violating_fraction=0.8)
+    result = RunResult(os.path.relpath(folder, tmp_path), "bc2l", run.env_id, 0, 100, 1.0, 0.0, 0.5, 0.5, 2)
+    assert report.demonstrations_source(run, folder) == ("GridWorldWall-v0", 0.8)  # what it learned from
+    assert report.expert_source(run, folder) == ("GridWorldWall-v0", None)  # what it is measured against
+    assert run_facts([(run, result)], str(tmp_path))[result.run]["expert_return"] == pytest.approx(1.0)
 
 
 def test_wall_time_prefers_the_whole_runs(tmp_path):

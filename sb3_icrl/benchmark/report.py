@@ -498,8 +498,8 @@ def run_facts(results: Sequence[tuple[RunSpec, RunResult]], root: str) -> dict[s
     """
     Per finished run, its training time (``wall_time_s``, from ``finished.json``, see :func:`finished_wall_time`) and
     the CPU time its process spent on it (``cpu_time_s``, see :func:`finished_cpu_time`), the
-    mean return of the demonstrations it learned from (``expert_return``, see :func:`demonstrations_source`; NaN when
-    there are none, e.g. an env without a shipped dataset), its recipe version, its :func:`training_provenance` and
+    mean return of our expert's demonstrations (``expert_return``, see :func:`expert_source`; NaN when there are none,
+    e.g. an env without a shipped dataset), its recipe version, its :func:`training_provenance` and
     its last training episodes.
 
     :param results: ``(run, held-out result)`` of the finished runs (:func:`evaluate_finished`)
@@ -515,7 +515,7 @@ def run_facts(results: Sequence[tuple[RunSpec, RunResult]], root: str) -> dict[s
         for column, seconds in (("wall_time_s", finished_wall_time(finished)), ("cpu_time_s", finished_cpu_time(finished))):
             if seconds is not None:
                 entry[column] = seconds
-        entry["expert_return"] = _expert_return_once(demonstrations_source(run, folder), returns)
+        entry["expert_return"] = _expert_return_once(expert_source(run, folder), returns)
         version = recorded_recipe_version(folder)
         if version is not None:
             entry["recipe_version"] = version
@@ -853,6 +853,20 @@ def demonstrations_source(run: RunSpec, folder: str | os.PathLike | None = None)
     return str(name), float(fraction) if isinstance(fraction, (int, float)) and fraction else None
 
 
+def expert_source(run: RunSpec, folder: str | os.PathLike | None = None) -> tuple[str, None]:
+    """
+    The demonstrations that measure a run against our expert: those it learned from (:func:`demonstrations_source`)
+    without their violating share. An imperfect-expert run's dataset mixes the expert's trajectories with perturbed
+    ones that break the constraint and return less; dividing by that mix would make the same policy look better the
+    more of the data was spoiled. Against the clean dataset every share reads on one scale, the one of level 0.
+
+    :param run: The run
+    :param folder: Its run folder (``None``: the variant settings only)
+    :return: ``(name or path, None)``, as :func:`expert_return` takes them
+    """
+    return demonstrations_source(run, folder)[0], None
+
+
 def expert_return(name: str, violating_fraction: float | None = None) -> float | None:
     """
     Mean return (sum of ``rews``) of the trajectories of a demonstration dataset.
@@ -912,7 +926,7 @@ def summarise_suite(
     """
     Per cell (env, variant, algorithm): seeds, per-seed values, mean and std, IQM with its 95% bootstrap CI, the
     Wilcoxon test against the suite's reference, the paper's and other sources' numbers (``others``), our expert's
-    return (``expert_return``: mean return of the demonstrations the runs learned from) and the feasible reward as a
+    return (``expert_return``: mean return of its demonstrations, :func:`expert_source`) and the feasible reward as a
     fraction of it (``feasible_reward_fraction``), the runs' compute (``core_hours``) and, per published number, whether
     the cell beats it (``beats``: :func:`~sb3_icrl.benchmark.judgements.beats`); per algorithm, the IQM of the violation
     rate over the headline envs with a stratified bootstrap CI (``aggregates``), and the normalised aggregates over the
@@ -943,7 +957,7 @@ def summarise_suite(
         by_cell.setdefault((env_name(run.env_id), run.variant), []).append(result)
         extra = metrics.setdefault(result.run, {})
         if "expert_return" not in extra:
-            extra["expert_return"] = _expert_return_once(demonstrations_source(run), returns)
+            extra["expert_return"] = _expert_return_once(expert_source(run), returns)
     wall_time = {result.run: metrics[result.run].get("wall_time_s") for _, result in results}
     cells = []
     for (env, variant), cell_results in sorted(by_cell.items()):
