@@ -17,7 +17,7 @@ import numpy as np
 from matplotlib.lines import Line2D
 
 from sb3_icrl.benchmark.report_numbers import finite_or_null, is_finite_number
-from sb3_icrl.benchmark.report_text import constraint_columns
+from sb3_icrl.benchmark.report_text import several_constraint_cells
 from sb3_icrl.benchmark.study import BASELINE_VARIANT, STUDY_AXES, baseline_cells, study_axis
 from sb3_icrl.benchmark.suite import RunSpec, Suite
 from sb3_icrl.common.evaluation import CONSTRAINT_VIOLATION_PREFIX, OUTCOME_RATE_KEYS
@@ -344,12 +344,9 @@ def multi_constraint_figure(summary: dict[str, Any]) -> Any:
 
     :param summary: A summary of :func:`~sb3_icrl.benchmark.report.summarise_suite`
     """
-    cells = [cell for cell in summary["cells"] if len(cell.get("constraint_violation_rates_mean") or {}) > 1]
+    cells, constraints = several_constraint_cells(summary)
     if not cells:
         return None
-    constraints = [
-        key for key in constraint_columns(summary) if any(key in cell["constraint_violation_rates_mean"] for cell in cells)
-    ]
     panels = [(key, f"{key.removeprefix(CONSTRAINT_VIOLATION_PREFIX)} violation rate") for key in constraints]
     panels.append(("feasible_reward", "feasible reward"))
     goal = OUTCOME_RATE_KEYS["goal_reached"]

@@ -747,16 +747,29 @@ def constraint_columns(summary: dict[str, Any]) -> list[str]:
     return sorted(columns, key=lambda key: (rank.get(key, len(rank)), key))
 
 
+def several_constraint_cells(summary: dict[str, Any]) -> tuple[list[dict[str, Any]], list[str]]:
+    """
+    The cells of envs with several constraints, and the keys of the constraints they report
+    (:func:`constraint_columns`, in that order): what the table of each constraint and its figure show.
+
+    :param summary: A summary of :func:`~sb3_icrl.benchmark.report.summarise_suite`
+    :return: ``(cells, keys)``, both empty for a summary without such cells
+    """
+    cells = [cell for cell in summary["cells"] if len(cell.get("constraint_violation_rates_mean") or {}) > 1]
+    reported = {key for cell in cells for key in cell["constraint_violation_rates_mean"]}
+    keys = [key for key in constraint_columns(summary) if key in reported]
+    return cells, keys
+
+
 def constraint_lines(summary: dict[str, Any]) -> list[str]:
     """
     For the cells of envs with several constraints: each constraint's violation rate beside the overall one (an
     episode that breaks any) and the feasible reward, mean over seeds and per seed, as Markdown lines after a blank
     line; no lines for a summary without such cells.
     """
-    cells = [cell for cell in summary["cells"] if len(cell.get("constraint_violation_rates_mean") or {}) > 1]
+    cells, columns = several_constraint_cells(summary)
     if not cells:
         return []
-    columns = [column for column in constraint_columns(summary) if any(column in cell["per_seed"][0] for cell in cells)]
     names = [column.removeprefix(CONSTRAINT_VIOLATION_PREFIX) for column in columns]
     heading = (
         "Each constraint's violation rate (envs with several constraints; mean over seeds, then per seed; an episode "
