@@ -302,3 +302,65 @@ def test_the_level_0_keeps_null_identification_as_nan_and_a_seed_without_untrain
     wall["per_seed"][1].update(identification_auroc=0.95)
     assert _level_identification_text(wall) == "0.93 (1 of 2 above untrained)"
     assert _level_identification_text(square) == ""
+
+
+DEMONSTRATION_STUDY = """\
+recipe_version: v2
+envs: [GridWorldWall-v0]
+algos: [bc2l]
+seeds: [0, 1]
+variants:
+  violating-0.2: {violating_fraction: 0.2}
+  violating-0.5: {violating_fraction: 0.5}
+eval_episodes: 20
+eval_budget: episodes
+"""
+
+
+def test_a_study_of_the_demonstrations_takes_the_reference_rows_from_level_0_for_every_level(study, tmp_path):
+    path = tmp_path / "demonstrations.yml"
+    path.write_text(DEMONSTRATION_STUDY)
+    suite = load_suite(str(path), dry_build=False)
+    table = table_summary()
+    table["cells"] += [
+        {"env": "GridWorldWall-v0", "algo": "ppo", "variant": "base", "per_seed": [_seed(0, 2, 1.0), _seed(1, 4, 0.5)]},
+        {"env": "GridWorldWall-v0", "algo": "ppolag", "variant": "base", "per_seed": [_seed(0, 8, 0.0), _seed(1, 9, 0.0)]},
+    ]
+    baseline = study_baseline(table, suite, "results/table")
+    # PPO and the oracle learn from no demonstrations: their level-0 runs stand for every share; vicrl is no row of it
+    assert [(cell["algo"], cell.get("every_level", False)) for cell in baseline["cells"]] == [
+        ("bc2l", False),
+        ("ppo", True),
+        ("ppolag", True),
+    ]
+    # A noise study changes what the reference rows meet: it trains them itself and takes none from level 0
+    assert [cell["algo"] for cell in study_baseline(table, study[0], "results/table")["cells"]] == ["bc2l", "mecl"]
+    values = {"violating-0.2": (30.0, 40.0), "violating-0.5": (50.0, 60.0)}
+    results = [
+        (run, RunResult(run.name, run.algo, run.env_id, run.seed, 100, 1.0, 0.0, values[run.variant][run.seed], 1.0, 20))
+        for run in suite.runs()
+    ]
+    summary = summarise_suite(suite, suite.runs(), results, _facts(results))
+    summary["study_baseline"] = baseline
+    lines = study_level_lines(summary)
+    assert "ppo and ppolag learn from no demonstrations: their level-0 runs stand for every level" in lines[1]
+    by_level = lines.index("| env | algo | level 0 (table) | violating-0.2 | violating-0.5 |")
+    assert lines[by_level + 2 : by_level + 5] == [
+        "| GridWorldWall-v0 | bc2l | 15.0 / 25% (2) | 35.0 / 0% (2) | 55.0 / 0% (2) |",
+        "| GridWorldWall-v0 | ppo | 3.00 / 75% (2) | as level 0 | as level 0 |",
+        "| GridWorldWall-v0 | ppolag | 8.50 / 0% (2) | as level 0 | as level 0 |",
+    ]
+    # No change from level 0 to pair for them
+    assert not any(line.startswith("| GridWorldWall-v0 | ppo") for line in lines[by_level + 5 :])
+    # The figure: each a dashed line across every share at its level-0 mean, its seeds' dots at level 0
+    reward_ax = study_figure(summary, *study_axis(suite), baseline=baseline).axes[1]
+    dashed = [line for line in reward_ax.get_lines() if line.get_linestyle() == "--"]
+    assert [(list(line.get_xdata()), list(line.get_ydata())) for line in dashed] == [
+        ([0.0, 0.5], [3.0, 3.0]),
+        ([0.0, 0.5], [8.5, 8.5]),
+    ]
+    # While the study holds seed 0 only, they take that seed too
+    partial = [(run, result) for run, result in results if run.seed == 0]
+    summary_0 = summarise_suite(suite, suite.runs(), partial, _facts(partial))
+    summary_0["study_baseline"] = baseline
+    assert "| GridWorldWall-v0 | ppolag | 8.00 / 0% (1) | as level 0 | as level 0 |" in study_level_lines(summary_0)

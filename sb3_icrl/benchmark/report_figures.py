@@ -280,7 +280,8 @@ def study_figure(summary: dict[str, Any], key: str, levels: dict[str, float], ba
     :param key: The setting varied (a key of :data:`~sb3_icrl.benchmark.study.STUDY_AXES`)
     :param levels: Each variant's level
     :param baseline: The study's level 0 (:func:`~sb3_icrl.benchmark.study.study_baseline`): drawn at level 0
-        beside the study's cells, on the seeds they hold (:func:`~sb3_icrl.benchmark.study.baseline_cells`)
+        beside the study's cells, on the seeds they hold (:func:`~sb3_icrl.benchmark.study.baseline_cells`); a reference
+        row that stands for every level (a study of the demonstrations) as a dashed line across them all
     """
     cells = [cell for cell in summary["cells"] if cell["variant"] in levels]
     if not cells:
@@ -290,6 +291,7 @@ def study_figure(summary: dict[str, Any], key: str, levels: dict[str, float], ba
         levels = {**levels, BASELINE_VARIANT: 0.0}
     envs = list(dict.fromkeys(cell["env"] for cell in cells))
     algos = list(dict.fromkeys(cell["algo"] for cell in cells))
+    every_level = {cell["algo"] for cell in cells if cell.get("every_level")}
     metrics = [("violation_rate", "violation rate"), ("feasible_reward", "feasible reward")]
     if any(_finite_values(cell, "identification_auroc") for cell in cells):
         metrics.append(("identification_auroc", "AUROC (grey: untrained range)"))
@@ -320,7 +322,13 @@ def study_figure(summary: dict[str, Any], key: str, levels: dict[str, float], ba
                 mine = [(level, values) for level, values in mine if values]
                 if not mine:
                     continue
-                ax.plot([level for level, _ in mine], [np.mean(values) for _, values in mine], marker="o", color=colours[algo])
+                if algo in every_level:  # its level-0 runs stand for every level: a dashed line across them all
+                    mean = float(np.mean(mine[0][1]))
+                    ax.plot([min(levels.values()), max(levels.values())], [mean, mean], linestyle="--", color=colours[algo])
+                else:
+                    ax.plot(
+                        [level for level, _ in mine], [np.mean(values) for _, values in mine], marker="o", color=colours[algo]
+                    )
                 for level, values in mine:
                     ax.scatter([level] * len(values), values, s=8, color=colours[algo], alpha=0.35)
             if scale:
@@ -330,7 +338,14 @@ def study_figure(summary: dict[str, Any], key: str, levels: dict[str, float], ba
             if row == 0:
                 ax.set_title(env)
     # One legend with every method, whichever env it has cells on
-    handles = [Line2D([], [], marker="o", color=colours[algo], label=algo) for algo in algos]
+    handles = [
+        (
+            Line2D([], [], linestyle="--", color=colours[algo], label=f"{algo} (level 0, every level)")
+            if algo in every_level
+            else Line2D([], [], marker="o", color=colours[algo], label=algo)
+        )
+        for algo in algos
+    ]
     axes[0, 0].legend(handles=handles, fontsize=7)
     return figure
 

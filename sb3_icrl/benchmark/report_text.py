@@ -477,19 +477,26 @@ def study_level_lines(summary: dict[str, Any]) -> list[str]:
     columns = ([f"{BASELINE_VARIANT} ({baseline['suite']})"] if level_0 else []) + variants
     by_key = {(cell["env"], cell["algo"], cell["variant"]): cell for cell in [*cells, *level_0]}
     keys = list(dict.fromkeys((cell["env"], cell["algo"]) for cell in cells))
+    # The reference rows a study of the demonstrations takes from level 0, each after its env's methods
+    every_level = [(cell["env"], cell["algo"]) for cell in level_0 if cell.get("every_level")]
+    rows = [key for env in dict.fromkeys(env for env, _ in keys) for key in [*keys, *every_level] if key[0] == env]
     shown = ([BASELINE_VARIANT] if level_0 else []) + variants
 
     def text(env: str, algo: str, variant: str, cell_text: Callable[[dict[str, Any]], str]) -> str:
+        if (env, algo) in every_level and variant != BASELINE_VARIANT:
+            return "as level 0"
         cell = by_key.get((env, algo, variant))
         return (cell_text(cell) if cell is not None else "") or "-"
 
+    reference = " and ".join(dict.fromkeys(algo for _, algo in every_level))
     intro = (
         f"By level of {study['setting']} (mean held-out feasible reward / violation rate over each cell's seeds, their "
         "number in brackets"
         + (f"; {BASELINE_VARIANT}: the same seeds' runs of suite {baseline['suite']!r}" if level_0 else "")
+        + (f"; {reference} learn from no demonstrations: their level-0 runs stand for every level" if reference else "")
         + "):"
     )
-    lines = _table_by_level(intro, columns, {key: [text(*key, variant, _level_text) for variant in shown] for key in keys})
+    lines = _table_by_level(intro, columns, {key: [text(*key, variant, _level_text) for variant in shown] for key in rows})
     if level_0:
         paired = {
             (env, algo): [

@@ -10,6 +10,7 @@ import math
 import os
 from typing import Any
 
+from sb3_icrl.benchmark.judgements import ORACLE_ROW, PPO_ROW
 from sb3_icrl.benchmark.suite import Suite, SuiteError
 from sb3_icrl.registry import env_name
 
@@ -18,6 +19,14 @@ STUDY_AXES = {
     "transition_noise": "transition noise sigma",
     "violating_fraction": "share of violating demonstrations",
 }
+
+
+#: The settings that change only the demonstrations: the reference rows (PPO, the oracle) learn from none, so a study of
+#: them need not train those rows again; their level-0 runs stand for every level
+DEMONSTRATION_AXES = ("violating_fraction",)
+
+#: The rows a study of the demonstrations takes from its level 0 for every level (:data:`DEMONSTRATION_AXES`)
+REFERENCE_ROWS = (PPO_ROW, ORACLE_ROW)
 
 
 def study_axis(suite: Suite) -> tuple[str, dict[str, float]] | None:
@@ -42,8 +51,9 @@ def baseline_cells(baseline: dict[str, Any], cells: list[dict[str, Any]]) -> lis
     """
     The level 0 a study's figure and table show: each baseline cell of a method the study has runs of on that env, on
     the seeds of those runs only (while a study is under way its levels hold fewer seeds than the baseline: its level-0
-    mean over other seeds would not compare with theirs), as a cell of variant :data:`BASELINE_VARIANT`. A value its
-    summary.json holds as ``null`` (no number) is ``nan`` there.
+    mean over other seeds would not compare with theirs), as a cell of variant :data:`BASELINE_VARIANT`; a reference
+    row that stands for every level (``every_level``, :func:`study_baseline`) on the seeds of any of the env's methods.
+    A value its summary.json holds as ``null`` (no number) is ``nan`` there.
 
     :param baseline: The study's level 0 (:func:`study_baseline`)
     :param cells: The study's cells
@@ -51,9 +61,13 @@ def baseline_cells(baseline: dict[str, Any], cells: list[dict[str, Any]]) -> lis
     studied: dict[tuple[str, str], set[int]] = {}
     for cell in cells:
         studied.setdefault((cell["env"], cell["algo"]), set()).update(seed["seed"] for seed in cell["per_seed"])
+    on_env: dict[str, set[int]] = {}  # a reference row for every level: on the seeds any method of the env holds
+    for (env, _), seeds in studied.items():
+        on_env.setdefault(env, set()).update(seeds)
     drawn = []
     for cell in baseline["cells"]:
-        per_seed = [_levels(seed) for seed in cell["per_seed"] if seed["seed"] in studied.get((cell["env"], cell["algo"]), ())]
+        seeds = on_env.get(cell["env"], set()) if cell.get("every_level") else studied.get((cell["env"], cell["algo"]), set())
+        per_seed = [_levels(seed) for seed in cell["per_seed"] if seed["seed"] in seeds]
         if not per_seed:
             continue
         drawn.append({**cell, **_means(per_seed), "per_seed": per_seed, "variant": BASELINE_VARIANT})
@@ -98,7 +112,9 @@ def study_baseline(baseline: dict[str, Any], suite: Suite, source: str, model: s
     :param model: The model the study's report evaluates (``final`` or ``best``)
     :return: ``source``, ``suite``, ``recipe_version`` and ``cells`` (per env and method: its seeds' violation rate,
         feasible reward and identification values, and the means of the first two), for the summary's ``study_baseline``
-        key
+        key. In a study of the demonstrations (:data:`DEMONSTRATION_AXES`) the cells include the reference rows the study
+        does not train (:data:`REFERENCE_ROWS`), marked ``every_level``: they learn from no demonstrations, so their runs
+        are the same at every level
     :raises SuiteError: When the two reports do not compare like with like, or share no run
     """
     if suite.recipe_version is None:
@@ -120,9 +136,13 @@ def study_baseline(baseline: dict[str, Any], suite: Suite, source: str, model: s
             + "): its numbers would not be the study's level 0."
         )
     env_ids = {env_name(env_id): env_id for env_id in suite.envs}  # (a report names its envs without their namespace)
+    axis = study_axis(suite)
+    every_level = (
+        [algo for algo in REFERENCE_ROWS if algo not in suite.algos] if axis and axis[0] in DEMONSTRATION_AXES else []
+    )
     cells: dict[tuple[str, str], dict[str, Any]] = {}
     for cell in baseline["cells"]:
-        if cell["env"] not in env_ids or cell["algo"] not in suite.algos:
+        if cell["env"] not in env_ids or (cell["algo"] not in suite.algos and cell["algo"] not in every_level):
             continue
         key = (cell["env"], cell["algo"])
         if key in cells:
@@ -140,6 +160,8 @@ def study_baseline(baseline: dict[str, Any], suite: Suite, source: str, model: s
             )
         if per_seed:
             cells[key] = {"env": cell["env"], "algo": cell["algo"], "per_seed": [_levels(seed) for seed in per_seed]}
+            if cell["algo"] in every_level:
+                cells[key]["every_level"] = True
     if not cells:
         raise SuiteError(
             f"--baseline: the report in {source!r} has no run of the envs, methods and seeds of suite {suite.name!r}: pass "
