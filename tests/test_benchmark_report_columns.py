@@ -169,6 +169,25 @@ def test_an_imperfect_run_is_measured_against_the_clean_expert(tmp_path):
     assert run_facts([(run, result)], str(tmp_path))[result.run]["expert_return"] == pytest.approx(1.0)
 
 
+def test_demonstrations_facts_count_the_trajectories_and_steps_that_break_the_constraint(tmp_path):
+    # Two constraints, three trajectories of 4, 2 and 2 steps: the first breaks one of them on two steps, the third on one
+    costs = [np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 0.5], [0.0, 0.0]]), np.zeros((2, 2)), np.array([[0.0, 0.0], [0.0, 2.0]])]
+    trajectories = [
+        Trajectory(np.zeros((len(c) + 1, 2)), np.zeros(len(c), dtype=np.int64), None, True, np.full(len(c), reward), c)
+        for c, reward in zip(costs, (1.0, 3.0, 0.5), strict=True)
+    ]
+    path = str(tmp_path / "mixed.npz")
+    save(path, trajectories)
+    assert report.demonstrations_facts(path) == {
+        "trajectories": 3,
+        "violating_trajectories": 2,
+        "violating_step_share": pytest.approx(3 / 8),
+        "mean_return": pytest.approx((4 * 1.0 + 2 * 3.0 + 2 * 0.5) / 3),
+    }
+    assert report.expert_return(path) == pytest.approx(11 / 3)
+    assert report.demonstrations_facts(str(tmp_path / "none.npz")) is None
+
+
 def test_wall_time_prefers_the_whole_runs(tmp_path):
     _finish(str(tmp_path / "a"), wall_time_s=10.0, wall_time_total_s=30.0)
     _finish(str(tmp_path / "b"), wall_time_s=10.0)

@@ -341,9 +341,21 @@ def test_a_study_of_the_demonstrations_takes_the_reference_rows_from_level_0_for
         for run in suite.runs()
     ]
     summary = summarise_suite(suite, suite.runs(), results, _facts(results))
+    # What each level's demonstrations hold, the clean dataset as level 0: 10 and 25 of 50 trajectories break the wall
+    held = summary["study"]["demonstrations"]["GridWorldWall-v0"]
+    assert [held[level]["violating_trajectories"] for level in ("level 0", "violating-0.2", "violating-0.5")] == [0, 10, 25]
+    assert held["level 0"] == {
+        "trajectories": 50,
+        "violating_trajectories": 0,
+        "violating_step_share": 0.0,
+        "mean_return": 1.0,
+    }
     summary["study_baseline"] = baseline
     lines = study_level_lines(summary)
     assert "ppo and ppolag learn from no demonstrations: their level-0 runs stand for every level" in lines[1]
+    assert "| GridWorldWall-v0 | 0 of 50 / 0% / 1.00 | 10 of 50 / 3% / 1.00 | 25 of 50 / 6% / 1.00 |" in lines
+    noise = summarise_suite(study[0], study[0].runs(), _results(study[0]), _facts(_results(study[0])))
+    assert "demonstrations" not in noise["study"]
     by_level = lines.index("| env | algo | level 0 (table) | violating-0.2 | violating-0.5 |")
     assert lines[by_level + 2 : by_level + 5] == [
         "| GridWorldWall-v0 | bc2l | 15.0 / 25% (2) | 35.0 / 0% (2) | 55.0 / 0% (2) |",

@@ -50,7 +50,7 @@ from sb3_icrl.benchmark.judgements import (
 from sb3_icrl.benchmark.report_figures import summary_run
 from sb3_icrl.benchmark.report_numbers import finite_or_null
 from sb3_icrl.benchmark.report_text import TRANSFER_REFERENCES, csv_rows, latex_table, markdown_table, transfer_compute
-from sb3_icrl.benchmark.study import study_axis
+from sb3_icrl.benchmark.study import BASELINE_VARIANT, DEMONSTRATION_AXES, study_axis
 from sb3_icrl.benchmark.suite import RunSpec, Suite, result_current
 from sb3_icrl.common.constraint_spec import get_constraint_spec
 from sb3_icrl.common.evaluation import CONSTRAINT_VIOLATION_PREFIX, OUTCOME_RATE_KEYS
@@ -875,13 +875,8 @@ def expert_return(name: str, violating_fraction: float | None = None) -> float |
     :param violating_fraction: The imperfect-expert variant of a shipped dataset
     :return: The mean return; ``None`` when there is no such dataset or it is empty
     """
-    try:
-        demonstrations = load_demonstrations(name, violating_fraction=violating_fraction)
-    except (OSError, ValueError):  # DemonstrationError is a ValueError: no dataset for this env
-        return None
-    if not len(demonstrations):
-        return None
-    return float(np.mean([float(np.sum(trajectory.rews)) for trajectory in demonstrations]))
+    facts = demonstrations_facts(name, violating_fraction)
+    return None if facts is None else facts["mean_return"]
 
 
 def _expert_return_once(source: tuple[str, float | None], loaded: dict[tuple[str, float | None], float | None]) -> float:
@@ -1128,9 +1123,54 @@ def summarise_suite(
 
 
 def _study_levels(suite: Suite) -> dict[str, Any]:
-    """For a study (:func:`~sb3_icrl.benchmark.study.study_axis`), the ``study`` key: the setting and each variant's level."""
+    """
+    For a study (:func:`~sb3_icrl.benchmark.study.study_axis`), the ``study`` key: the setting and each variant's level;
+    for a study of the demonstrations also what each level's demonstrations hold (``demonstrations``, per env and
+    variant, level 0 the clean dataset: :func:`demonstrations_facts`).
+    """
     axis = study_axis(suite)
-    return {} if axis is None else {"study": {"setting": axis[0], "levels": axis[1]}}
+    if axis is None:
+        return {}
+    study: dict[str, Any] = {"setting": axis[0], "levels": axis[1]}
+    if axis[0] in DEMONSTRATION_AXES:
+        held: dict[str, dict[str, Any]] = {}
+        for env_id in suite.envs:
+            variants = {BASELINE_VARIANT: {}, **suite.variants}
+            facts = {
+                variant: demonstrations_facts(
+                    str(settings.get("demonstrations") or env_name(env_id)), settings.get("violating_fraction") or None
+                )
+                for variant, settings in variants.items()
+            }
+            held[env_name(env_id)] = {variant: fact for variant, fact in facts.items() if fact is not None}
+        study["demonstrations"] = held
+    return {"study": study}
+
+
+def demonstrations_facts(name: str, violating_fraction: float | None = None) -> dict[str, Any] | None:
+    """
+    What a demonstration dataset holds, counted from its trajectories' true costs: how many trajectories, how many of
+    them break the constraint, the share of all their steps that do, and their mean return.
+
+    :param name: Shipped dataset name (env name) or path
+    :param violating_fraction: The imperfect-expert variant of a shipped dataset
+    :return: ``trajectories``, ``violating_trajectories``, ``violating_step_share``, ``mean_return``; ``None`` when
+        there is no such dataset or it is empty
+    """
+    try:
+        demonstrations = load_demonstrations(name, violating_fraction=violating_fraction)
+    except (OSError, ValueError):  # DemonstrationError is a ValueError: no such dataset
+        return None
+    if not len(demonstrations):
+        return None
+    # A step breaks the constraint when any of its costs is positive (several constraints: a column each)
+    broken = [np.asarray(trajectory.costs).reshape(len(trajectory.rews), -1).max(axis=1) > 0 for trajectory in demonstrations]
+    return {
+        "trajectories": len(broken),
+        "violating_trajectories": int(sum(steps.any() for steps in broken)),
+        "violating_step_share": float(sum(steps.sum() for steps in broken) / sum(len(steps) for steps in broken)),
+        "mean_return": float(np.mean([float(np.sum(trajectory.rews)) for trajectory in demonstrations])),
+    }
 
 
 def _count_runs(runs: Sequence[RunSpec], tasks: set[tuple[str, str]], algos: Sequence[str] | None = None) -> int:

@@ -497,6 +497,7 @@ def study_level_lines(summary: dict[str, Any]) -> list[str]:
         + "):"
     )
     lines = _table_by_level(intro, columns, {key: [text(*key, variant, _level_text) for variant in shown] for key in rows})
+    lines += _demonstration_lines(study, [BASELINE_VARIANT, *variants])
     if level_0:
         paired = {
             (env, algo): [
@@ -523,6 +524,36 @@ def study_level_lines(summary: dict[str, Any]) -> list[str]:
             identification,
         )
     return lines
+
+
+def _demonstration_lines(study: dict[str, Any], variants: list[str]) -> list[str]:
+    """
+    For a study of the demonstrations, what each level's held (``study["demonstrations"]``): a row per env, a column per
+    level; none for another study.
+    """
+    held: dict[str, dict[str, dict[str, Any]]] = study.get("demonstrations") or {}
+    if not held:
+        return []
+
+    def text(facts: dict[str, Any] | None) -> str:
+        if facts is None:
+            return "-"
+        return (
+            f"{facts['violating_trajectories']} of {facts['trajectories']} / {format_rate(facts['violating_step_share'])} "
+            f"/ {format_reward(facts['mean_return'])}"
+        )
+
+    lines = [
+        "",
+        "The demonstrations of each level (what its runs learned from, counted from their true costs: the trajectories "
+        "that break the constraint, the share of all their steps in the constrained region, their mean return):",
+        "",
+        "| env | " + " | ".join(variants) + " |",
+        "|---" * (len(variants) + 1) + "|",
+    ]
+    return lines + [
+        f"| {env} | " + " | ".join(text(by_level.get(v)) for v in variants) + " |" for env, by_level in held.items()
+    ]
 
 
 def _table_by_level(intro: str, columns: list[str], rows: dict[tuple[str, str], list[str]]) -> list[str]:
