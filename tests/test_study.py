@@ -354,6 +354,9 @@ def test_a_study_of_the_demonstrations_takes_the_reference_rows_from_level_0_for
     lines = study_level_lines(summary)
     assert "ppo and ppolag learn from no demonstrations: their level-0 runs stand for every level" in lines[1]
     assert "| GridWorldWall-v0 | 0 of 50 / 0% / 1.00 | 10 of 50 / 3% / 1.00 | 25 of 50 / 6% / 1.00 |" in lines
+    # An env of the suite the report has no run of (a report --only one env) has no row
+    summary["study"]["demonstrations"]["GridWorldSquare-v0"] = held
+    assert not any(line.startswith("| GridWorldSquare-v0") for line in study_level_lines(summary))
     noise = summarise_suite(study[0], study[0].runs(), _results(study[0]), _facts(_results(study[0])))
     assert "demonstrations" not in noise["study"]
     by_level = lines.index("| env | algo | level 0 (table) | violating-0.2 | violating-0.5 |")

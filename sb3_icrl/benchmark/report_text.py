@@ -497,7 +497,7 @@ def study_level_lines(summary: dict[str, Any]) -> list[str]:
         + "):"
     )
     lines = _table_by_level(intro, columns, {key: [text(*key, variant, _level_text) for variant in shown] for key in rows})
-    lines += _demonstration_lines(study, [BASELINE_VARIANT, *variants])
+    lines += _demonstration_lines(study, [BASELINE_VARIANT, *variants], [env for env, _ in keys])
     if level_0:
         paired = {
             (env, algo): [
@@ -526,12 +526,13 @@ def study_level_lines(summary: dict[str, Any]) -> list[str]:
     return lines
 
 
-def _demonstration_lines(study: dict[str, Any], variants: list[str]) -> list[str]:
+def _demonstration_lines(study: dict[str, Any], variants: list[str], envs: list[str]) -> list[str]:
     """
-    For a study of the demonstrations, what each level's held (``study["demonstrations"]``): a row per env, a column per
-    level; none for another study.
+    For a study of the demonstrations, what each level's held (``study["demonstrations"]``): a row per env the report
+    has runs of, a column per level; none for another study.
     """
-    held: dict[str, dict[str, dict[str, Any]]] = study.get("demonstrations") or {}
+    every_env: dict[str, dict[str, dict[str, Any]]] = study.get("demonstrations") or {}
+    held = {env: every_env[env] for env in dict.fromkeys(envs) if env in every_env}
     if not held:
         return []
 
