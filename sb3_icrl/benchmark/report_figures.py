@@ -340,13 +340,14 @@ def study_figure(summary: dict[str, Any], key: str, levels: dict[str, float], ba
     # One legend with every method, whichever env it has cells on
     handles = [
         (
-            Line2D([], [], linestyle="--", color=colours[algo], label=f"{algo} (level 0, every level)")
+            Line2D([], [], linestyle="--", color=colours[algo], label=f"{algo} (level 0)")
             if algo in every_level
             else Line2D([], [], marker="o", color=colours[algo], label=algo)
         )
         for algo in algos
     ]
-    axes[0, 0].legend(handles=handles, fontsize=7)
+    # Below the panels, where it hides no point (a column per env leaves little room beside them)
+    figure.legend(handles=handles, fontsize=7, loc="outside lower center", ncols=min(len(handles), 4))
     return figure
 
 
