@@ -1134,8 +1134,8 @@ def _study_levels(suite: Suite) -> dict[str, Any]:
     study: dict[str, Any] = {"setting": axis[0], "levels": axis[1]}
     if axis[0] in DEMONSTRATION_AXES:
         held: dict[str, dict[str, Any]] = {}
+        variants = {BASELINE_VARIANT: {}, **suite.variants}
         for env_id in suite.envs:
-            variants = {BASELINE_VARIANT: {}, **suite.variants}
             facts = {
                 variant: demonstrations_facts(
                     str(settings.get("demonstrations") or env_name(env_id)), settings.get("violating_fraction") or None
@@ -1164,11 +1164,14 @@ def demonstrations_facts(name: str, violating_fraction: float | None = None) -> 
     if not len(demonstrations):
         return None
     # A step breaks the constraint when any of its costs is positive (several constraints: a column each)
-    broken = [np.asarray(trajectory.costs).reshape(len(trajectory.rews), -1).max(axis=1) > 0 for trajectory in demonstrations]
+    broken: list[np.ndarray] = []
+    for trajectory in demonstrations:
+        steps = np.asarray(trajectory.costs) > 0
+        broken.append(np.asarray(steps if steps.ndim == 1 else steps.any(axis=1)))
     return {
         "trajectories": len(broken),
-        "violating_trajectories": int(sum(steps.any() for steps in broken)),
-        "violating_step_share": float(sum(steps.sum() for steps in broken) / sum(len(steps) for steps in broken)),
+        "violating_trajectories": sum(int(steps.any()) for steps in broken),
+        "violating_step_share": sum(int(steps.sum()) for steps in broken) / max(1, sum(steps.size for steps in broken)),
         "mean_return": float(np.mean([float(np.sum(trajectory.rews)) for trajectory in demonstrations])),
     }
 
