@@ -847,8 +847,12 @@ def demonstrations_source(run: RunSpec, folder: str | os.PathLike | None = None)
     :return: ``(name or path, violating fraction)``, as :func:`sb3_icrl.data.load_demonstrations` takes them
     """
     recorded = _run_args(folder)
-    settings: dict[str, Any] = recorded if recorded is not None else dict(run.variant_settings)
-    name = settings.get("demonstrations") or env_name(run.env_id)
+    return _dataset_of(recorded if recorded is not None else dict(run.variant_settings), run.env_id)
+
+
+def _dataset_of(settings: dict[str, Any], env_id: str) -> tuple[str, float | None]:
+    """The dataset that run settings (``args.yml`` or a variant's) name on an env: :func:`demonstrations_source`."""
+    name = settings.get("demonstrations") or env_name(env_id)
     fraction = settings.get("violating_fraction")
     return str(name), float(fraction) if isinstance(fraction, (int, float)) and fraction else None
 
@@ -1136,12 +1140,7 @@ def _study_levels(suite: Suite) -> dict[str, Any]:
         held: dict[str, dict[str, Any]] = {}
         variants = {BASELINE_VARIANT: {}, **suite.variants}
         for env_id in suite.envs:
-            facts = {
-                variant: demonstrations_facts(
-                    str(settings.get("demonstrations") or env_name(env_id)), settings.get("violating_fraction") or None
-                )
-                for variant, settings in variants.items()
-            }
+            facts = {variant: demonstrations_facts(*_dataset_of(settings, env_id)) for variant, settings in variants.items()}
             held[env_name(env_id)] = {variant: fact for variant, fact in facts.items() if fact is not None}
         study["demonstrations"] = held
     return {"study": study}
